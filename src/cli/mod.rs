@@ -1,0 +1,3 @@
+//! One module per subcommand: its arguments (clap) and the call into the library.
+pub mod inspect;
+pub mod pending;

@@ -1,0 +1,220 @@
+//! The JSON metadata of a PHM file (format-spec/phm-v1.md §3).
+//!
+//! Every struct keeps the keys it does not know in `extra`, so a file written by a newer minor
+//! version passes through a stage with its additions intact.
+
+use serde::{Deserialize, Serialize};
+use serde_json::{Map, Value};
+
+use super::columns::DType;
+
+/// The whole metadata object.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Metadata {
+    pub photon_count: u64,
+    pub columns: Vec<ColumnEntry>,
+    pub emitters: Vec<Emitter>,
+    pub units: Units,
+    /// Axis-aligned box around every photon position; `null` for an empty map.
+    pub bounding_box: Option<BoundingBox>,
+    pub state: State,
+    pub history: Vec<StageRecord>,
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+/// One row of the column table.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ColumnEntry {
+    pub name: String,
+    pub dtype: DType,
+    pub components: u32,
+    /// Absolute byte offset of the column in the file; a multiple of 64.
+    pub offset: u64,
+    /// Length in bytes: photon_count × components × size of dtype.
+    pub length: u64,
+    /// CRC-32 of the column's `length` bytes.
+    pub crc32: u32,
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+/// What kind of light source an emitter is.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum EmitterKind {
+    /// A rectangle emitting parallel rays along its normal (sunlight through a window).
+    Collimated,
+    /// An isotropic point light emitting over the whole sphere.
+    Point,
+    /// A point light emitting a cosine-weighted hemisphere or cone.
+    Spot,
+    /// An emitter we know nothing about (photons imported from another tracer).
+    External,
+    /// A kind written by a newer minor version.
+    #[serde(other)]
+    Unknown,
+}
+
+/// How an emitter's trajectory parameters are written in the `params` column.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Parameterisation {
+    /// (u, v) ∈ [0,1]² across the emitter rectangle: 2 dimensions.
+    RectUv,
+    /// The unit emission direction: 3 dimensions, on the unit sphere.
+    Direction,
+    /// No trajectory parameters: 0 dimensions.
+    None,
+    #[serde(other)]
+    Unknown,
+}
+
+impl Parameterisation {
+    /// Number of components this parameterisation fills in the `params` column.
+    pub fn dims(self) -> Option<u32> {
+        match self {
+            Parameterisation::RectUv => Some(2),
+            Parameterisation::Direction => Some(3),
+            Parameterisation::None => Some(0),
+            Parameterisation::Unknown => None,
+        }
+    }
+}
+
+/// A light source and the space its photons' trajectory parameters live in.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Emitter {
+    /// Equal to the emitter's index in the list; the value stored in the `emitter` column.
+    pub id: u32,
+    pub kind: EmitterKind,
+    pub parameterisation: Parameterisation,
+    /// Number of `params` components this emitter uses.
+    pub param_dims: u32,
+    /// Emitted power in watts (sum over RGB of the emitted flux).
+    pub power_w: f64,
+    /// Relative RGB colour of the emission.
+    pub colour: [f32; 3],
+    /// Area of the parameter manifold in world units, so parameter-space densities can be
+    /// expressed per m² (collimated: the rectangle's area) or per steradian (point: 4π).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub param_measure: Option<f64>,
+    /// Kind-specific placement (free form; see the spec).
+    #[serde(default, skip_serializing_if = "Value::is_null")]
+    pub geometry: Value,
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct Units {
+    /// Unit of length of positions and path lengths: "m".
+    pub length: String,
+    /// Unit of flux: "W".
+    pub flux: String,
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+impl Default for Units {
+    fn default() -> Self {
+        Units { length: "m".into(), flux: "W".into(), extra: Map::new() }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct BoundingBox {
+    pub min: [f32; 3],
+    pub max: [f32; 3],
+}
+
+/// Where a photon map is in the pipeline.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum State {
+    /// Written by `trace` or `import`: photons as they landed.
+    Traced,
+    /// Constraint columns present; neighbours are searched in world + parameter space.
+    Detected,
+    /// Parameter dimensions dropped from the neighbour search (they stay in the file).
+    Collapsed,
+    #[serde(other)]
+    Unknown,
+}
+
+impl State {
+    pub fn name(self) -> &'static str {
+        match self {
+            State::Traced => "traced",
+            State::Detected => "detected",
+            State::Collapsed => "collapsed",
+            State::Unknown => "unknown",
+        }
+    }
+}
+
+/// One stage that wrote the file.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct StageRecord {
+    /// Subcommand name: "trace", "detect", "relax", …
+    pub stage: String,
+    /// photonkit version that ran it.
+    pub version: String,
+    /// UTC time the stage finished, RFC 3339.
+    pub time: String,
+    /// The stage's parameters as it used them.
+    pub parameters: Value,
+    /// Measurements the stage made (per-iteration relaxation measures, timings, …).
+    #[serde(default, skip_serializing_if = "Value::is_null")]
+    pub report: Value,
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+impl StageRecord {
+    /// A record for `stage` stamped with this build's version and the current time.
+    pub fn now(stage: &str, parameters: Value) -> Self {
+        StageRecord {
+            stage: stage.to_string(),
+            version: env!("CARGO_PKG_VERSION").to_string(),
+            time: humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string(),
+            parameters,
+            report: Value::Null,
+            extra: Map::new(),
+        }
+    }
+}
+
+/// Everything in the metadata that a stage chooses; the writer fills in the rest
+/// (count, column table, checksums, bounding box).
+#[derive(Clone, Debug, PartialEq)]
+pub struct MapInfo {
+    pub emitters: Vec<Emitter>,
+    pub units: Units,
+    pub state: State,
+    pub history: Vec<StageRecord>,
+    pub extra: Map<String, Value>,
+}
+
+impl MapInfo {
+    pub fn new(emitters: Vec<Emitter>, state: State) -> Self {
+        MapInfo { emitters, units: Units::default(), state, history: Vec::new(), extra: Map::new() }
+    }
+}
+
+impl Metadata {
+    /// The stage-chosen part of this metadata, to carry into the next stage's output.
+    pub fn info(&self) -> MapInfo {
+        MapInfo {
+            emitters: self.emitters.clone(),
+            units: self.units.clone(),
+            state: self.state,
+            history: self.history.clone(),
+            extra: self.extra.clone(),
+        }
+    }
+
+    pub fn column(&self, name: &str) -> Option<&ColumnEntry> {
+        self.columns.iter().find(|c| c.name == name)
+    }
+}

@@ -1,0 +1,412 @@
+//! Opening and validating a PHM file; nothing is exposed before every check has passed.
+
+use std::collections::HashSet;
+use std::io::Read;
+use std::path::Path;
+
+use super::columns::{Element, known_column, name};
+use super::meta::Metadata;
+use super::preamble::{MAGIC, MAX_METADATA_LEN, PREAMBLE_LEN, Preamble, VERSION_MAJOR};
+use super::{ColumnSpec, FormatError, Result};
+
+/// Largest component count accepted for any column.
+const MAX_COMPONENTS: u32 = 64;
+
+enum Storage {
+    Mapped(memmap2::Mmap),
+    /// Bytes held in memory (standard input, tests), in u64 words so every column is aligned.
+    Owned {
+        words: Vec<u64>,
+        len: usize,
+    },
+}
+
+/// A validated, read-only photon map: the view every stage reads photons through.
+pub struct PhotonMap {
+    file: String,
+    storage: Storage,
+    preamble: Preamble,
+    meta: Metadata,
+}
+
+impl std::fmt::Debug for PhotonMap {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PhotonMap").field("file", &self.file).field("photons", &self.len()).finish()
+    }
+}
+
+impl PhotonMap {
+    /// Opens `path`, or standard input when `path` is `-`.
+    pub fn open(path: &str) -> Result<Self> {
+        if path == "-" {
+            return Self::read_from("<stdin>", std::io::stdin().lock());
+        }
+        Self::open_path(Path::new(path))
+    }
+
+    /// Memory-maps a file and validates it.
+    pub fn open_path(path: &Path) -> Result<Self> {
+        let file = path.display().to_string();
+        let io = |source| FormatError::Io { file: file.clone(), source };
+        let f = std::fs::File::open(path).map_err(io)?;
+        if f.metadata().map_err(io)?.len() == 0 {
+            return Err(FormatError::Truncated { file, what: "preamble", needed: 32, actual: 0 });
+        }
+        // SAFETY: the map is read-only; a file changed by another process while mapped is
+        // outside what photonkit supports (as with every memory-mapped format reader).
+        let map = unsafe { memmap2::Mmap::map(&f) }.map_err(io)?;
+        Self::from_storage(file, Storage::Mapped(map))
+    }
+
+    /// Reads a whole file from a stream (standard input) into memory and validates it.
+    pub fn read_from(file: &str, mut r: impl Read) -> Result<Self> {
+        let mut bytes = Vec::new();
+        r.read_to_end(&mut bytes).map_err(|source| FormatError::Io { file: file.to_string(), source })?;
+        Self::from_bytes(file, &bytes)
+    }
+
+    /// Validates a copy of `bytes`; `file` names it in error messages.
+    pub fn from_bytes(file: &str, bytes: &[u8]) -> Result<Self> {
+        let mut words = vec![0u64; bytes.len().div_ceil(8)];
+        bytemuck::cast_slice_mut::<u64, u8>(&mut words)[..bytes.len()].copy_from_slice(bytes);
+        Self::from_storage(file.to_string(), Storage::Owned { words, len: bytes.len() })
+    }
+
+    fn from_storage(file: String, storage: Storage) -> Result<Self> {
+        let bytes: &[u8] = match &storage {
+            Storage::Mapped(m) => m,
+            Storage::Owned { words, len } => &bytemuck::cast_slice(words)[..*len],
+        };
+        let (preamble, meta) = parse(&file, bytes)?;
+        Ok(PhotonMap { file, storage, preamble, meta })
+    }
+
+    /// The whole file.
+    pub fn bytes(&self) -> &[u8] {
+        match &self.storage {
+            Storage::Mapped(m) => m,
+            Storage::Owned { words, len } => &bytemuck::cast_slice(words)[..*len],
+        }
+    }
+
+    /// The name used in messages: the path, or `<stdin>`.
+    pub fn file_name(&self) -> &str {
+        &self.file
+    }
+
+    /// (major, minor) version of the file as written.
+    pub fn version(&self) -> (u16, u16) {
+        (self.preamble.version_major, self.preamble.version_minor)
+    }
+
+    pub fn meta(&self) -> &Metadata {
+        &self.meta
+    }
+
+    /// Number of photons.
+    pub fn len(&self) -> usize {
+        self.meta.photon_count as usize
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.meta.photon_count == 0
+    }
+
+    /// The raw little-endian bytes of a column, if the file has it.
+    pub fn column_bytes(&self, column: &str) -> Option<&[u8]> {
+        let c = self.meta.column(column)?;
+        Some(&self.bytes()[c.offset as usize..(c.offset + c.length) as usize])
+    }
+
+    /// Every column's spec and bytes, in file order: what a stage passes on unchanged.
+    pub fn columns(&self) -> Vec<(ColumnSpec, &[u8])> {
+        self.meta
+            .columns
+            .iter()
+            .map(|c| {
+                let spec = ColumnSpec::new(&c.name, c.dtype, c.components);
+                (spec, self.column_bytes(&c.name).expect("listed column"))
+            })
+            .collect()
+    }
+
+    /// A typed, zero-copy view of a column; `Ok(None)` if absent, an error if its type differs.
+    pub fn column<T: Element>(&self, column: &str) -> Result<Option<&[T]>> {
+        let Some(c) = self.meta.column(column) else { return Ok(None) };
+        if c.dtype != T::DTYPE || c.components != T::COMPONENTS {
+            return Err(FormatError::Column {
+                file: self.file.clone(),
+                column: column.to_string(),
+                message: format!(
+                    "is {}×{}, expected {}×{}",
+                    c.dtype.name(),
+                    c.components,
+                    T::DTYPE.name(),
+                    T::COMPONENTS
+                ),
+            });
+        }
+        let bytes = self.column_bytes(column).expect("listed column");
+        bytemuck::try_cast_slice(bytes).map(Some).map_err(|e| FormatError::Column {
+            file: self.file.clone(),
+            column: column.to_string(),
+            message: format!("can not be viewed in place: {e}"),
+        })
+    }
+
+    /// Photon positions (validated present and f32×3 when the map was opened).
+    pub fn positions(&self) -> &[[f32; 3]] {
+        self.column(name::POSITION).ok().flatten().expect("validated on open")
+    }
+
+    /// Photon flux in watts per RGB channel (validated present and f32×3 on open).
+    pub fn flux(&self) -> &[[f32; 3]] {
+        self.column(name::FLUX).ok().flatten().expect("validated on open")
+    }
+
+    /// Recomputes every column's CRC-32 and compares it with the column table.
+    pub fn verify_checksums(&self) -> Result<()> {
+        for c in &self.meta.columns {
+            let computed = crc32fast::hash(self.column_bytes(&c.name).expect("listed column"));
+            if computed != c.crc32 {
+                return Err(FormatError::Checksum {
+                    file: self.file.clone(),
+                    column: c.name.clone(),
+                    stored: c.crc32,
+                    computed,
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Checks the preamble, the metadata and the column table against the bytes present.
+fn parse(file: &str, bytes: &[u8]) -> Result<(Preamble, Metadata)> {
+    let file_s = || file.to_string();
+    let actual = bytes.len() as u64;
+    let Some(head) = bytes.first_chunk::<PREAMBLE_LEN>() else {
+        let n = bytes.len().min(MAGIC.len());
+        if bytes[..n] != MAGIC[..n] {
+            return Err(FormatError::BadMagic { file: file_s() });
+        }
+        return Err(FormatError::Truncated { file: file_s(), what: "preamble", needed: 32, actual });
+    };
+    let pre = Preamble::from_bytes(head).ok_or_else(|| FormatError::BadMagic { file: file_s() })?;
+    if pre.version_major != VERSION_MAJOR {
+        return Err(FormatError::UnsupportedVersion {
+            file: file_s(),
+            major: pre.version_major,
+            minor: pre.version_minor,
+        });
+    }
+    if pre.metadata_len > MAX_METADATA_LEN {
+        return Err(FormatError::MetadataTooLarge {
+            file: file_s(),
+            len: pre.metadata_len,
+            limit: MAX_METADATA_LEN,
+        });
+    }
+    if actual < pre.file_len {
+        return Err(FormatError::Truncated {
+            file: file_s(),
+            what: "the file",
+            needed: pre.file_len,
+            actual,
+        });
+    }
+    if actual > pre.file_len {
+        return Err(invalid(
+            file,
+            format!(
+                "the file has {actual} bytes but its preamble says {}: trailing data or a corrupt length",
+                pre.file_len
+            ),
+        ));
+    }
+    let meta_end = PREAMBLE_LEN as u64 + pre.metadata_len;
+    if meta_end > actual {
+        return Err(FormatError::Truncated {
+            file: file_s(),
+            what: "the metadata",
+            needed: meta_end,
+            actual,
+        });
+    }
+    let region = &bytes[PREAMBLE_LEN..meta_end as usize];
+    if crc32fast::hash(region) != pre.metadata_crc32 {
+        return Err(FormatError::MetadataChecksum { file: file_s(), end: meta_end });
+    }
+    let text = std::str::from_utf8(region).map_err(|e| FormatError::MetadataJson {
+        file: file_s(),
+        offset: PREAMBLE_LEN as u64 + e.valid_up_to() as u64,
+        message: "not UTF-8".into(),
+    })?;
+    let meta: Metadata = serde_json::from_str(text).map_err(|e| {
+        // serde_json reports line and column; turn them into a byte offset in the file.
+        let line_start: usize =
+            text.split_inclusive('\n').take(e.line().saturating_sub(1)).map(str::len).sum();
+        FormatError::MetadataJson {
+            file: file_s(),
+            offset: (PREAMBLE_LEN + line_start + e.column().saturating_sub(1)) as u64,
+            message: e.to_string(),
+        }
+    })?;
+    validate(file, &pre, &meta)?;
+    Ok((pre, meta))
+}
+
+fn invalid(file: &str, message: String) -> FormatError {
+    FormatError::Invalid { file: file.to_string(), message }
+}
+
+fn column_err(file: &str, column: &str, message: String) -> FormatError {
+    FormatError::Column { file: file.to_string(), column: column.to_string(), message }
+}
+
+/// The rules of format-spec/phm-v1.md §3–4 that do not need to read photon data.
+fn validate(file: &str, pre: &Preamble, meta: &Metadata) -> Result<()> {
+    let count = meta.photon_count;
+    let data_start = PREAMBLE_LEN as u64 + pre.metadata_len;
+    let mut names = HashSet::new();
+    let mut spans = Vec::with_capacity(meta.columns.len());
+    for c in &meta.columns {
+        let n = c.name.as_str();
+        if n.is_empty() || n.len() > 256 {
+            return Err(invalid(file, format!("a column name is empty or longer than 256 bytes: {n:?}")));
+        }
+        if !names.insert(n) {
+            return Err(column_err(file, n, "appears twice in the column table".into()));
+        }
+        if c.components == 0 || c.components > MAX_COMPONENTS {
+            return Err(column_err(
+                file,
+                n,
+                format!("has {} components (1..={MAX_COMPONENTS} allowed)", c.components),
+            ));
+        }
+        if let Some(k) = known_column(n)
+            && (k.dtype != c.dtype || !k.components.contains(&c.components))
+        {
+            return Err(column_err(
+                file,
+                n,
+                format!(
+                    "is {}×{} but PHM 1 defines it as {}×{:?}",
+                    c.dtype.name(),
+                    c.components,
+                    k.dtype.name(),
+                    k.components
+                ),
+            ));
+        }
+        let expected = count
+            .checked_mul(c.dtype.size() * c.components as u64)
+            .ok_or_else(|| column_err(file, n, format!("photon_count {count} overflows its length")))?;
+        if c.length != expected {
+            return Err(column_err(
+                file,
+                n,
+                format!(
+                    "length is {} bytes but {count} photons × {}×{} need {expected}",
+                    c.length,
+                    c.dtype.name(),
+                    c.components
+                ),
+            ));
+        }
+        if c.offset % 64 != 0 {
+            return Err(column_err(file, n, format!("offset {} is not a multiple of 64", c.offset)));
+        }
+        let end = c.offset.checked_add(c.length).filter(|&e| e <= pre.file_len).ok_or_else(|| {
+            column_err(
+                file,
+                n,
+                format!("bytes {}..+{} lie outside the {}-byte file", c.offset, c.length, pre.file_len),
+            )
+        })?;
+        if c.offset < data_start {
+            return Err(column_err(
+                file,
+                n,
+                format!("offset {} overlaps the header (which ends at {data_start})", c.offset),
+            ));
+        }
+        spans.push((c.offset, end, n));
+    }
+    spans.sort();
+    for w in spans.windows(2) {
+        if w[1].0 < w[0].1 {
+            return Err(invalid(file, format!("columns '{}' and '{}' overlap", w[0].2, w[1].2)));
+        }
+    }
+    for required in [name::POSITION, name::FLUX] {
+        if meta.column(required).is_none() {
+            return Err(invalid(file, format!("the required column '{required}' is missing")));
+        }
+    }
+    validate_emitters(file, meta)?;
+    match (&meta.bounding_box, count) {
+        (None, 0) => {}
+        (Some(b), n) if n > 0 => {
+            let ok = (0..3).all(|k| b.min[k].is_finite() && b.max[k].is_finite() && b.min[k] <= b.max[k]);
+            if !ok {
+                return Err(invalid(file, format!("bounding_box {b:?} is not a finite box with min ≤ max")));
+            }
+        }
+        (Some(_), _) => return Err(invalid(file, "bounding_box must be null for an empty map".into())),
+        (None, _) => return Err(invalid(file, "bounding_box is missing for a non-empty map".into())),
+    }
+    Ok(())
+}
+
+fn validate_emitters(file: &str, meta: &Metadata) -> Result<()> {
+    if meta.emitters.len() > u16::MAX as usize + 1 {
+        return Err(invalid(file, format!("{} emitters; at most 65536 are allowed", meta.emitters.len())));
+    }
+    for (i, e) in meta.emitters.iter().enumerate() {
+        if e.id as usize != i {
+            return Err(invalid(
+                file,
+                format!("emitter at index {i} has id {}; ids must equal their index", e.id),
+            ));
+        }
+        if let Some(d) = e.parameterisation.dims()
+            && d != e.param_dims
+        {
+            return Err(invalid(
+                file,
+                format!(
+                    "emitter {i}: parameterisation {:?} has {d} dimensions, not param_dims = {}",
+                    e.parameterisation, e.param_dims
+                ),
+            ));
+        }
+        if !(e.power_w.is_finite() && e.power_w >= 0.0) || e.colour.iter().any(|c| !c.is_finite()) {
+            return Err(invalid(file, format!("emitter {i}: power_w and colour must be finite, power ≥ 0")));
+        }
+        if e.param_measure.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
+            return Err(invalid(file, format!("emitter {i}: param_measure must be finite and positive")));
+        }
+    }
+    if meta.emitters.len() > 1 && meta.column(name::EMITTER).is_none() {
+        return Err(invalid(
+            file,
+            "several emitters but no 'emitter' column to tell their photons apart".into(),
+        ));
+    }
+    if let Some(p) = meta.column(name::PARAMS) {
+        let dims = meta.emitters.iter().map(|e| e.param_dims).max().unwrap_or(0);
+        if dims != p.components {
+            return Err(column_err(
+                file,
+                name::PARAMS,
+                format!(
+                    "has {} components but the emitters need {dims} (the largest param_dims)",
+                    p.components
+                ),
+            ));
+        }
+    }
+    Ok(())
+}

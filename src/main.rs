@@ -1,0 +1,56 @@
+//! The `photonkit` command line: parses arguments and calls the library; nothing else.
+
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+
+mod cli;
+
+/// Caustic photon maps with parameter-space relaxation constraints.
+///
+/// Stages read and write PHM photon-map files (see format-spec/phm-v1.md) and compose as a
+/// pipeline; `-` as input or output means standard input or output.
+#[derive(Parser)]
+#[command(name = "photonkit", version, about, long_about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Trace caustic photons from a scene, recording their trajectory parameters.
+    Trace(cli::pending::Args),
+    /// Detect features: parameter-space density, constrained k-NN and PCA constraints (Eq. 1–7).
+    Detect(cli::pending::Args),
+    /// Relax photons toward blue noise under their constraints (Eq. 8–9).
+    Relax(cli::pending::Args),
+    /// Drop the parameter dimensions from the neighbour search.
+    Collapse(cli::pending::Args),
+    /// Render radiance or irradiance from a photon map to OpenEXR and PNG.
+    Render(cli::pending::Args),
+    /// Summarise, check, dump or subsample a photon map.
+    Inspect(cli::inspect::Args),
+    /// Import photons from PLY, CSV/TSV or Radiance photon maps.
+    Import(cli::pending::Args),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Trace(a) => cli::pending::run("trace", 3, a),
+        Command::Detect(a) => cli::pending::run("detect", 4, a),
+        Command::Relax(a) => cli::pending::run("relax", 5, a),
+        Command::Collapse(a) => cli::pending::run("collapse", 5, a),
+        Command::Render(a) => cli::pending::run("render", 6, a),
+        Command::Inspect(a) => cli::inspect::run(a),
+        Command::Import(a) => cli::pending::run("import", 8, a),
+    };
+    match result {
+        Ok(code) => code,
+        Err(e) => {
+            eprintln!("photonkit: error: {e:#}");
+            ExitCode::FAILURE
+        }
+    }
+}

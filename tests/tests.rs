@@ -1,0 +1,2 @@
+//! All integration tests, compiled as one binary so the suite builds fast.
+mod suite;

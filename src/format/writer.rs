@@ -204,16 +204,13 @@ impl PhotonWriter {
                 if s.entry.name == name::POSITION {
                     for p in v {
                         let b = self.bbox.get_or_insert(BoundingBox { min: p, max: p });
-                        for k in 0..3 {
-                            b.min[k] = b.min[k].min(p[k]);
-                            b.max[k] = b.max[k].max(p[k]);
-                        }
+                        b.min = std::array::from_fn(|k| b.min[k].min(p[k]));
+                        b.max = std::array::from_fn(|k| b.max[k].max(p[k]));
                     }
                 }
             }
         }
-        for i in 0..self.sinks.len() {
-            let b = chunk[i];
+        for (i, &b) in chunk.iter().enumerate() {
             self.sinks[i].hasher.update(b);
             if self.sinks[i].buf.len() + b.len() > COLUMN_BUFFER {
                 self.flush_column(i)?;

@@ -7,8 +7,11 @@ use std::process::{Command, Output};
 use photonkit::format::{Output as Target, PhotonMap, write_map};
 use photonkit::synthetic::SyntheticMap;
 
+/// Makes one sample's photons.
+pub type Generator = fn() -> SyntheticMap;
+
 /// The sample files: (file name, generator).
-pub const SAMPLES: &[(&str, fn() -> SyntheticMap)] = &[
+pub const SAMPLES: &[(&str, Generator)] = &[
     ("collimated-cusp.phm", || photonkit::synthetic::collimated_cusp(2000, 11)),
     ("point-ring.phm", || photonkit::synthetic::point_ring(1500, 12)),
     ("two-emitters.phm", || photonkit::synthetic::two_emitters(1500, 13)),

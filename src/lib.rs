@@ -1,4 +1,7 @@
 //! photonkit: caustic photon maps with parameter-space relaxation constraints.
+pub mod detect;
 pub mod format;
 pub mod inspect;
+pub mod relax;
+pub mod spatial;
 pub mod synthetic;

@@ -24,9 +24,9 @@ enum Command {
     /// Detect features: parameter-space density, constrained k-NN and PCA constraints (Eq. 1–7).
     Detect(cli::pending::Args),
     /// Relax photons toward blue noise under their constraints (Eq. 8–9).
-    Relax(cli::pending::Args),
+    Relax(cli::relax::Args),
     /// Drop the parameter dimensions from the neighbour search.
-    Collapse(cli::pending::Args),
+    Collapse(cli::relax::CollapseArgs),
     /// Render radiance or irradiance from a photon map to OpenEXR and PNG.
     Render(cli::pending::Args),
     /// Summarise, check, dump or subsample a photon map.
@@ -40,8 +40,8 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Trace(a) => cli::pending::run("trace", 3, a),
         Command::Detect(a) => cli::pending::run("detect", 4, a),
-        Command::Relax(a) => cli::pending::run("relax", 5, a),
-        Command::Collapse(a) => cli::pending::run("collapse", 5, a),
+        Command::Relax(a) => cli::relax::run(a),
+        Command::Collapse(a) => cli::relax::collapse(a),
         Command::Render(a) => cli::pending::run("render", 6, a),
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Import(a) => cli::pending::run("import", 8, a),

@@ -165,6 +165,194 @@ pub fn iterate(
     }
 }
 
+/// What can stop the relax or collapse stage.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RelaxError {
+    #[error(transparent)]
+    Format(#[from] crate::format::FormatError),
+    #[error(transparent)]
+    Spatial(#[from] crate::spatial::SpatialError),
+    #[error("{file}: {message}")]
+    Input { file: String, message: String },
+}
+
+/// Which neighbours relaxation uses, from the map's state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RelaxSpace {
+    /// Before collapse: world-space neighbours within each photon's r_param in parameter
+    /// space, exactly as `detect` restricted them.
+    WorldParams,
+    /// After collapse, or without trajectory parameters: plain world-space neighbours.
+    World,
+}
+
+/// The outcome of relaxing a map: new positions and what each iteration did.
+pub struct Relaxed {
+    pub positions: Vec<[f32; 3]>,
+    pub space: RelaxSpace,
+    /// False when the map has no constraint basis and photons moved freely in their tangent plane.
+    pub constrained: bool,
+    pub measures: Vec<IterationMeasure>,
+}
+
+/// [`NeighbourSearch`] over a [`crate::spatial::SpatialIndex`], excluding the query photon.
+struct IndexSearch<'a> {
+    index: &'a crate::spatial::SpatialIndex,
+    points: &'a crate::spatial::PointSet<'a>,
+    radius: Option<&'a [f32]>,
+}
+
+thread_local! {
+    static FOUND: std::cell::RefCell<crate::spatial::Neighbours> = Default::default();
+}
+
+impl NeighbourSearch for IndexSearch<'_> {
+    fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
+        let mut q = self.points.query(i, self.radius.map(|r| r[i]));
+        q.exclude = Some(i as u32);
+        FOUND.with_borrow_mut(|found| {
+            self.index.knn(&q, k, found);
+            out.clear();
+            out.extend(found.indices());
+        });
+    }
+}
+
+/// Relaxes every photon of `map` for `p.iterations` iterations (Eq. 8–9), calling
+/// `on_iteration` after each. The map's state picks the space ([`RelaxSpace`]); its
+/// `basis_u`/`basis_v` columns constrain the motion, or, without them, its `normal` column
+/// keeps photons in their tangent plane.
+pub fn relax_map(
+    map: &crate::format::PhotonMap,
+    p: &RelaxParams,
+    mut on_iteration: impl FnMut(&IterationMeasure),
+) -> Result<Relaxed, RelaxError> {
+    use crate::format::{State, name};
+    use crate::spatial::{ParamColumn, PointSet, Space, SpatialIndex};
+    let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
+    if p.kf == 0 {
+        return Err(input("Kf must be at least 1".into()));
+    }
+    let meta = map.meta();
+    let basis_u = map.column::<[f32; 3]>(name::BASIS_U)?;
+    let basis_v = map.column::<[f32; 3]>(name::BASIS_V)?;
+    let normal = map.column::<[f32; 3]>(name::NORMAL)?;
+    let constraint = match (basis_u, basis_v, normal) {
+        (Some(u), Some(v), _) => Constraint::Basis { u, v },
+        (_, _, Some(normal)) => Constraint::Tangent { normal },
+        _ => {
+            return Err(input(
+                "relax needs a constraint basis (run `photonkit detect`) or a 'normal' column to keep \
+                 photons on their surfaces"
+                    .into(),
+            ));
+        }
+    };
+    let r_param = map.column::<f32>(name::R_PARAM)?;
+    let params = match meta.column(name::PARAMS) {
+        Some(c) => Some((
+            bytemuck::try_cast_slice::<u8, f32>(map.column_bytes(name::PARAMS).unwrap_or(&[]))
+                .map_err(|e| input(format!("params column: {e}")))?,
+            c.components as usize,
+        )),
+        None => None,
+    };
+    let space = match (meta.state, r_param, params) {
+        (State::Detected, Some(_), Some(_)) => RelaxSpace::WorldParams,
+        _ => RelaxSpace::World,
+    };
+    let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
+    let emitters = map.column::<u16>(name::EMITTER)?;
+    let mut positions = map.positions().to_vec();
+    let mut next = positions.clone();
+    let (mut step, mut nn) = (Vec::new(), Vec::new());
+    let mut measures = Vec::with_capacity(p.iterations);
+    let mut index: Option<SpatialIndex> = None;
+    for it in 0..p.iterations {
+        let points = PointSet {
+            positions: &positions,
+            params: match space {
+                RelaxSpace::WorldParams => {
+                    params.map(|(values, stride)| ParamColumn { values, stride, dims: &dims })
+                }
+                RelaxSpace::World => None,
+            },
+            emitters: if space == RelaxSpace::WorldParams { emitters } else { None },
+        };
+        let sp = if space == RelaxSpace::WorldParams { Space::WorldParams } else { Space::World };
+        match &mut index {
+            Some(ix) => ix.rebuild(&points)?,
+            None => index = Some(SpatialIndex::build(&points, sp)?),
+        }
+        let search = IndexSearch {
+            index: index.as_ref().expect("built above"),
+            points: &points,
+            radius: if space == RelaxSpace::WorldParams { r_param } else { None },
+        };
+        // The index borrows `positions`; `iterate` moves a copy, then the two swap.
+        next.copy_from_slice(&positions);
+        let m = iterate(&mut next, &search, constraint, p, it, &mut step, &mut nn);
+        drop(search);
+        std::mem::swap(&mut positions, &mut next);
+        on_iteration(&m);
+        measures.push(m);
+    }
+    Ok(Relaxed { positions, space, constrained: matches!(constraint, Constraint::Basis { .. }), measures })
+}
+
+/// Writes `map` with its positions replaced by `relaxed`, every other column carried through,
+/// and a stage record holding the parameters and the per-iteration measures.
+pub fn write_relaxed(
+    map: &crate::format::PhotonMap,
+    relaxed: &Relaxed,
+    p: &RelaxParams,
+    seconds: f64,
+    target: crate::format::Output,
+) -> Result<(), RelaxError> {
+    use crate::format::{StageRecord, name};
+    let mut info = map.meta().info();
+    let mut rec = StageRecord::now("relax", serde_json::to_value(p).unwrap_or_default());
+    rec.report = serde_json::json!({
+        "space": relaxed.space,
+        "constrained": relaxed.constrained,
+        "seconds": seconds,
+        "iterations": relaxed.measures,
+    });
+    info.history.push(rec);
+    let columns: Vec<_> = map
+        .columns()
+        .into_iter()
+        .map(|(spec, bytes)| {
+            let b: &[u8] =
+                if spec.name == name::POSITION { bytemuck::cast_slice(&relaxed.positions) } else { bytes };
+            (spec, b)
+        })
+        .collect();
+    Ok(crate::format::write_map(target, info, &columns)?)
+}
+
+/// Collapse: drops the parameter dimensions from the neighbour search by moving the map to the
+/// `collapsed` state. Every column stays (the parameters remain for diagnostics).
+pub fn collapse(map: &crate::format::PhotonMap, target: crate::format::Output) -> Result<(), RelaxError> {
+    use crate::format::{StageRecord, State};
+    let from = map.meta().state;
+    if from != State::Detected {
+        return Err(RelaxError::Input {
+            file: map.file_name().to_string(),
+            message: format!(
+                "collapse applies to a detected map (state 'detected'); this one is '{}'",
+                from.name()
+            ),
+        });
+    }
+    let mut info = map.meta().info();
+    info.state = State::Collapsed;
+    info.history.push(StageRecord::now("collapse", serde_json::json!({ "from_state": from.name() })));
+    Ok(crate::format::write_map(target, info, &map.columns())?)
+}
+
 /// Distance from photon `i` to the nearest photon not on top of it (0 if there is none).
 fn distinct_distance(index: &dyn NeighbourSearch, i: usize, xi: Vec3, pos: &[[f32; 3]], kf: usize) -> f32 {
     let mut ids = Vec::new();

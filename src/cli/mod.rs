@@ -1,3 +1,4 @@
 //! One module per subcommand: its arguments (clap) and the call into the library.
 pub mod inspect;
 pub mod pending;
+pub mod relax;

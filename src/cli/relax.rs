@@ -1,0 +1,106 @@
+//! `photonkit relax` and `photonkit collapse`.
+
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressStyle};
+use photonkit::format::{Output, PhotonMap, State};
+use photonkit::relax::{self, RelaxParams, RelaxSpace};
+
+/// Relax photons toward a blue-noise distribution (Eq. 8–9).
+///
+/// Each iteration pushes every photon away from its Kf nearest neighbours (Eq. 8), projects
+/// the push onto its constraint basis from `detect` (Eq. 9), moves all photons at once and
+/// rebuilds the neighbour index. Before `collapse`, neighbours are restricted to the photon's
+/// parameter-space radius exactly as `detect` restricted them; after it, they are found in
+/// world space. Without constraint columns photons move freely in their tangent plane
+/// (the map says so in its history). Flux is never changed: the total is preserved exactly.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Input photon map (`-` for standard input).
+    input: String,
+    /// Output photon map (`-` for standard output).
+    #[arg(short, long, value_name = "FILE")]
+    output: String,
+    /// R: number of iterations (the paper: 7 before collapse and 7 after).
+    #[arg(short = 'R', long, default_value_t = 7)]
+    iterations: usize,
+    /// Kf: neighbours in the repulsion force of Eq. 8.
+    #[arg(long, default_value_t = 16)]
+    kf: usize,
+    /// ε of Eq. 8 as a fraction of the Kf-th neighbour distance (keeps the force finite).
+    #[arg(long, default_value_t = 1e-3)]
+    epsilon: f32,
+    /// Largest step per iteration as a fraction of the local photon spacing.
+    #[arg(long, default_value_t = 0.5)]
+    step_limit: f32,
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let map = PhotonMap::open(&a.input)?;
+    let p = RelaxParams { iterations: a.iterations, kf: a.kf, epsilon: a.epsilon, step_limit: a.step_limit };
+    anyhow::ensure!(
+        p.epsilon.is_finite() && p.epsilon >= 0.0 && p.step_limit.is_finite() && p.step_limit > 0.0,
+        "--epsilon must be ≥ 0 and --step-limit > 0"
+    );
+    let bar = ProgressBar::new(p.iterations as u64).with_style(
+        ProgressStyle::with_template("relax {bar:30} {pos}/{len} iterations {elapsed} {msg}")
+            .expect("valid template"),
+    );
+    let t = Instant::now();
+    let relaxed = relax::relax_map(&map, &p, |m| {
+        bar.inc(1);
+        // Printed whether or not the bar is drawn (stderr may not be a terminal).
+        bar.suspend(|| {
+            eprintln!(
+                "iteration {:>2}: nearest-neighbour spread {:.4}, mean step {:.3e}, largest step {:.3e}",
+                m.iteration + 1,
+                m.nn_cv,
+                m.mean_displacement,
+                m.max_displacement
+            )
+        });
+    })?;
+    bar.finish_and_clear();
+    let seconds = t.elapsed().as_secs_f64();
+    if !relaxed.constrained {
+        eprintln!(
+            "note: {} has no constraint basis (run `photonkit detect` first): relaxed unconstrained",
+            map.file_name()
+        );
+    }
+    let space = match relaxed.space {
+        RelaxSpace::WorldParams => "world space within parameter-space radius",
+        RelaxSpace::World if map.meta().state == State::Collapsed => "world space (collapsed)",
+        RelaxSpace::World => "world space",
+    };
+    relax::write_relaxed(&map, &relaxed, &p, seconds, Output::parse(&a.output))
+        .context("writing the relaxed map")?;
+    eprintln!(
+        "relaxed {} photons, {} iterations in {space}, {seconds:.2} s ({:.0} ns/photon/iteration)",
+        map.len(),
+        p.iterations,
+        seconds * 1e9 / (map.len().max(1) * p.iterations.max(1)) as f64
+    );
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Drop the parameter dimensions from the neighbour search (Algorithm 1's collapse).
+///
+/// The map moves from state `detected` to `collapsed`; the next `relax` finds neighbours in
+/// world space. The trajectory parameters and constraint basis stay in the file.
+#[derive(clap::Args)]
+pub struct CollapseArgs {
+    /// Input photon map (`-` for standard input).
+    input: String,
+    /// Output photon map (`-` for standard output).
+    #[arg(short, long, value_name = "FILE")]
+    output: String,
+}
+
+pub fn collapse(a: CollapseArgs) -> anyhow::Result<ExitCode> {
+    let map = PhotonMap::open(&a.input)?;
+    relax::collapse(&map, Output::parse(&a.output))?;
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,2 +1,3 @@
 pub mod common;
 mod samples;
+mod phm_py;

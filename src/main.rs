@@ -22,7 +22,7 @@ enum Command {
     /// Trace caustic photons from a scene, recording their trajectory parameters.
     Trace(cli::pending::Args),
     /// Detect features: parameter-space density, constrained k-NN and PCA constraints (Eq. 1–7).
-    Detect(cli::pending::Args),
+    Detect(cli::detect::Args),
     /// Relax photons toward blue noise under their constraints (Eq. 8–9).
     Relax(cli::relax::Args),
     /// Drop the parameter dimensions from the neighbour search.
@@ -39,7 +39,7 @@ fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
         Command::Trace(a) => cli::pending::run("trace", 3, a),
-        Command::Detect(a) => cli::pending::run("detect", 4, a),
+        Command::Detect(a) => cli::detect::run(a),
         Command::Relax(a) => cli::relax::run(a),
         Command::Collapse(a) => cli::relax::collapse(a),
         Command::Render(a) => cli::pending::run("render", 6, a),
@@ -49,8 +49,22 @@ fn main() -> ExitCode {
     match result {
         Ok(code) => code,
         Err(e) => {
-            eprintln!("photonkit: error: {e:#}");
+            eprintln!("photonkit: error: {}", describe(&e));
             ExitCode::FAILURE
         }
     }
+}
+
+/// The error and its causes on one line, leaving out a cause the message already quotes
+/// (library errors name the file and embed the I/O error that caused them).
+fn describe(e: &anyhow::Error) -> String {
+    let mut msg = e.to_string();
+    for cause in e.chain().skip(1) {
+        let c = cause.to_string();
+        if !msg.contains(&c) {
+            msg.push_str(": ");
+            msg.push_str(&c);
+        }
+    }
+    msg
 }

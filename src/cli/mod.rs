@@ -1,4 +1,5 @@
 //! One module per subcommand: its arguments (clap) and the call into the library.
+pub mod detect;
 pub mod inspect;
 pub mod pending;
 pub mod relax;

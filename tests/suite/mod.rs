@@ -1,3 +1,4 @@
 pub mod common;
 mod samples;
 mod phm_py;
+mod relax;

@@ -1,0 +1,728 @@
+//! Feature detection (Eq. 1–7): a constraint basis per photon from the shape of its
+//! neighbourhood, found where overlapping caustic filaments come apart.
+//!
+//! For each photon i (method `param-pca`, the paper's):
+//!
+//! 1. **Parameter-space density** (Eq. 1): ρ(i) = k / (π r_k²), r_k the distance in parameter
+//!    space to i's k-th nearest photon of the same emitter (k = Kc unless set; i counts as its
+//!    own first neighbour). The search radius is r_param(i) = β·sqrt(Kc / (π ρ(i))), which for
+//!    k = Kc is simply β·r_Kc. Parameter distances are Euclidean in the `params` column: the
+//!    (u, v) square of a `rect_uv` emitter, and for a `direction` emitter the unit sphere
+//!    embedded in 3-D, whose Euclidean distance is the chord 2·sin(θ/2) (ρ is then per unit
+//!    chord area, equal to per steradian for small radii, and there is no seam).
+//! 2. **Neighbourhood**: the Kc nearest photons by world-space distance among those of the
+//!    same emitter with parameters within r_param(i) of i's ([`crate::spatial`]); i is one of
+//!    them. r is the world-space distance to the farthest (the Kc-th).
+//! 3. **PCA** in i's tangent plane (Eq. 2–7): the neighbours' offsets are projected onto an
+//!    orthonormal basis of the plane orthogonal to the normal, their covariance (mean removed,
+//!    divided by the count m) decomposed in closed form ([`eigen2`]), λ1 ≥ λ2 normalised by r²,
+//!    and [`v_factor`] turns λ2 into the constraint: u_b = P1, v_b = P2·[1 − (3π/4)·M·Φ],
+//!    re-embedded in world space. An isotropic neighbourhood gives λ2 near 1/4 and a factor
+//!    near 1 (free motion); a hard edge gives a factor near 0 across it.
+//!
+//! The other methods measure one ingredient at a time: `world-pca` is step 3 over plain
+//! world-space neighbours; `gradient` is the 2009 photon-relaxation baseline
+//! ([`gradient_constraint`]); `none` leaves every photon free in its tangent plane.
+//!
+//! **Degenerate neighbourhoods** get a free constraint (u_b, v_b an orthonormal tangent basis,
+//! factor 1, λ2 = 1/4), because nothing about the illumination's structure can be measured:
+//! fewer than 3 neighbours, all neighbours on top of the photon (r = 0), or all of them
+//! displaced only along the normal (no extent in the tangent plane). A collinear
+//! neighbourhood is *not* degenerate: λ2 = 0 and the photon is held on its line. A normal
+//! that is missing, zero or not finite is estimated from the neighbourhood (the direction
+//! of least spread); normals of any non-zero length are normalised. Every output is finite.
+//!
+//! The noise filter Φ (Eq. 6) uses μ(m), σ(m) for the m neighbours actually found (m = Kc
+//! unless fewer photons qualify), from [`NoiseModel`].
+
+mod noise;
+
+use std::f64::consts::PI;
+
+use glam::{DVec2, DVec3};
+use rayon::prelude::*;
+use serde::Serialize;
+
+pub use noise::{NoiseModel, Row, SIMULATED, in_disc, lambda2_of, simulate};
+
+use crate::format::{ColumnSpec, FormatError, Output, PhotonMap, StageRecord, State, name};
+use crate::spatial::{Neighbours, ParamColumn, PointSet, Space, SpatialError, SpatialIndex};
+
+/// How constraints are computed.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Method {
+    /// The paper: PCA over world-space neighbours restricted in parameter space (Eq. 1–7).
+    #[default]
+    ParamPca,
+    /// PCA over plain world-space neighbours (Eq. 2–7 without Eq. 1).
+    WorldPca,
+    /// Photon relaxation 2009: constraint along the flux-density gradient, with a gain.
+    Gradient,
+    /// No constraint: free motion in the tangent plane.
+    None,
+}
+
+impl Method {
+    pub fn name(self) -> &'static str {
+        match self {
+            Method::ParamPca => "param-pca",
+            Method::WorldPca => "world-pca",
+            Method::Gradient => "gradient",
+            Method::None => "none",
+        }
+    }
+}
+
+/// Detection parameters; the defaults are the paper's.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct DetectParams {
+    pub method: Method,
+    /// Kc: neighbours in the PCA (and gradient) kernel.
+    pub kc: usize,
+    /// β of Eq. 1: the parameter-space radius in units of the mean photon spacing sqrt(Kc/(πρ)).
+    pub beta: f32,
+    /// k of the parameter-space density estimate ρ = k/(π r_k²); `None` means Kc.
+    pub k_density: Option<usize>,
+    /// Gain of the `gradient` method: the factor along the gradient is 1 − gain·g ([`gradient_constraint`]).
+    pub gain: f32,
+    /// μ(K), σ(K) of Eq. 4–6.
+    pub noise: NoiseModel,
+}
+
+impl Default for DetectParams {
+    fn default() -> Self {
+        DetectParams {
+            method: Method::ParamPca,
+            kc: 50,
+            beta: 3.0,
+            k_density: None,
+            gain: DEFAULT_GAIN,
+            noise: NoiseModel::Simulated,
+        }
+    }
+}
+
+/// The `gradient` method's default gain: a hard edge (g ≈ 1.7) is held fully, isotropic noise
+/// (g ≈ 2.8/√Kc, 0.4 at Kc = 50) keeps most of its freedom.
+pub const DEFAULT_GAIN: f32 = 0.6;
+
+/// What can stop feature detection.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum DetectError {
+    #[error(transparent)]
+    Format(#[from] FormatError),
+    #[error(transparent)]
+    Spatial(#[from] SpatialError),
+    #[error(
+        "{file}: method param-pca needs trajectory parameters (a 'params' column and emitters with \
+         param_dims > 0); this map has none: use --method world-pca or gradient"
+    )]
+    NoParameters { file: String },
+    #[error("{file}: {message}")]
+    Input { file: String, message: String },
+    #[error("invalid parameter: {0}")]
+    Parameter(String),
+}
+
+// ---------------------------------------------------------------------------------------------
+// The numerical kernels.
+
+/// Eigen-decomposition of the symmetric 2×2 matrix [[a, b], [b, c]].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Eigen2 {
+    pub lambda1: f64,
+    pub lambda2: f64,
+    /// Unit eigenvector of λ1.
+    pub p1: [f64; 2],
+    /// Unit eigenvector of λ2: P1 turned by +90°.
+    pub p2: [f64; 2],
+}
+
+/// Closed-form eigen-decomposition of [[a, b], [b, c]] (Eq. 2–7's PCA): λ = m ± d with
+/// m = (a + c)/2, d = hypot((a − c)/2, b), and P1 at angle θ = ½·atan2(b, (a − c)/2), which
+/// is stable for every input (no division, no cancellation in the vector). λ1 ≥ λ2; for a
+/// covariance λ2 is clamped at 0 against rounding. An isotropic matrix gives P1 = (1, 0).
+pub fn eigen2(a: f64, b: f64, c: f64) -> Eigen2 {
+    let h = 0.5 * (a - c);
+    let m = 0.5 * (a + c);
+    let d = h.hypot(b);
+    let theta = 0.5 * b.atan2(h);
+    let (s, co) = theta.sin_cos();
+    Eigen2 { lambda1: m + d, lambda2: (m - d).max(0.0), p1: [co, s], p2: [-s, co] }
+}
+
+/// The error function, |error| < 1.2·10⁻⁷ (the Chebyshev fit of erfc in Numerical Recipes,
+/// 2nd ed., §6.2): ample for Eq. 6, whose output is stored as f32.
+pub fn erf(x: f64) -> f64 {
+    let z = x.abs();
+    let t = 1.0 / (1.0 + 0.5 * z);
+    let poly = -z * z - 1.265_512_23
+        + t * (1.000_023_68
+            + t * (0.374_091_96
+                + t * (0.096_784_18
+                    + t * (-0.186_288_06
+                        + t * (0.278_868_07
+                            + t * (-1.135_203_98 + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+    let erfc = t * poly.exp();
+    if x >= 0.0 { 1.0 - erfc } else { erfc - 1.0 }
+}
+
+/// Lower end of the clamp on λ2 before Eq. 2 and 6: 1/4 − 16/(9π²), where Eq. 7's factor
+/// reaches 0 (the photon on the edge of a maximal discontinuity).
+pub const LAMBDA2_MIN: f64 = 0.25 - 16.0 / (9.0 * PI * PI);
+
+/// Eq. 2: the migration pressure M(λ2) = sqrt(1/4 − λ2).
+pub fn migration(lambda2: f64) -> f64 {
+    (0.25 - lambda2).max(0.0).sqrt()
+}
+
+/// Eq. 6: Φ(λ2) = ½·[1 − erf((λ2 − μ)/sqrt(2σ²))], the probability that λ2 is not explained
+/// by the noise of an isotropic neighbourhood.
+pub fn noise_filter(lambda2: f64, mu: f64, sigma: f64) -> f64 {
+    if sigma > 0.0 {
+        0.5 * (1.0 - erf((lambda2 - mu) / (2.0 * sigma * sigma).sqrt()))
+    } else if lambda2 < mu {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// Eq. 7's factor on v_b, 1 − (3π/4)·M(λ2)·Φ(λ2), with λ2 (normalised by r²) first clamped to
+/// [[`LAMBDA2_MIN`], 1/4]; it lies in [0, 1]: 0 holds the photon on its line, 1 frees it.
+pub fn v_factor(lambda2: f64, mu: f64, sigma: f64) -> f64 {
+    let l = if lambda2.is_nan() { 0.25 } else { lambda2.clamp(LAMBDA2_MIN, 0.25) };
+    (1.0 - 0.75 * PI * migration(l) * noise_filter(l, mu, sigma)).clamp(0.0, 1.0)
+}
+
+/// An orthonormal basis (t1, t2) of the plane orthogonal to the unit vector `n`, continuous
+/// except where n.z changes sign (Duff et al. 2017, "Building an orthonormal basis, revisited").
+pub fn tangent_basis(n: DVec3) -> (DVec3, DVec3) {
+    let sign = 1.0f64.copysign(n.z);
+    let a = -1.0 / (sign + n.z);
+    let b = n.x * n.y * a;
+    (DVec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x), DVec3::new(b, sign + n.y * n.y * a, -n.y))
+}
+
+/// The unit normal from a stored normal of any length; `None` if it is zero or not finite.
+fn unit_normal(n: [f32; 3]) -> Option<DVec3> {
+    DVec3::new(n[0] as f64, n[1] as f64, n[2] as f64).try_normalize()
+}
+
+/// The direction of least spread of a neighbourhood (offsets from the photon): the normal of
+/// a photon whose stored normal is unusable. +z when the offsets span no plane.
+fn estimated_normal(offsets: &[DVec3]) -> DVec3 {
+    let m = offsets.len().max(1) as f64;
+    let mean = offsets.iter().sum::<DVec3>() / m;
+    let mut c = nalgebra::Matrix3::<f64>::zeros();
+    for o in offsets {
+        let d = *o - mean;
+        let v = nalgebra::Vector3::new(d.x, d.y, d.z);
+        c += v * v.transpose();
+    }
+    if c.trace() <= 0.0 || !c.trace().is_finite() {
+        return DVec3::Z;
+    }
+    let e = nalgebra::SymmetricEigen::new(c / c.trace());
+    let k = e.eigenvalues.imin();
+    let v = e.eigenvectors.column(k);
+    DVec3::new(v[0], v[1], v[2]).try_normalize().unwrap_or(DVec3::Z)
+}
+
+/// How a photon's constraint was decided.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Outcome {
+    /// Computed from the neighbourhood.
+    Measured,
+    /// Fewer than 3 neighbours: free.
+    TooFew,
+    /// No extent in the tangent plane (r = 0 or all offsets along the normal): free.
+    Coincident,
+    /// Method `none`: free.
+    Unconstrained,
+}
+
+/// One photon's constraint (Eq. 7), in world space.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PhotonConstraint {
+    /// u_b: unit, along the structure.
+    pub u: [f32; 3],
+    /// v_b: unit direction times [`Self::factor`].
+    pub v: [f32; 3],
+    /// λ2 normalised by r² (not clamped); 1/4 when not measured.
+    pub lambda2: f32,
+    /// The factor on v_b, in [0, 1].
+    pub factor: f32,
+    pub outcome: Outcome,
+}
+
+impl PhotonConstraint {
+    /// Free motion in the plane of (t1, t2).
+    fn free(t1: DVec3, t2: DVec3, outcome: Outcome) -> Self {
+        PhotonConstraint { u: t1.as_vec3().into(), v: t2.as_vec3().into(), lambda2: 0.25, factor: 1.0, outcome }
+    }
+}
+
+/// A photon's neighbourhood as the kernels read it: offsets x_j − x_i (i itself included,
+/// at zero), r² the squared world distance to the farthest, and the photon's stored normal.
+pub struct Neighbourhood<'a> {
+    pub offsets: &'a [DVec3],
+    pub r2: f64,
+    pub normal: Option<[f32; 3]>,
+}
+
+impl Neighbourhood<'_> {
+    /// The unit normal and tangent basis: from the stored normal, else estimated.
+    fn frame(&self) -> (DVec3, DVec3, DVec3) {
+        let n = self.normal.and_then(unit_normal).unwrap_or_else(|| estimated_normal(self.offsets));
+        let (t1, t2) = tangent_basis(n);
+        (n, t1, t2)
+    }
+
+    /// Offsets in the tangent plane, written into `out`.
+    fn project(&self, t1: DVec3, t2: DVec3, out: &mut Vec<DVec2>) {
+        out.clear();
+        out.extend(self.offsets.iter().map(|o| DVec2::new(o.dot(t1), o.dot(t2))));
+    }
+}
+
+/// Normalised PCA of tangent-plane points: (eigen-decomposition with λ divided by `r2`), or
+/// `None` if the points have no extent relative to r.
+fn normalised_pca(pts: &[DVec2], r2: f64) -> Option<Eigen2> {
+    let m = pts.len() as f64;
+    let mean = pts.iter().sum::<DVec2>() / m;
+    let (mut a, mut b, mut c) = (0.0, 0.0, 0.0);
+    for p in pts {
+        let d = (*p - mean) / r2.sqrt();
+        a += d.x * d.x;
+        b += d.x * d.y;
+        c += d.y * d.y;
+    }
+    let e = eigen2(a / m, b / m, c / m);
+    // Relative to r², an extent below 1e-12 is rounding of offsets along the normal.
+    (e.lambda1 > 1e-12 && e.lambda1.is_finite()).then_some(e)
+}
+
+/// Eq. 2–7: the PCA constraint of a photon from its neighbourhood.
+pub fn pca_constraint(nb: &Neighbourhood, noise: NoiseModel, scratch: &mut Vec<DVec2>) -> PhotonConstraint {
+    let (_, t1, t2) = nb.frame();
+    let m = nb.offsets.len();
+    if m < 3 {
+        return PhotonConstraint::free(t1, t2, Outcome::TooFew);
+    }
+    if !(nb.r2 > 0.0 && nb.r2.is_finite()) {
+        return PhotonConstraint::free(t1, t2, Outcome::Coincident);
+    }
+    nb.project(t1, t2, scratch);
+    let Some(e) = normalised_pca(scratch, nb.r2) else {
+        return PhotonConstraint::free(t1, t2, Outcome::Coincident);
+    };
+    let (mu, sigma) = noise.mu_sigma(m);
+    let factor = v_factor(e.lambda2, mu, sigma);
+    let u = t1 * e.p1[0] + t2 * e.p1[1];
+    let v = (t1 * e.p2[0] + t2 * e.p2[1]) * factor;
+    PhotonConstraint {
+        u: u.as_vec3().into(),
+        v: v.as_vec3().into(),
+        lambda2: e.lambda2 as f32,
+        factor: factor as f32,
+        outcome: Outcome::Measured,
+    }
+}
+
+/// The 2009 baseline: a constraint along the estimated gradient of flux density.
+///
+/// With the Epanechnikov kernel of radius r over the neighbourhood, B̂ = Σ Φ_j w(d_j) and
+/// ∇B̂ ∝ Σ Φ_j (x_j − x_i) (tangent plane). Its scale-free magnitude g = |∇B̂|·r / B̂
+/// = 2·|Σ Φ_j o_j| / (r·Σ Φ_j (1 − d_j²/r²)) is ≈ 1.7 on a hard edge and ≈ 2.8/√Kc for
+/// isotropic noise. The photon is held along the gradient in proportion to it:
+/// u_b ⟂ ∇B̂, v_b = ∇B̂/|∇B̂| · max(0, 1 − gain·g). `weights` are the neighbours' fluxes
+/// (any non-finite or negative weight counts as 0). λ2 is reported from the same PCA as
+/// `world-pca`, for comparison.
+pub fn gradient_constraint(
+    nb: &Neighbourhood,
+    weights: &[f64],
+    gain: f64,
+    scratch: &mut Vec<DVec2>,
+) -> PhotonConstraint {
+    let (_, t1, t2) = nb.frame();
+    let m = nb.offsets.len();
+    if m < 3 {
+        return PhotonConstraint::free(t1, t2, Outcome::TooFew);
+    }
+    if !(nb.r2 > 0.0 && nb.r2.is_finite()) {
+        return PhotonConstraint::free(t1, t2, Outcome::Coincident);
+    }
+    nb.project(t1, t2, scratch);
+    let Some(e) = normalised_pca(scratch, nb.r2) else {
+        return PhotonConstraint::free(t1, t2, Outcome::Coincident);
+    };
+    let r = nb.r2.sqrt();
+    let (mut grad, mut density) = (DVec2::ZERO, 0.0);
+    for ((p, o), &w) in scratch.iter().zip(nb.offsets).zip(weights) {
+        let w = if w.is_finite() && w > 0.0 { w } else { 0.0 };
+        grad += *p / r * w;
+        density += w * (1.0 - o.length_squared() / nb.r2).max(0.0);
+    }
+    let g = if density > 0.0 { 2.0 * grad.length() / density } else { 0.0 };
+    let Some(dir) = grad.try_normalize().filter(|_| g.is_finite()) else {
+        let mut c = PhotonConstraint::free(t1, t2, Outcome::Measured);
+        c.lambda2 = e.lambda2 as f32;
+        return c;
+    };
+    let factor = (1.0 - gain * g).clamp(0.0, 1.0);
+    let along = t1 * dir.x + t2 * dir.y;
+    let across = t1 * -dir.y + t2 * dir.x;
+    PhotonConstraint {
+        u: across.as_vec3().into(),
+        v: (along * factor).as_vec3().into(),
+        lambda2: e.lambda2 as f32,
+        factor: factor as f32,
+        outcome: Outcome::Measured,
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Over a photon set.
+
+/// The photons detection reads (photon i at `positions[i]`).
+#[derive(Clone, Copy, Debug)]
+pub struct DetectInput<'a> {
+    pub positions: &'a [[f32; 3]],
+    /// Surface normals (any non-zero length); missing or unusable ones are estimated.
+    pub normals: Option<&'a [[f32; 3]]>,
+    /// RGB flux, for the `gradient` method's weights (without it every photon weighs 1).
+    pub flux: Option<&'a [[f32; 3]]>,
+    pub params: Option<ParamColumn<'a>>,
+    pub emitters: Option<&'a [u16]>,
+}
+
+impl<'a> DetectInput<'a> {
+    fn points(&self, with_params: bool) -> PointSet<'a> {
+        PointSet {
+            positions: self.positions,
+            params: if with_params { self.params } else { None },
+            emitters: if with_params { self.emitters } else { None },
+        }
+    }
+
+    /// True when some photon's emitter has trajectory parameters.
+    pub fn has_params(&self) -> bool {
+        match self.params {
+            None => false,
+            Some(p) => match self.emitters {
+                Some(e) => e.iter().any(|&e| p.dims_of(e) > 0),
+                None => p.dims_of(0) > 0,
+            },
+        }
+    }
+}
+
+/// Constraint columns for every photon, and what happened.
+#[derive(Clone, Debug, Default)]
+pub struct Detection {
+    pub basis_u: Vec<[f32; 3]>,
+    pub basis_v: Vec<[f32; 3]>,
+    pub lambda2: Vec<f32>,
+    /// Eq. 1's r_param per photon when the map has trajectory parameters (0 for photons of an
+    /// emitter without them, whose search ignores it).
+    pub r_param: Option<Vec<f32>>,
+    pub summary: Summary,
+}
+
+/// Counts for the stage's report.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct Summary {
+    pub photons: usize,
+    pub measured: usize,
+    pub too_few: usize,
+    pub coincident: usize,
+    /// Photons with a factor on v_b below 1/2.
+    pub constrained: usize,
+    pub mean_factor: f64,
+}
+
+impl Summary {
+    pub fn constrained_fraction(&self) -> f64 {
+        if self.photons == 0 { 0.0 } else { self.constrained as f64 / self.photons as f64 }
+    }
+}
+
+/// Photons per parallel work item (and per progress tick).
+const CHUNK: usize = 2048;
+
+/// Progress units [`detect`] reports in total for `n` photons: one per photon per pass.
+pub fn work_units(input: &DetectInput) -> u64 {
+    let passes = 1 + usize::from(input.has_params());
+    (input.positions.len() * passes) as u64
+}
+
+fn check_params(p: &DetectParams) -> Result<(), DetectError> {
+    let bad = |m: &str| Err(DetectError::Parameter(m.to_string()));
+    if p.kc < 3 {
+        return bad("Kc must be at least 3 (a plane needs three points)");
+    }
+    if !(p.beta.is_finite() && p.beta > 0.0) {
+        return bad("β must be finite and positive");
+    }
+    if p.k_density.is_some_and(|k| k < 2) {
+        return bad("the density's k must be at least 2");
+    }
+    if !(p.gain.is_finite() && p.gain >= 0.0) {
+        return bad("the gain must be finite and ≥ 0");
+    }
+    Ok(())
+}
+
+/// Eq. 1: r_param(i) = β·sqrt(Kc/(πρ(i))), ρ(i) = k/(π r_k²) from the k nearest photons of the
+/// same emitter in parameter space (i included), so r_param = β·r_k·sqrt(Kc/k). With fewer
+/// than k photons in the emitter, k is their count. 0 for emitters without parameters.
+pub fn param_radius(
+    points: &PointSet,
+    kc: usize,
+    k_density: usize,
+    beta: f32,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Vec<f32>, DetectError> {
+    let index = SpatialIndex::build(points, Space::Params)?;
+    let order = index.order();
+    let mut radius = vec![0f32; points.len()];
+    let mut found = vec![0f32; order.len()];
+    found.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
+        let mut nb = Neighbours::with_capacity(k_density);
+        for (r, &i) in out.iter_mut().zip(ids) {
+            index.knn(&points.query(i as usize, None), k_density, &mut nb);
+            *r = match nb.last() {
+                Some(last) => {
+                    let rk = (last.dist2 as f64).sqrt();
+                    (beta as f64 * rk * (kc as f64 / nb.len() as f64).sqrt()) as f32
+                }
+                _ => 0.0,
+            };
+        }
+        progress(ids.len() as u64);
+    });
+    for (&i, &r) in order.iter().zip(&found) {
+        radius[i as usize] = if r.is_finite() { r } else { f32::MAX };
+    }
+    Ok(radius)
+}
+
+/// Runs feature detection over `input` (see the module docs). `progress` receives increments
+/// summing to [`work_units`].
+pub fn detect(
+    input: &DetectInput,
+    p: &DetectParams,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Detection, DetectError> {
+    check_params(p)?;
+    let n = input.positions.len();
+    let has_params = input.has_params();
+    if p.method == Method::ParamPca && !has_params {
+        return Err(DetectError::NoParameters { file: "<input>".into() });
+    }
+    let r_param = if has_params {
+        let points = input.points(true);
+        Some(param_radius(&points, p.kc, p.k_density.unwrap_or(p.kc), p.beta, progress)?)
+    } else {
+        None
+    };
+    let normals_ok =
+        input.normals.is_some_and(|ns| ns.iter().all(|&n| unit_normal(n).is_some()));
+    let (points, space) = match p.method {
+        Method::ParamPca => (input.points(true), Some(Space::WorldParams)),
+        Method::WorldPca | Method::Gradient => (input.points(false), Some(Space::World)),
+        Method::None if normals_ok => (input.points(false), None),
+        Method::None => (input.points(false), Some(Space::World)),
+    };
+    let index = match space {
+        Some(s) => Some(SpatialIndex::build(&points, s)?),
+        None => None,
+    };
+    let order: Vec<u32> = index.as_ref().map_or_else(|| (0..n as u32).collect(), |ix| ix.order());
+    let mut results = vec![PhotonConstraint::free(DVec3::X, DVec3::Y, Outcome::Unconstrained); n];
+    results.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
+        let mut nb = Neighbours::with_capacity(p.kc);
+        let (mut offsets, mut weights, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
+        for (res, &i) in out.iter_mut().zip(ids) {
+            let i = i as usize;
+            let normal = input.normals.map(|ns| ns[i]);
+            let Some(index) = &index else {
+                let (t1, t2) = tangent_basis(normal.and_then(unit_normal).unwrap_or(DVec3::Z));
+                *res = PhotonConstraint::free(t1, t2, Outcome::Unconstrained);
+                continue;
+            };
+            let radius = r_param.as_ref().map(|r| r[i]);
+            index.knn(&points.query(i, radius), p.kc, &mut nb);
+            let xi = input.positions[i];
+            offsets.clear();
+            offsets.extend(nb.indices().map(|j| {
+                let xj = input.positions[j as usize];
+                DVec3::new((xj[0] - xi[0]) as f64, (xj[1] - xi[1]) as f64, (xj[2] - xi[2]) as f64)
+            }));
+            let r2 = offsets.iter().map(|o| o.length_squared()).fold(0.0, f64::max);
+            let hood = Neighbourhood { offsets: &offsets, r2, normal };
+            *res = match p.method {
+                Method::ParamPca | Method::WorldPca => pca_constraint(&hood, p.noise, &mut scratch),
+                Method::Gradient => {
+                    weights.clear();
+                    weights.extend(nb.indices().map(|j| {
+                        input.flux.map_or(1.0, |f| f[j as usize].iter().map(|&c| c as f64).sum())
+                    }));
+                    gradient_constraint(&hood, &weights, p.gain as f64, &mut scratch)
+                }
+                Method::None => {
+                    let (_, t1, t2) = hood.frame();
+                    PhotonConstraint::free(t1, t2, Outcome::Unconstrained)
+                }
+            };
+        }
+        progress(ids.len() as u64);
+    });
+    let mut d = Detection {
+        basis_u: vec![[0.0; 3]; n],
+        basis_v: vec![[0.0; 3]; n],
+        lambda2: vec![0.0; n],
+        r_param,
+        summary: Summary { photons: n, ..Default::default() },
+    };
+    let mut factor_sum = 0.0f64;
+    for (&i, c) in order.iter().zip(&results) {
+        let i = i as usize;
+        d.basis_u[i] = c.u;
+        d.basis_v[i] = c.v;
+        d.lambda2[i] = c.lambda2;
+        factor_sum += c.factor as f64;
+        let s = &mut d.summary;
+        match c.outcome {
+            Outcome::Measured => s.measured += 1,
+            Outcome::TooFew => s.too_few += 1,
+            Outcome::Coincident => s.coincident += 1,
+            Outcome::Unconstrained => {}
+        }
+        if c.factor < 0.5 {
+            s.constrained += 1;
+        }
+    }
+    d.summary.mean_factor = if n > 0 { factor_sum / n as f64 } else { 0.0 };
+    Ok(d)
+}
+
+// ---------------------------------------------------------------------------------------------
+// Over a PHM file.
+
+/// The method to run on `map`: `requested` if given (an error if it is `param-pca` and the map
+/// has no trajectory parameters), else `param-pca`, or `world-pca` with a note to show the
+/// user when the map has no trajectory parameters.
+pub fn choose_method(map: &PhotonMap, requested: Option<Method>) -> Result<(Method, Option<String>), DetectError> {
+    let has = map_input(map)?.has_params();
+    match requested {
+        Some(Method::ParamPca) if !has => Err(DetectError::NoParameters { file: map.file_name().into() }),
+        Some(m) => Ok((m, None)),
+        None if has => Ok((Method::ParamPca, None)),
+        None => Ok((
+            Method::WorldPca,
+            Some(format!(
+                "{} has no trajectory parameters: detecting with world-pca (world-space neighbours only)",
+                map.file_name()
+            )),
+        )),
+    }
+}
+
+/// The columns of `map` that detection reads, validated.
+pub fn map_input(map: &PhotonMap) -> Result<DetectInput<'_>, DetectError> {
+    let file = map.file_name();
+    let meta = map.meta();
+    let input = |message: String| DetectError::Input { file: file.to_string(), message };
+    let emitters = map.column::<u16>(name::EMITTER)?;
+    if let Some(e) = emitters
+        && let Some(i) = e.iter().position(|&e| e as usize >= meta.emitters.len().max(1))
+    {
+        return Err(input(format!(
+            "photon {i} has emitter {} but the map lists {} emitters",
+            e[i],
+            meta.emitters.len()
+        )));
+    }
+    let params = match meta.column(name::PARAMS) {
+        None => None,
+        Some(c) if c.dtype != crate::format::DType::F32 => {
+            return Err(input(format!("the params column is {}, expected f32", c.dtype.name())));
+        }
+        Some(c) => {
+            let bytes = map.column_bytes(name::PARAMS).unwrap_or(&[]);
+            let values: &[f32] =
+                bytemuck::try_cast_slice(bytes).map_err(|e| input(format!("params column: {e}")))?;
+            Some((values, c.components as usize))
+        }
+    };
+    Ok(DetectInput {
+        positions: map.positions(),
+        normals: map.column::<[f32; 3]>(name::NORMAL)?,
+        flux: Some(map.flux()),
+        params: params.map(|(values, stride)| ParamColumn { values, stride, dims: &[] }),
+        emitters,
+    })
+}
+
+/// [`detect`] over a map (the file's emitter list gives each emitter's parameter dimensions).
+pub fn detect_map(
+    map: &PhotonMap,
+    p: &DetectParams,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Detection, DetectError> {
+    let dims: Vec<u32> = map.meta().emitters.iter().map(|e| e.param_dims).collect();
+    let mut input = map_input(map)?;
+    input.params = input.params.map(|c| ParamColumn { dims: &dims, ..c });
+    detect(&input, p, progress).map_err(|e| match e {
+        DetectError::NoParameters { .. } => DetectError::NoParameters { file: map.file_name().into() },
+        e => e,
+    })
+}
+
+/// Writes `map` with the constraint columns of `d` (replacing any from an earlier run), every
+/// other column carried through unchanged, state `detected`, and a stage record.
+pub fn write_detected(
+    map: &PhotonMap,
+    d: &Detection,
+    p: &DetectParams,
+    seconds: f64,
+    target: Output,
+) -> Result<(), DetectError> {
+    let mut info = map.meta().info();
+    info.state = State::Detected;
+    let mut rec = StageRecord::now("detect", serde_json::to_value(p).unwrap_or_default());
+    let s = &d.summary;
+    rec.report = serde_json::json!({
+        "seconds": seconds,
+        "photons": s.photons,
+        "constrained_fraction": s.constrained_fraction(),
+        "mean_factor": s.mean_factor,
+        "measured": s.measured,
+        "too_few_neighbours": s.too_few,
+        "coincident": s.coincident,
+        "parameter_space": d.r_param.is_some(),
+    });
+    info.history.push(rec);
+    let ours: Vec<(ColumnSpec, &[u8])> = [
+        Some((ColumnSpec::of::<[f32; 3]>(name::BASIS_U), bytemuck::cast_slice::<_, u8>(&d.basis_u))),
+        Some((ColumnSpec::of::<[f32; 3]>(name::BASIS_V), bytemuck::cast_slice(&d.basis_v))),
+        Some((ColumnSpec::of::<f32>(name::LAMBDA2), bytemuck::cast_slice(&d.lambda2))),
+        d.r_param.as_ref().map(|r| (ColumnSpec::of::<f32>(name::R_PARAM), bytemuck::cast_slice(r))),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    let replaced = [name::BASIS_U, name::BASIS_V, name::LAMBDA2, name::R_PARAM];
+    let mut columns: Vec<(ColumnSpec, &[u8])> =
+        map.columns().into_iter().filter(|(s, _)| !replaced.contains(&s.name.as_str())).collect();
+    columns.extend(ours);
+    Ok(crate::format::write_map(target, info, &columns)?)
+}
+
+#[cfg(test)]
+mod tests;

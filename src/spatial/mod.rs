@@ -1,0 +1,430 @@
+//! The k-nearest-neighbour index every stage searches photons through.
+//!
+//! Feature detection (Eq. 1–7) and the first half of relaxation (Eq. 8–9) need the photons
+//! nearest another by **world-space** distance among only those whose **trajectory
+//! parameters** lie within a radius of the query's, and of the same emitter; density
+//! estimation in parameter space needs the nearest by parameter distance alone; after
+//! collapse, relaxation and the world-space baselines need plain world-space neighbours.
+//! One [`SpatialIndex`] serves all three, chosen by its [`Space`]:
+//!
+//! | space | distance | restriction | emitters |
+//! | --- | --- | --- | --- |
+//! | [`Space::World`] | x, y, z | none (a query's radius is ignored) | all together |
+//! | [`Space::WorldParams`] | x, y, z | params within the query's radius | separate |
+//! | [`Space::Params`] | params | none | separate |
+//!
+//! Parameter distances are Euclidean in the `params` column's coordinates: for a
+//! `rect_uv` emitter the (u, v) square, for a `direction` emitter the unit sphere embedded
+//! in 3-D, where the Euclidean distance is the *chord* 2·sin(θ/2) of the angle θ between
+//! two directions (within 1 % of θ for θ < 0.5 rad, and seam-free).
+//!
+//! Each emitter's photons go into their own compact kd-tree over {x, y, z, params}
+//! (`kdtree.rs`), which does the parameter-space range test inside the traversal; the
+//! choice against kiddo with over-fetch and filter was made by measurement (BENCHMARKS.md,
+//! "Spatial index"). Results are exact and deterministic: the k smallest by (distance²,
+//! photon index), equal to [`brute_force_knn`] bit for bit.
+//!
+//! Relaxation rebuilds the index every iteration: [`SpatialIndex::rebuild`] reuses its
+//! allocations, and [`Neighbours`] is a reusable result buffer (one per worker thread).
+//!
+//! ```
+//! use photonkit::spatial::{Neighbours, PointSet, SpatialIndex, Space};
+//! let positions = [[0.0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.1, 0.0, 0.0]];
+//! let points = PointSet::world(&positions);
+//! let index = SpatialIndex::build(&points, Space::World).unwrap();
+//! let mut out = Neighbours::default();
+//! index.knn(&points.query(0, None), 2, &mut out);
+//! assert_eq!(out.indices().collect::<Vec<_>>(), [0, 2]);
+//! ```
+
+mod brute;
+mod kdtree;
+
+pub use brute::brute_force_knn;
+
+use kdtree::{KdTree, Rec};
+
+/// Which distance a [`SpatialIndex`] measures and which restriction it honours.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Space {
+    /// World-space distance over every photon; parameters and emitters play no part
+    /// (after collapse, and for the world-space methods).
+    World,
+    /// World-space distance among photons of the query's emitter whose parameters lie
+    /// within the query's radius (feature detection, relaxation before collapse).
+    WorldParams,
+    /// Parameter-space distance among photons of the query's emitter (density, Eq. 1).
+    Params,
+}
+
+/// The `params` column as the index reads it.
+#[derive(Clone, Copy, Debug)]
+pub struct ParamColumn<'a> {
+    /// `stride` values per photon.
+    pub values: &'a [f32],
+    /// Components per photon in `values` (the column's component count).
+    pub stride: usize,
+    /// How many leading components emitter `e` uses, at `dims[e]` (its `param_dims`);
+    /// emitters beyond the slice use all `stride`. 0 means the emitter has no parameters:
+    /// its photons are searched by world distance alone.
+    pub dims: &'a [u32],
+}
+
+impl ParamColumn<'_> {
+    /// Number of parameter components photons of `emitter` use.
+    pub fn dims_of(&self, emitter: u16) -> usize {
+        self.dims.get(emitter as usize).map_or(self.stride, |&d| (d as usize).min(self.stride))
+    }
+}
+
+/// The photons an index is built over: positions, and optionally trajectory parameters and
+/// emitter ids (photon `i` is at `positions[i]`).
+#[derive(Clone, Copy, Debug)]
+pub struct PointSet<'a> {
+    pub positions: &'a [[f32; 3]],
+    pub params: Option<ParamColumn<'a>>,
+    /// Emitter id per photon; `None` puts every photon in emitter 0.
+    pub emitters: Option<&'a [u16]>,
+}
+
+impl<'a> PointSet<'a> {
+    /// Positions only.
+    pub fn world(positions: &'a [[f32; 3]]) -> Self {
+        PointSet { positions, params: None, emitters: None }
+    }
+
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// The emitter of photon `i`.
+    pub fn emitter(&self, i: usize) -> u16 {
+        self.emitters.map_or(0, |e| e[i])
+    }
+
+    /// The trajectory parameters photon `i`'s emitter uses (empty without parameters).
+    pub fn params_of(&self, i: usize) -> &'a [f32] {
+        match self.params {
+            Some(p) => {
+                let d = p.dims_of(self.emitter(i));
+                &p.values[i * p.stride..i * p.stride + d]
+            }
+            None => &[],
+        }
+    }
+
+    /// The query "neighbours of photon `i`" with parameter radius `radius` (photon `i`
+    /// itself is among the results; set [`Query::exclude`] to leave it out).
+    pub fn query(&self, i: usize, radius: Option<f32>) -> Query<'a> {
+        Query {
+            position: self.positions[i],
+            params: self.params_of(i),
+            radius,
+            emitter: self.emitter(i),
+            exclude: None,
+        }
+    }
+
+    fn check(&self, space: Space) -> Result<(), SpatialError> {
+        let n = self.positions.len();
+        if n >= u32::MAX as usize {
+            return Err(SpatialError::TooMany { count: n });
+        }
+        if let Some(e) = self.emitters
+            && e.len() != n
+        {
+            return Err(SpatialError::Length { what: "emitters", expected: n, actual: e.len() });
+        }
+        if let Some(p) = self.params {
+            let expected = n.saturating_mul(p.stride);
+            if p.values.len() != expected {
+                return Err(SpatialError::Length { what: "params", expected, actual: p.values.len() });
+            }
+        }
+        if let Some(i) = self.positions.iter().position(|x| x.iter().any(|c| !c.is_finite())) {
+            return Err(SpatialError::NonFinite { index: i, what: "position" });
+        }
+        if space != Space::World && self.params.is_some() {
+            for i in 0..n {
+                let p = self.params_of(i);
+                if p.len() > MAX_PARAM_DIMS {
+                    return Err(SpatialError::ParamDims { emitter: self.emitter(i), dims: p.len() });
+                }
+                if p.iter().any(|c| !c.is_finite()) {
+                    return Err(SpatialError::NonFinite { index: i, what: "params" });
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Most parameter dimensions an emitter may use (the sphere embedded in 3-D).
+pub const MAX_PARAM_DIMS: usize = 3;
+
+/// One k-NN request.
+#[derive(Clone, Copy, Debug)]
+pub struct Query<'a> {
+    /// World position (the distance in [`Space::World`] and [`Space::WorldParams`]).
+    pub position: [f32; 3],
+    /// Trajectory parameters: the ball's centre in [`Space::WorldParams`], the point whose
+    /// distance counts in [`Space::Params`]. Needs at least the emitter's dimensions.
+    pub params: &'a [f32],
+    /// Parameter-space radius (inclusive) in [`Space::WorldParams`]; `None` for no limit.
+    /// A negative or NaN radius admits no photon. Ignored in the other spaces and for
+    /// emitters without parameters.
+    pub radius: Option<f32>,
+    /// Only photons of this emitter are candidates (except in [`Space::World`]).
+    pub emitter: u16,
+    /// A photon never returned (e.g. the query photon itself, for relaxation).
+    pub exclude: Option<u32>,
+}
+
+/// One neighbour found: its squared distance in the index's space and its photon index.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Neighbour {
+    pub dist2: f32,
+    pub index: u32,
+}
+
+impl Neighbour {
+    /// The order results are ranked by: distance², then photon index (the tie-break).
+    #[inline(always)]
+    pub fn before(&self, o: &Neighbour) -> bool {
+        self.dist2 < o.dist2 || (self.dist2 == o.dist2 && self.index < o.index)
+    }
+}
+
+/// A reusable result buffer: after a query, the neighbours nearest first.
+#[derive(Clone, Debug, Default)]
+pub struct Neighbours {
+    items: Vec<Neighbour>,
+}
+
+impl Neighbours {
+    pub fn with_capacity(k: usize) -> Self {
+        Neighbours { items: Vec::with_capacity(k) }
+    }
+
+    pub fn as_slice(&self) -> &[Neighbour] {
+        &self.items
+    }
+
+    pub fn len(&self) -> usize {
+        self.items.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.items.is_empty()
+    }
+
+    pub fn indices(&self) -> impl ExactSizeIterator<Item = u32> + '_ {
+        self.items.iter().map(|n| n.index)
+    }
+
+    /// The farthest neighbour found (the k-th when k were found).
+    pub fn last(&self) -> Option<Neighbour> {
+        self.items.last().copied()
+    }
+}
+
+/// What can be wrong with the points an index is asked to hold.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SpatialError {
+    #[error("photon {index} has a non-finite {what}")]
+    NonFinite { index: usize, what: &'static str },
+    #[error("emitter {emitter} uses {dims} parameter dimensions; at most {MAX_PARAM_DIMS} are supported")]
+    ParamDims { emitter: u16, dims: usize },
+    #[error("{count} photons: an index holds fewer than 2³² − 1")]
+    TooMany { count: usize },
+    #[error("the {what} slice holds {actual} values, expected {expected}")]
+    Length { what: &'static str, expected: usize, actual: usize },
+}
+
+/// One emitter's (or, in world space, every photon's) tree, by shape: `D` distance
+/// dimensions and `B` ball dimensions.
+#[derive(Clone, Debug)]
+enum Tree {
+    /// No dimensions to search (an emitter without parameters in [`Space::Params`]): its
+    /// photons, which are never anyone's neighbours.
+    Empty(Vec<u32>),
+    D1(KdTree<1, 0>),
+    D2(KdTree<2, 0>),
+    D3(KdTree<3, 0>),
+    D3B1(KdTree<3, 1>),
+    D3B2(KdTree<3, 2>),
+    D3B3(KdTree<3, 3>),
+}
+
+impl Tree {
+    fn order(&self) -> Box<dyn Iterator<Item = u32> + '_> {
+        match self {
+            Tree::Empty(v) => Box::new(v.iter().copied()),
+            Tree::D1(t) => Box::new(t.order()),
+            Tree::D2(t) => Box::new(t.order()),
+            Tree::D3(t) => Box::new(t.order()),
+            Tree::D3B1(t) => Box::new(t.order()),
+            Tree::D3B2(t) => Box::new(t.order()),
+            Tree::D3B3(t) => Box::new(t.order()),
+        }
+    }
+}
+
+/// Exact k-NN over a photon set in one [`Space`]; see the module docs.
+#[derive(Clone, Debug)]
+pub struct SpatialIndex {
+    space: Space,
+    len: usize,
+    /// Tree of each emitter id (`usize::MAX`: no photons).
+    tree_of: Vec<usize>,
+    trees: Vec<Tree>,
+    /// Scratch for grouping photons by emitter, kept for rebuilds.
+    members: Vec<u32>,
+}
+
+impl SpatialIndex {
+    /// Builds the index over `points` in `space`.
+    pub fn build(points: &PointSet, space: Space) -> Result<Self, SpatialError> {
+        let mut index =
+            SpatialIndex { space, len: 0, tree_of: Vec::new(), trees: Vec::new(), members: Vec::new() };
+        index.rebuild(points)?;
+        Ok(index)
+    }
+
+    /// Rebuilds over new points (moved photons) in the same space, reusing allocations.
+    pub fn rebuild(&mut self, points: &PointSet) -> Result<(), SpatialError> {
+        points.check(self.space)?;
+        let n = points.len();
+        self.len = n;
+        // Group photon indices by emitter with a counting sort (world space: one group).
+        let by_emitter = self.space != Space::World;
+        let groups = if by_emitter { points.emitters.map_or(1, |e| e.iter().max().map_or(1, |&m| m as usize + 1)) } else { 1 };
+        let mut start = vec![0usize; groups + 1];
+        for i in 0..n {
+            let g = if by_emitter { points.emitter(i) as usize } else { 0 };
+            start[g + 1] += 1;
+        }
+        for g in 0..groups {
+            start[g + 1] += start[g];
+        }
+        self.members.clear();
+        self.members.resize(n, 0);
+        let mut fill = start.clone();
+        for i in 0..n {
+            let g = if by_emitter { points.emitter(i) as usize } else { 0 };
+            self.members[fill[g]] = i as u32;
+            fill[g] += 1;
+        }
+        let mut old: Vec<Tree> = std::mem::take(&mut self.trees);
+        old.reverse();
+        self.tree_of.clear();
+        self.tree_of.resize(groups, usize::MAX);
+        for g in 0..groups {
+            let members = &self.members[start[g]..start[g + 1]];
+            if members.is_empty() {
+                continue;
+            }
+            let emitter = g as u16;
+            let dims = points.params.map_or(0, |p| p.dims_of(emitter));
+            let tree = build_tree(self.space, dims, points, members, old.pop());
+            self.tree_of[g] = self.trees.len();
+            self.trees.push(tree);
+        }
+        Ok(())
+    }
+
+    pub fn space(&self) -> Space {
+        self.space
+    }
+
+    /// Number of photons indexed.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Every photon index once, in the trees' leaf order: looping over photons in this
+    /// order keeps successive queries in nearby memory (much faster than index order).
+    pub fn order(&self) -> Vec<u32> {
+        let mut v = Vec::with_capacity(self.len);
+        for t in &self.trees {
+            v.extend(t.order());
+        }
+        v
+    }
+
+    /// The `k` photons nearest `q` by this index's distance, among its candidates (module
+    /// docs), nearest first, ties by photon index; fewer when fewer candidates exist.
+    ///
+    /// # Panics
+    /// If `q.params` holds fewer values than the query emitter's parameter dimensions.
+    pub fn knn(&self, q: &Query, k: usize, out: &mut Neighbours) {
+        out.items.clear();
+        let g = if self.space == Space::World { 0 } else { q.emitter as usize };
+        let Some(&t) = self.tree_of.get(g).filter(|&&t| t != usize::MAX) else { return };
+        let radius = match q.radius {
+            Some(r) if !(r >= 0.0) => return,
+            r => r.map(|r| r * r),
+        };
+        fn arr<const N: usize>(s: &[f32]) -> [f32; N] {
+            assert!(s.len() >= N, "the query has {} parameters; its emitter uses {N}", s.len());
+            std::array::from_fn(|i| s[i])
+        }
+        let pos = &q.position;
+        match (&self.trees[t], self.space) {
+            (Tree::Empty(_), _) => {}
+            (Tree::D3(tree), Space::World | Space::WorldParams) => tree.knn(pos, &[], None, q.exclude, k, out),
+            (Tree::D3B1(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
+            (Tree::D3B2(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
+            (Tree::D3B3(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
+            (Tree::D1(tree), _) => tree.knn(&arr(q.params), &[], None, q.exclude, k, out),
+            (Tree::D2(tree), _) => tree.knn(&arr(q.params), &[], None, q.exclude, k, out),
+            (Tree::D3(tree), Space::Params) => tree.knn(&arr(q.params), &[], None, q.exclude, k, out),
+        }
+    }
+}
+
+fn build_tree(space: Space, dims: usize, points: &PointSet, members: &[u32], old: Option<Tree>) -> Tree {
+    let pos = points.positions;
+    let par = |i: u32| points.params_of(i as usize);
+    fn take<const W: usize, const P: usize>(old: Option<Tree>, pick: fn(Tree) -> Option<KdTree<W, P>>) -> KdTree<W, P> {
+        old.and_then(pick).unwrap_or_default()
+    }
+    macro_rules! tree {
+        ($variant:ident, $w:literal, $p:literal, |$i:ident| $wc:expr, $pc:expr) => {{
+            let mut t: KdTree<$w, $p> = take(old, |o| if let Tree::$variant(t) = o { Some(t) } else { None });
+            t.rebuild(
+                |recs| {
+                    recs.extend(members.iter().map(|&$i| Rec {
+                        w: $wc,
+                        p: std::array::from_fn(|a| $pc[a]),
+                        idx: $i,
+                    }))
+                },
+                None,
+            );
+            Tree::$variant(t)
+        }};
+    }
+    match (space, dims) {
+        (Space::World, _) | (Space::WorldParams, 0) => tree!(D3, 3, 0, |i| pos[i as usize], [0.0f32; 0]),
+        (Space::WorldParams, 1) => tree!(D3B1, 3, 1, |i| pos[i as usize], par(i)),
+        (Space::WorldParams, 2) => tree!(D3B2, 3, 2, |i| pos[i as usize], par(i)),
+        (Space::WorldParams, _) => tree!(D3B3, 3, 3, |i| pos[i as usize], par(i)),
+        (Space::Params, 0) => Tree::Empty(members.to_vec()),
+        (Space::Params, 1) => tree!(D1, 1, 0, |i| std::array::from_fn(|a| par(i)[a]), [0.0f32; 0]),
+        (Space::Params, 2) => tree!(D2, 2, 0, |i| std::array::from_fn(|a| par(i)[a]), [0.0f32; 0]),
+        (Space::Params, _) => tree!(D3, 3, 0, |i| std::array::from_fn(|a| par(i)[a]), [0.0f32; 0]),
+    }
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,270 @@
+//! Every query checked against the brute-force scan on seeded random and adversarial inputs.
+
+use rand::{RngExt, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+use super::*;
+
+/// Owned photon data for building a [`PointSet`].
+struct Owned {
+    pos: Vec<[f32; 3]>,
+    params: Vec<f32>,
+    stride: usize,
+    dims: Vec<u32>,
+    emitters: Option<Vec<u16>>,
+}
+
+impl Owned {
+    fn set(&self) -> PointSet<'_> {
+        PointSet {
+            positions: &self.pos,
+            params: (self.stride > 0).then_some(ParamColumn {
+                values: &self.params,
+                stride: self.stride,
+                dims: &self.dims,
+            }),
+            emitters: self.emitters.as_deref(),
+        }
+    }
+}
+
+/// Checks `k`-NN of every photon (and of some off-photon points) in `space` against the scan.
+fn check_all(o: &Owned, space: Space, ks: &[usize], radii: &[Option<f32>], rng: &mut Pcg64Mcg) {
+    let set = o.set();
+    let index = SpatialIndex::build(&set, space).unwrap();
+    let mut out = Neighbours::default();
+    let n = set.len();
+    let mut queries: Vec<Query> = (0..n).map(|i| set.query(i, None)).collect();
+    // Off-photon queries: jittered copies of photons, and one with its own photon excluded.
+    for _ in 0..n.min(20) {
+        let i = rng.random_range(0..n);
+        let mut q = set.query(i, None);
+        for c in &mut q.position {
+            *c += rng.random::<f32>() - 0.5;
+        }
+        queries.push(q);
+        let mut q = set.query(i, None);
+        q.exclude = Some(i as u32);
+        queries.push(q);
+    }
+    for q in &mut queries {
+        for &radius in radii {
+            q.radius = radius;
+            for &k in ks {
+                index.knn(q, k, &mut out);
+                let want = brute_force_knn(&set, space, q, k);
+                assert_eq!(out.as_slice(), &want[..], "space {space:?}, k {k}, radius {radius:?}, query {q:?}");
+            }
+        }
+    }
+}
+
+fn random_points(n: usize, rng: &mut Pcg64Mcg) -> Vec<[f32; 3]> {
+    (0..n).map(|_| [rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>()]).collect()
+}
+
+fn unit(rng: &mut Pcg64Mcg) -> [f32; 3] {
+    loop {
+        let v = [rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0];
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        if l > 0.1 && l <= 1.0 {
+            return v.map(|c| c / l);
+        }
+    }
+}
+
+#[test]
+fn world_knn_equals_brute_force_on_random_points() {
+    let mut rng = Pcg64Mcg::seed_from_u64(1);
+    for n in [0, 1, 5, 12, 13, 100, 700] {
+        let o = Owned { pos: random_points(n, &mut rng), params: vec![], stride: 0, dims: vec![], emitters: None };
+        check_all(&o, Space::World, &[0, 1, 7, 50, 1000], &[None], &mut rng);
+    }
+}
+
+#[test]
+fn constrained_knn_equals_brute_force_with_two_and_three_parameter_emitters() {
+    let mut rng = Pcg64Mcg::seed_from_u64(2);
+    let n = 600;
+    // Emitter 0: (u, v) in the unit square; emitter 1: no parameters; emitter 2: directions.
+    let emitters: Vec<u16> = (0..n).map(|_| rng.random_range(0..3u16)).collect();
+    let mut params = Vec::with_capacity(3 * n);
+    for &e in &emitters {
+        match e {
+            0 => params.extend([rng.random::<f32>(), rng.random::<f32>(), 0.0]),
+            1 => params.extend([0.0; 3]),
+            _ => params.extend(unit(&mut rng)),
+        }
+    }
+    let o = Owned { pos: random_points(n, &mut rng), params, stride: 3, dims: vec![2, 0, 3], emitters: Some(emitters) };
+    let radii = [None, Some(0.0), Some(0.05), Some(0.3), Some(10.0), Some(-1.0), Some(f32::NAN)];
+    check_all(&o, Space::WorldParams, &[1, 16, 50], &radii, &mut rng);
+    check_all(&o, Space::Params, &[1, 16, 50], &[None], &mut rng);
+    check_all(&o, Space::World, &[16], &[Some(0.1)], &mut rng);
+}
+
+#[test]
+fn one_dimensional_parameters_are_supported() {
+    let mut rng = Pcg64Mcg::seed_from_u64(3);
+    let n = 300;
+    let params: Vec<f32> = (0..n).map(|_| rng.random::<f32>()).collect();
+    let o = Owned { pos: random_points(n, &mut rng), params, stride: 1, dims: vec![], emitters: None };
+    check_all(&o, Space::WorldParams, &[10], &[Some(0.1), None], &mut rng);
+    check_all(&o, Space::Params, &[10], &[None], &mut rng);
+}
+
+#[test]
+fn coincident_photons_tie_break_by_index() {
+    let mut rng = Pcg64Mcg::seed_from_u64(4);
+    let n = 200;
+    let o = Owned { pos: vec![[0.25, -3.0, 7.5]; n], params: vec![0.5; 2 * n], stride: 2, dims: vec![], emitters: None };
+    let index = SpatialIndex::build(&o.set(), Space::WorldParams).unwrap();
+    let mut out = Neighbours::default();
+    index.knn(&o.set().query(150, Some(0.0)), 10, &mut out);
+    assert_eq!(out.indices().collect::<Vec<_>>(), (0..10).collect::<Vec<u32>>());
+    assert!(out.as_slice().iter().all(|n| n.dist2 == 0.0));
+    check_all(&o, Space::WorldParams, &[1, 10, 300], &[Some(0.0), None], &mut rng);
+    check_all(&o, Space::Params, &[10], &[None], &mut rng);
+}
+
+#[test]
+fn photons_on_a_line_and_on_a_grid_with_many_equal_distances() {
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    // A line with duplicated points: every distance appears at least twice.
+    let pos: Vec<[f32; 3]> = (0..400).map(|i| [(i / 2) as f32 * 0.5, 0.0, 0.0]).collect();
+    let params: Vec<f32> = (0..400).flat_map(|i| [(i % 7) as f32, 0.0]).collect();
+    let o = Owned { pos, params, stride: 2, dims: vec![], emitters: None };
+    check_all(&o, Space::World, &[3, 16], &[None], &mut rng);
+    check_all(&o, Space::WorldParams, &[3, 16], &[Some(1.0), Some(0.0)], &mut rng);
+    // An integer grid on the plane z = 0: the z axis has no extent and must never be split.
+    let pos: Vec<[f32; 3]> = (0..30).flat_map(|x| (0..30).map(move |y| [x as f32, y as f32, 0.0])).collect();
+    let params: Vec<f32> = pos.iter().flat_map(|p| [p[1] * 0.1, p[0] * 0.1]).collect();
+    let o = Owned { pos, params, stride: 2, dims: vec![], emitters: None };
+    check_all(&o, Space::WorldParams, &[4, 9, 25], &[Some(0.25), None], &mut rng);
+}
+
+#[test]
+fn one_parameter_value_for_all_and_fewer_candidates_than_k() {
+    let mut rng = Pcg64Mcg::seed_from_u64(6);
+    let n = 500;
+    let o = Owned { pos: random_points(n, &mut rng), params: vec![0.3; 2 * n], stride: 2, dims: vec![], emitters: None };
+    check_all(&o, Space::WorldParams, &[50], &[Some(0.0), Some(1e-9)], &mut rng);
+    // Parameters spread on a line: tiny radii admit fewer photons than k.
+    let params: Vec<f32> = (0..n).flat_map(|i| [i as f32 / n as f32, 0.0]).collect();
+    let o = Owned { pos: random_points(n, &mut rng), params, stride: 2, dims: vec![], emitters: None };
+    let set = o.set();
+    let index = SpatialIndex::build(&set, Space::WorldParams).unwrap();
+    let mut out = Neighbours::default();
+    index.knn(&set.query(250, Some(3.5 / n as f32)), 50, &mut out);
+    assert_eq!(out.len(), 7, "photons 247..=253 lie within the radius");
+    check_all(&o, Space::WorldParams, &[50], &[Some(3.5 / n as f32), Some(0.02)], &mut rng);
+}
+
+#[test]
+fn emitters_never_mix_in_parameter_aware_spaces() {
+    let mut rng = Pcg64Mcg::seed_from_u64(7);
+    let n = 300;
+    let pos = random_points(n, &mut rng);
+    let emitters: Vec<u16> = (0..n).map(|i| (i % 2) as u16 * 5).collect();
+    let o = Owned { pos, params: vec![0.0; 2 * n], stride: 2, dims: vec![], emitters: Some(emitters.clone()) };
+    let set = o.set();
+    let index = SpatialIndex::build(&set, Space::WorldParams).unwrap();
+    let mut out = Neighbours::default();
+    for i in 0..n {
+        index.knn(&set.query(i, None), 20, &mut out);
+        assert!(out.indices().all(|j| emitters[j as usize] == emitters[i]));
+    }
+    // An emitter with no photons has no neighbours to give.
+    let mut q = set.query(0, None);
+    q.emitter = 3;
+    index.knn(&q, 5, &mut out);
+    assert!(out.is_empty());
+    check_all(&o, Space::WorldParams, &[20], &[None], &mut rng);
+}
+
+#[test]
+fn rebuild_after_moving_photons_equals_a_fresh_build() {
+    let mut rng = Pcg64Mcg::seed_from_u64(8);
+    let n = 2000;
+    let mut o = Owned {
+        pos: random_points(n, &mut rng),
+        params: (0..2 * n).map(|_| rng.random::<f32>()).collect(),
+        stride: 2,
+        dims: vec![],
+        emitters: None,
+    };
+    let mut index = SpatialIndex::build(&o.set(), Space::WorldParams).unwrap();
+    for p in &mut o.pos {
+        p[0] += 0.01 * (rng.random::<f32>() - 0.5);
+    }
+    index.rebuild(&o.set()).unwrap();
+    let fresh = SpatialIndex::build(&o.set(), Space::WorldParams).unwrap();
+    let (mut a, mut b) = (Neighbours::default(), Neighbours::default());
+    for i in (0..n).step_by(7) {
+        let q = o.set().query(i, Some(0.1));
+        index.knn(&q, 16, &mut a);
+        fresh.knn(&q, 16, &mut b);
+        assert_eq!(a.as_slice(), b.as_slice());
+        assert_eq!(a.as_slice(), &brute_force_knn(&o.set(), Space::WorldParams, &q, 16)[..]);
+    }
+    let mut order = index.order();
+    order.sort_unstable();
+    assert_eq!(order, (0..n as u32).collect::<Vec<_>>());
+}
+
+#[test]
+fn bad_inputs_are_refused_with_the_photon() {
+    let pos = vec![[0.0f32; 3], [f32::NAN, 0.0, 0.0]];
+    let e = SpatialIndex::build(&PointSet::world(&pos), Space::World).unwrap_err();
+    assert!(matches!(e, SpatialError::NonFinite { index: 1, what: "position" }), "{e}");
+    let pos = vec![[0.0f32; 3]; 2];
+    let params = [0.0, 0.0, 1.0, f32::INFINITY];
+    let set = PointSet { positions: &pos, params: Some(ParamColumn { values: &params, stride: 2, dims: &[] }), emitters: None };
+    let e = SpatialIndex::build(&set, Space::WorldParams).unwrap_err();
+    assert!(matches!(e, SpatialError::NonFinite { index: 1, what: "params" }), "{e}");
+    // World space never reads parameters, so they may be anything there.
+    assert!(SpatialIndex::build(&set, Space::World).is_ok());
+    let short = [0.0f32; 3];
+    let set = PointSet { positions: &pos, params: Some(ParamColumn { values: &short, stride: 2, dims: &[] }), emitters: None };
+    assert!(matches!(SpatialIndex::build(&set, Space::World), Err(SpatialError::Length { .. })));
+}
+
+/// Photons on a plane: a tree that cycled axes would split on z, which has no extent.
+#[test]
+fn plane_photons_build_a_balanced_useful_tree() {
+    let mut rng = Pcg64Mcg::seed_from_u64(9);
+    let pos: Vec<[f32; 3]> = (0..5000).map(|_| [rng.random::<f32>(), rng.random::<f32>(), 1.0]).collect();
+    let o = Owned { pos, params: vec![], stride: 0, dims: vec![], emitters: None };
+    check_all(&o, Space::World, &[16], &[None], &mut rng);
+}
+
+mod props {
+    use super::*;
+    use proptest::prelude::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Small sets on a coarse grid: many exact ties in both spaces.
+        #[test]
+        fn grid_sets_match_brute_force(
+            pts in prop::collection::vec((0i8..4, 0i8..4, 0i8..2, 0i8..3, 0i8..3, 0u16..2), 0..80),
+            k in 0usize..20,
+            radius in prop::option::of(0.0f32..3.0),
+        ) {
+            let pos: Vec<[f32; 3]> = pts.iter().map(|p| [p.0 as f32, p.1 as f32, p.2 as f32]).collect();
+            let params: Vec<f32> = pts.iter().flat_map(|p| [p.3 as f32, p.4 as f32]).collect();
+            let emitters: Vec<u16> = pts.iter().map(|p| p.5).collect();
+            let o = Owned { pos, params, stride: 2, dims: vec![], emitters: Some(emitters) };
+            let set = o.set();
+            for space in [Space::World, Space::WorldParams, Space::Params] {
+                let index = SpatialIndex::build(&set, space).unwrap();
+                let mut out = Neighbours::default();
+                for i in 0..set.len() {
+                    let q = set.query(i, radius);
+                    index.knn(&q, k, &mut out);
+                    prop_assert_eq!(out.as_slice(), &brute_force_knn(&set, space, &q, k)[..]);
+                }
+            }
+        }
+    }
+}

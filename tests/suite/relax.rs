@@ -1,0 +1,112 @@
+//! The relax and collapse stages end to end (issue 5's checks), through the command line.
+
+use std::path::Path;
+
+use photonkit::format::{PhotonMap, name};
+
+use super::common::*;
+
+/// Uniform photons on the half square x < 0.5 of the floor: a hard edge at x = 0.5, with
+/// collimated parameters equal to position (so parameter space sees the same edge).
+fn half_square(path: &Path, n: usize) {
+    let mut m = photonkit::synthetic::uniform_square(n, 21, 1.0);
+    let keep: Vec<usize> = (0..m.len()).filter(|&i| m.position[i][0] < 0.5).collect();
+    let pick = |v: &Vec<[f32; 3]>| keep.iter().map(|&i| v[i]).collect::<Vec<_>>();
+    m.position = pick(&m.position);
+    m.normal = pick(&m.normal);
+    m.flux = pick(&m.flux);
+    m.incident = pick(&m.incident);
+    m.params = keep.iter().flat_map(|&i| [m.params[2 * i], m.params[2 * i + 1]]).collect();
+    m.emitter = keep.iter().map(|_| 0).collect();
+    m.path_length = keep.iter().map(|&i| m.path_length[i]).collect();
+    m.bounces = keep.iter().map(|&i| m.bounces[i]).collect();
+    m.emission_index = keep.iter().map(|&i| m.emission_index[i]).collect();
+    write_synthetic(&m, "half-square", path);
+}
+
+/// Fraction of photons (away from the top and bottom borders) beyond the edge by more than
+/// half the mean photon spacing: 0 for the hard edge, larger as relaxation smears it.
+fn spill(path: &Path) -> f64 {
+    let map = PhotonMap::open_path(path).unwrap();
+    let spacing = (0.5 / map.len() as f64).sqrt();
+    let pos: Vec<_> = map.positions().iter().filter(|p| (0.2..0.8).contains(&p[1])).collect();
+    pos.iter().filter(|p| p[0] as f64 > 0.5 + 0.5 * spacing).count() as f64 / pos.len() as f64
+}
+
+fn run_ok(args: &[&str]) {
+    let o = photonkit(args);
+    assert!(o.status.success(), "photonkit {args:?} failed: {}", stderr(&o));
+}
+
+#[test]
+fn a_sharp_edge_keeps_its_width_under_constrained_relaxation_and_widens_without() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |f: &str| dir.path().join(f).to_str().unwrap().to_string();
+    half_square(Path::new(&p("edge.phm")), 6000);
+    run_ok(&["relax", &p("edge.phm"), "-R", "14", "-o", &p("free.phm")]);
+    run_ok(&["detect", &p("edge.phm"), "-o", &p("d.phm")]);
+    run_ok(&["relax", &p("d.phm"), "-o", &p("r1.phm")]);
+    run_ok(&["collapse", &p("r1.phm"), "-o", &p("c.phm")]);
+    run_ok(&["relax", &p("c.phm"), "-o", &p("r2.phm")]);
+    let (before, free, constrained) =
+        (spill(Path::new(&p("edge.phm"))), spill(Path::new(&p("free.phm"))), spill(Path::new(&p("r2.phm"))));
+    assert_eq!(before, 0.0);
+    assert!(free > 0.01, "unconstrained relaxation should smear the edge: spill {free}");
+    assert!(constrained < free / 4.0, "constrained spill {constrained} vs unconstrained {free}");
+    // The stages keep every photon and the total flux, and record what they did.
+    let (a, b) = (PhotonMap::open(&p("edge.phm")).unwrap(), PhotonMap::open(&p("r2.phm")).unwrap());
+    assert_eq!(a.len(), b.len());
+    let total = |m: &PhotonMap| m.flux().iter().flatten().map(|&x| x as f64).sum::<f64>();
+    assert_eq!(total(&a), total(&b));
+    let stages: Vec<_> = b.meta().history.iter().map(|h| h.stage.as_str()).collect();
+    assert_eq!(stages, ["synthetic", "detect", "relax", "collapse", "relax"]);
+    assert_eq!(b.meta().state, photonkit::format::State::Collapsed);
+    let report = &b.meta().history[2].report;
+    assert_eq!(report["space"], "world_params");
+    assert_eq!(report["iterations"].as_array().unwrap().len(), 7);
+    assert_eq!(b.meta().history[4].report["space"], "world");
+    // Photons stay on their plane.
+    assert!(b.positions().iter().all(|q| q[2] == 0.0));
+    assert!(b.column::<[f32; 3]>(name::BASIS_V).unwrap().is_some());
+}
+
+#[test]
+fn relax_refuses_maps_it_cannot_keep_on_their_surfaces_and_collapse_needs_detect() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.phm");
+    let o = photonkit(&["relax", sample_path("minimal.phm").to_str().unwrap(), "-o", out.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("constraint basis"), "{}", stderr(&o));
+    let o = photonkit(&[
+        "collapse",
+        sample_path("collimated-cusp.phm").to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("detected"), "{}", stderr(&o));
+    assert!(std::fs::read_dir(dir.path()).unwrap().next().is_none(), "no output may be left behind");
+}
+
+#[test]
+fn stages_pipe_through_standard_streams() {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let bin = env!("CARGO_BIN_EXE_photonkit");
+    let input = std::fs::read(sample_path("collimated-cusp.phm")).unwrap();
+    let mut child = Command::new(bin)
+        .args(["relax", "-", "-R", "2", "-o", "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut stdin = child.stdin.take().unwrap();
+    let writer = std::thread::spawn(move || stdin.write_all(&input));
+    let out = child.wait_with_output().unwrap();
+    writer.join().unwrap().unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let map = PhotonMap::from_bytes("<pipe>", &out.stdout).unwrap();
+    assert_eq!(map.len(), 2000);
+    assert_eq!(map.meta().history.last().unwrap().stage, "relax");
+}

@@ -3,5 +3,7 @@ pub mod detect;
 pub mod format;
 pub mod inspect;
 pub mod relax;
+pub mod scene;
 pub mod spatial;
 pub mod synthetic;
+pub mod trace;

@@ -20,7 +20,9 @@ struct Cli {
 #[derive(Subcommand)]
 enum Command {
     /// Trace caustic photons from a scene, recording their trajectory parameters.
-    Trace(cli::pending::Args),
+    Trace(cli::trace::Args),
+    /// Join the shards of one trace (`trace --shard i/n`) into the map a single run writes.
+    Merge(cli::merge::Args),
     /// Detect features: parameter-space density, constrained k-NN and PCA constraints (Eq. 1–7).
     Detect(cli::detect::Args),
     /// Relax photons toward blue noise under their constraints (Eq. 8–9).
@@ -38,7 +40,8 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
-        Command::Trace(a) => cli::pending::run("trace", 3, a),
+        Command::Trace(a) => cli::trace::run(a),
+        Command::Merge(a) => cli::merge::run(a),
         Command::Detect(a) => cli::detect::run(a),
         Command::Relax(a) => cli::relax::run(a),
         Command::Collapse(a) => cli::relax::collapse(a),

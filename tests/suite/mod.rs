@@ -2,3 +2,4 @@ pub mod common;
 mod samples;
 mod phm_py;
 mod relax;
+mod trace;

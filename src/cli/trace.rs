@@ -1,0 +1,162 @@
+//! `photonkit trace`: caustic photons from a scene file, with their trajectory parameters.
+
+use std::io::IsTerminal;
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use photonkit::format::Output;
+use photonkit::scene::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, Scene};
+use photonkit::trace::{self, Budget, Shard, StorePolicy, TraceOptions};
+
+/// Trace photons from the emitters of a scene and store the caustic ones.
+///
+/// Photon number i leaves an emitter chosen in proportion to power, from the i-th point of a
+/// Halton sequence (rotated by --seed), and is traced through mirrors and glass to the first
+/// diffuse surface. It is stored there if it met at least one specular surface on the way
+/// (a caustic photon, path L S+ D), with its position, normal, flux (W), incident direction,
+/// emitter, trajectory parameters ((u, v) on a collimated emitter, or the unit emission
+/// direction of a point or spot light), path length, bounce count, emission number and
+/// surface id. The output is the same for a given seed whatever the number of threads.
+///
+/// Scene files are TOML in metres and watts: see docs/scene.md and samples/scenes/.
+#[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    photonkit trace -o sphere.phm                                  # the embedded default scene\n  \
+    photonkit trace samples/scenes/prism.toml --photons 20000000 -o prism.phm\n  \
+    photonkit trace scene.toml --stored 1000000 -o map.phm\n  \
+    photonkit trace scene.toml --photons 1e8 --shard 0/4 -o part0.phm   # one of four machines\n  \
+    photonkit merge part0.phm part1.phm part2.phm part3.phm -o map.phm")]
+pub struct Args {
+    /// Scene file (TOML); without it, the embedded default scene (a glass sphere above a floor
+    /// under a vertical collimated beam, samples/scenes/glass-sphere.toml).
+    scene: Option<PathBuf>,
+    /// Output photon map (`-` for standard output).
+    #[arg(short, long, value_name = "FILE")]
+    output: String,
+    /// Number of photons to emit (e.g. 1000000 or 1e6). The default when neither --photons
+    /// nor --stored is given is 1e6.
+    #[arg(long, value_name = "N", value_parser = parse_count, conflicts_with = "stored")]
+    photons: Option<u64>,
+    /// Emit photons until N are stored (instead of a fixed number emitted).
+    #[arg(long, value_name = "N", value_parser = parse_count, conflicts_with = "shard")]
+    stored: Option<u64>,
+    /// Seed of the emission sequence and of the Fresnel and Russian-roulette choices.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Trace only slice i of n of the emission numbers (0 ≤ i < n); join the slices with
+    /// `photonkit merge`, which gives the file a single run gives.
+    #[arg(long, value_name = "i/n", value_parser = parse_shard)]
+    shard: Option<Shard>,
+    /// Which photons to store: `caustic` (at least one specular interaction before the
+    /// diffuse hit) or `direct` (caustic photons and those arriving straight from an emitter).
+    #[arg(long, value_name = "WHAT", default_value = "caustic", value_parser = ["caustic", "direct"])]
+    store: String,
+    /// Number of worker threads (default: all cores, or RAYON_NUM_THREADS).
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+    /// Drop a photon after this many specular interactions.
+    #[arg(long, value_name = "N", default_value_t = 64)]
+    max_bounces: u32,
+}
+
+/// A count written as an integer or in scientific notation (`20000000`, `2e7`).
+fn parse_count(s: &str) -> Result<u64, String> {
+    if let Ok(n) = s.parse::<u64>() {
+        return Ok(n);
+    }
+    match s.parse::<f64>() {
+        Ok(x) if x >= 0.0 && x.fract() == 0.0 && x < 1.8e19 => Ok(x as u64),
+        _ => Err(format!("'{s}' is not a whole number of photons")),
+    }
+}
+
+fn parse_shard(s: &str) -> Result<Shard, String> {
+    let (i, n) = s.split_once('/').ok_or_else(|| format!("'{s}': write the shard as i/n, e.g. 0/4"))?;
+    let (index, count) = (i.trim().parse::<u64>(), n.trim().parse::<u64>());
+    match (index, count) {
+        (Ok(index), Ok(count)) if index < count => Ok(Shard { index, count }),
+        _ => Err(format!("'{s}': needs whole numbers with 0 ≤ i < n")),
+    }
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let (scene, label, text) = match &a.scene {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+            (Scene::parse(&text, &p.display().to_string(), dir)?, p.display().to_string(), text)
+        }
+        None => (Scene::default_scene(), DEFAULT_SCENE_NAME.to_string(), DEFAULT_SCENE.to_string()),
+    };
+    let budget = match (a.photons, a.stored) {
+        (_, Some(0)) | (Some(0), _) => bail!("--photons and --stored need at least 1"),
+        (_, Some(n)) => Budget::Stored(n),
+        (Some(n), None) => Budget::Emitted(n),
+        (None, None) => Budget::Emitted(1_000_000),
+    };
+    let opts = TraceOptions {
+        seed: a.seed,
+        budget,
+        store: if a.store == "direct" { StorePolicy::Direct } else { StorePolicy::Caustic },
+        shard: a.shard,
+        max_bounces: a.max_bounces,
+    };
+
+    let total = match (budget, a.shard) {
+        (Budget::Emitted(n), Some(s)) => Some(s.range(n).end - s.range(n).start),
+        (Budget::Emitted(n), None) => Some(n),
+        (Budget::Stored(_), _) => None,
+    };
+    let bar = ProgressBar::with_draw_target(total, ProgressDrawTarget::stderr());
+    if !std::io::stderr().is_terminal() {
+        bar.set_draw_target(ProgressDrawTarget::hidden());
+    }
+    bar.set_style(
+        ProgressStyle::with_template(
+            "trace {bar:30} {human_pos}/{human_len} emitted, {msg} stored  {per_sec} {elapsed}/{eta}",
+        )
+        .expect("valid template"),
+    );
+    let stored = AtomicU64::new(0);
+    let t = Instant::now();
+    let progress = |e: u64, s: u64| {
+        let s = stored.fetch_add(s, Ordering::Relaxed) + s;
+        bar.inc(e);
+        bar.set_message(s.to_string());
+    };
+    let traced = match a.threads {
+        Some(n) => rayon::ThreadPoolBuilder::new()
+            .num_threads(n)
+            .build()
+            .context("starting the worker threads")?
+            .install(|| trace::trace(&scene, &opts, &progress)),
+        None => trace::trace(&scene, &opts, &progress),
+    };
+    bar.finish_and_clear();
+    let traced = traced?;
+    let secs = t.elapsed().as_secs_f64();
+    if traced.stored == 0 && a.shard.is_none() {
+        eprintln!("photonkit trace: warning: no photon was stored (does light reach a diffuse surface through a mirror or glass?)");
+    }
+    let info = trace::map_info(&scene, &opts, &traced, &label, &text);
+    traced.write(Output::parse(&a.output), info)?;
+    let traced_n = traced.range.end - traced.range.start;
+    eprintln!(
+        "photonkit trace: {} emitted, {} stored in {:.2} s ({:.2} M emitted/s, {:.2} M stored/s){}",
+        traced_n,
+        traced.stored,
+        secs,
+        traced_n as f64 / secs / 1e6,
+        traced.stored as f64 / secs / 1e6,
+        if traced.bounce_limited > 0 {
+            format!("; {} dropped at the bounce limit", traced.bounce_limited)
+        } else {
+            String::new()
+        }
+    );
+    Ok(ExitCode::SUCCESS)
+}

@@ -1,0 +1,404 @@
+//! A bounding volume hierarchy over triangles: binned surface-area-heuristic build, flat node
+//! array, ordered stack traversal.
+//!
+//! Our own rather than a crate's: on the scenes photonkit traces it measured faster than the
+//! `bvh` crate (BENCHMARKS.md, "Tracer"), and it keeps the triangle data in leaf order next to
+//! the nodes, which is what makes photon tracing cache-friendly.
+
+use glam::Vec3;
+
+use super::shape::Ray;
+
+/// Triangles per leaf at most (larger leaves are split even when SAH prefers not to).
+const MAX_LEAF: usize = 8;
+/// SAH bins per axis.
+const BINS: usize = 16;
+/// Cost of one triangle test relative to one node visit.
+const TRI_COST: f32 = 1.0;
+const NODE_COST: f32 = 1.0;
+
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C)]
+struct Node {
+    min: Vec3,
+    /// Interior: index of the left child (the right child follows it). Leaf: first triangle.
+    first: u32,
+    max: Vec3,
+    /// Number of triangles; 0 for an interior node.
+    count: u32,
+}
+
+/// A triangle in the form the intersection test wants.
+#[derive(Clone, Copy, Debug)]
+struct Tri {
+    v0: Vec3,
+    e1: Vec3,
+    e2: Vec3,
+}
+
+/// A ray's nearest hit on the triangles: distance, the triangle's index in the input list and
+/// barycentric coordinates (b1, b2) of the hit (weights of the second and third vertices).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriHit {
+    pub t: f32,
+    pub index: u32,
+    pub b1: f32,
+    pub b2: f32,
+}
+
+/// The hierarchy and the triangles reordered to follow its leaves.
+#[derive(Clone, Debug, Default)]
+pub struct Bvh {
+    nodes: Vec<Node>,
+    tris: Vec<Tri>,
+    /// Input index of each reordered triangle.
+    index: Vec<u32>,
+}
+
+#[derive(Clone, Copy)]
+struct Aabb {
+    min: Vec3,
+    max: Vec3,
+}
+
+impl Aabb {
+    const EMPTY: Aabb = Aabb { min: Vec3::INFINITY, max: Vec3::NEG_INFINITY };
+
+    fn grow(&mut self, p: Vec3) {
+        self.min = self.min.min(p);
+        self.max = self.max.max(p);
+    }
+
+    fn union(&mut self, o: &Aabb) {
+        self.min = self.min.min(o.min);
+        self.max = self.max.max(o.max);
+    }
+
+    fn area(&self) -> f32 {
+        let e = (self.max - self.min).max(Vec3::ZERO);
+        2.0 * (e.x * e.y + e.y * e.z + e.z * e.x)
+    }
+}
+
+impl Bvh {
+    /// Builds the hierarchy over `triangles` (each three vertices).
+    pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
+        let n = triangles.len();
+        if n == 0 {
+            return Bvh::default();
+        }
+        let mut bounds: Vec<Aabb> = Vec::with_capacity(n);
+        let mut centroids: Vec<Vec3> = Vec::with_capacity(n);
+        for t in triangles {
+            let mut b = Aabb::EMPTY;
+            t.iter().for_each(|&p| b.grow(p));
+            bounds.push(b);
+            centroids.push((t[0] + t[1] + t[2]) / 3.0);
+        }
+        let mut order: Vec<u32> = (0..n as u32).collect();
+        let mut nodes = Vec::with_capacity(2 * n);
+        nodes.push(Node::default());
+        let mut b = Builder { bounds: &bounds, centroids: &centroids, order: &mut order, nodes: &mut nodes };
+        b.split(0, 0, n);
+        let tris = order
+            .iter()
+            .map(|&i| {
+                let [a, b, c] = triangles[i as usize];
+                Tri { v0: a, e1: b - a, e2: c - a }
+            })
+            .collect();
+        Bvh { nodes, tris, index: order }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty()
+    }
+
+    /// The nearest triangle hit with `t` in (`t_min`, `t_max`).
+    pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
+        if self.nodes.is_empty() {
+            return None;
+        }
+        let inv = ray.dir.recip();
+        let mut best: Option<TriHit> = None;
+        let mut t_best = t_max;
+        let mut stack = [0u32; 64];
+        let mut sp = 0usize;
+        let mut node = &self.nodes[0];
+        if slab(node, ray.origin, inv, t_min, t_best).is_none() {
+            return None;
+        }
+        loop {
+            if node.count > 0 {
+                let first = node.first as usize;
+                for (k, tri) in self.tris[first..first + node.count as usize].iter().enumerate() {
+                    if let Some((t, b1, b2)) = tri_intersect(tri, ray, t_min, t_best) {
+                        t_best = t;
+                        best = Some(TriHit { t, index: self.index[first + k], b1, b2 });
+                    }
+                }
+            } else {
+                let l = node.first as usize;
+                let (a, b) = (&self.nodes[l], &self.nodes[l + 1]);
+                let ta = slab(a, ray.origin, inv, t_min, t_best);
+                let tb = slab(b, ray.origin, inv, t_min, t_best);
+                match (ta, tb) {
+                    (Some(ta), Some(tb)) => {
+                        let (near, far) = if ta <= tb { (a, l + 1) } else { (b, l) };
+                        if sp < stack.len() {
+                            stack[sp] = far as u32;
+                            sp += 1;
+                        }
+                        node = near;
+                        continue;
+                    }
+                    (Some(_), None) => {
+                        node = a;
+                        continue;
+                    }
+                    (None, Some(_)) => {
+                        node = b;
+                        continue;
+                    }
+                    (None, None) => {}
+                }
+            }
+            // Pop the next node still in front of the best hit.
+            loop {
+                if sp == 0 {
+                    return best;
+                }
+                sp -= 1;
+                let n = &self.nodes[stack[sp] as usize];
+                if slab(n, ray.origin, inv, t_min, t_best).is_some() {
+                    node = n;
+                    break;
+                }
+            }
+        }
+    }
+}
+
+struct Builder<'a> {
+    bounds: &'a [Aabb],
+    centroids: &'a [Vec3],
+    order: &'a mut [u32],
+    nodes: &'a mut Vec<Node>,
+}
+
+impl Builder<'_> {
+    fn split(&mut self, node: usize, first: usize, count: usize) {
+        let mut bb = Aabb::EMPTY;
+        let mut cb = Aabb::EMPTY;
+        for &i in &self.order[first..first + count] {
+            bb.union(&self.bounds[i as usize]);
+            cb.grow(self.centroids[i as usize]);
+        }
+        self.nodes[node].min = bb.min;
+        self.nodes[node].max = bb.max;
+        let leaf = |nodes: &mut Vec<Node>| {
+            nodes[node].first = first as u32;
+            nodes[node].count = count as u32;
+        };
+        if count <= 2 {
+            return leaf(self.nodes);
+        }
+
+        // Binned SAH over the centroid bounds.
+        let extent = cb.max - cb.min;
+        let mut best: Option<(f32, usize, f32)> = None; // (cost, axis, split position)
+        for axis in 0..3 {
+            if extent[axis] <= 0.0 {
+                continue;
+            }
+            let scale = BINS as f32 / extent[axis];
+            let mut bins = [(Aabb::EMPTY, 0usize); BINS];
+            for &i in &self.order[first..first + count] {
+                let b = (((self.centroids[i as usize][axis] - cb.min[axis]) * scale) as usize).min(BINS - 1);
+                bins[b].0.union(&self.bounds[i as usize]);
+                bins[b].1 += 1;
+            }
+            let mut right_area = [0.0f32; BINS];
+            let mut right_count = [0usize; BINS];
+            let mut acc = Aabb::EMPTY;
+            let mut c = 0;
+            for b in (1..BINS).rev() {
+                acc.union(&bins[b].0);
+                c += bins[b].1;
+                right_area[b] = acc.area();
+                right_count[b] = c;
+            }
+            let mut acc = Aabb::EMPTY;
+            let mut c = 0;
+            for b in 0..BINS - 1 {
+                acc.union(&bins[b].0);
+                c += bins[b].1;
+                if c == 0 || right_count[b + 1] == 0 {
+                    continue;
+                }
+                let cost = acc.area() * c as f32 + right_area[b + 1] * right_count[b + 1] as f32;
+                if best.is_none_or(|(bc, _, _)| cost < bc) {
+                    best = Some((cost, axis, cb.min[axis] + (b + 1) as f32 / scale));
+                }
+            }
+        }
+        let leaf_cost = count as f32 * TRI_COST;
+        let mid = match best {
+            Some((cost, axis, pos)) => {
+                let split_cost = NODE_COST + TRI_COST * cost / bb.area().max(f32::MIN_POSITIVE);
+                if split_cost >= leaf_cost && count <= MAX_LEAF {
+                    return leaf(self.nodes);
+                }
+                let centroids = self.centroids;
+                let m = partition(&mut self.order[first..first + count], |i| centroids[i as usize][axis] < pos);
+                if m == 0 || m == count { count / 2 } else { m }
+            }
+            None if count <= MAX_LEAF => return leaf(self.nodes),
+            // All centroids coincide: split in the middle of the list.
+            None => count / 2,
+        };
+        let left = self.nodes.len();
+        self.nodes.push(Node::default());
+        self.nodes.push(Node::default());
+        self.nodes[node].first = left as u32;
+        self.nodes[node].count = 0;
+        self.split(left, first, mid);
+        self.split(left + 1, first + mid, count - mid);
+    }
+}
+
+/// Moves the elements satisfying `pred` to the front; returns how many there are.
+fn partition(v: &mut [u32], pred: impl Fn(u32) -> bool) -> usize {
+    let mut m = 0;
+    for k in 0..v.len() {
+        if pred(v[k]) {
+            v.swap(m, k);
+            m += 1;
+        }
+    }
+    m
+}
+
+/// Entry distance of the ray into the node's box, if it enters within (`t_min`, `t_max`).
+#[inline(always)]
+fn slab(n: &Node, o: Vec3, inv: Vec3, t_min: f32, t_max: f32) -> Option<f32> {
+    let t0 = (n.min - o) * inv;
+    let t1 = (n.max - o) * inv;
+    // min/max that ignore the NaN of 0·∞ (a ray in a slab's plane).
+    let near = t0.min(t1).max_element().max(t_min);
+    let far = t0.max(t1).min_element().min(t_max);
+    (near <= far).then_some(near)
+}
+
+/// Möller–Trumbore ray–triangle intersection: (t, b1, b2).
+#[inline(always)]
+fn tri_intersect(tri: &Tri, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
+    let p = ray.dir.cross(tri.e2);
+    let det = tri.e1.dot(p);
+    if det == 0.0 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = ray.origin - tri.v0;
+    let b1 = s.dot(p) * inv;
+    if !(0.0..=1.0).contains(&b1) {
+        return None;
+    }
+    let q = s.cross(tri.e1);
+    let b2 = ray.dir.dot(q) * inv;
+    if b2 < 0.0 || b1 + b2 > 1.0 {
+        return None;
+    }
+    let t = tri.e2.dot(q) * inv;
+    (t > t_min && t < t_max).then_some((t, b1, b2))
+}
+
+/// Every triangle tested in turn: the oracle the hierarchy is checked against.
+pub fn brute_force(triangles: &[[Vec3; 3]], ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
+    let mut best: Option<TriHit> = None;
+    let mut t_best = t_max;
+    for (i, [a, b, c]) in triangles.iter().enumerate() {
+        let tri = Tri { v0: *a, e1: *b - *a, e2: *c - *a };
+        if let Some((t, b1, b2)) = tri_intersect(&tri, ray, t_min, t_best) {
+            t_best = t;
+            best = Some(TriHit { t, index: i as u32, b1, b2 });
+        }
+    }
+    best
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use rand::{RngExt, SeedableRng};
+    use rand_pcg::Pcg64Mcg;
+
+    fn v(rng: &mut Pcg64Mcg, s: f32) -> Vec3 {
+        Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5) * s
+    }
+
+    #[test]
+    fn triangle_hit_matches_closed_form() {
+        let t = [Vec3::new(0.0, 0.0, 1.0), Vec3::new(2.0, 0.0, 1.0), Vec3::new(0.0, 2.0, 1.0)];
+        let ray = Ray::new(Vec3::new(0.5, 0.25, 3.0), Vec3::NEG_Z);
+        let h = brute_force(&[t], &ray, 0.0, f32::INFINITY).unwrap();
+        assert!((h.t - 2.0).abs() < 1e-6);
+        assert!((h.b1 - 0.25).abs() < 1e-6 && (h.b2 - 0.125).abs() < 1e-6);
+        let miss = Ray::new(Vec3::new(1.5, 1.5, 3.0), Vec3::NEG_Z);
+        assert!(brute_force(&[t], &miss, 0.0, f32::INFINITY).is_none());
+    }
+
+    #[test]
+    fn bvh_equals_brute_force_on_random_triangles() {
+        let mut rng = Pcg64Mcg::seed_from_u64(7);
+        for &n in &[1usize, 3, 40, 2000] {
+            let tris: Vec<[Vec3; 3]> = (0..n)
+                .map(|_| {
+                    let c = v(&mut rng, 4.0);
+                    [c + v(&mut rng, 0.6), c + v(&mut rng, 0.6), c + v(&mut rng, 0.6)]
+                })
+                .collect();
+            let bvh = Bvh::build(&tris);
+            let mut hits = 0;
+            for _ in 0..3000 {
+                let o = v(&mut rng, 10.0);
+                let d = (v(&mut rng, 3.0) - o).normalize();
+                let ray = Ray::new(o, d);
+                let (a, b) = (bvh.intersect(&ray, 1e-4, f32::INFINITY), brute_force(&tris, &ray, 1e-4, f32::INFINITY));
+                match (a, b) {
+                    (Some(a), Some(b)) => {
+                        hits += 1;
+                        assert!((a.t - b.t).abs() <= 1e-5 * b.t.max(1.0), "{a:?} vs {b:?}");
+                    }
+                    (None, None) => {}
+                    _ => panic!("n = {n}: bvh {a:?} vs brute force {b:?}"),
+                }
+            }
+            assert!(hits > 0 || n < 10, "n = {n}: too few hits to test anything");
+        }
+    }
+
+    #[test]
+    fn bvh_handles_axis_aligned_rays_and_coincident_centroids() {
+        // A grid of floor triangles hit by rays straight down (zero direction components).
+        let mut tris = Vec::new();
+        for i in 0..20 {
+            for j in 0..20 {
+                let p = Vec3::new(i as f32, j as f32, 0.0);
+                tris.push([p, p + Vec3::X, p + Vec3::Y]);
+                tris.push([p + Vec3::X, p + Vec3::X + Vec3::Y, p + Vec3::Y]);
+            }
+        }
+        // Many copies of one triangle: centroids coincide, the build must still terminate.
+        tris.extend(std::iter::repeat_n([Vec3::splat(30.0), Vec3::new(31.0, 30.0, 30.0), Vec3::new(30.0, 31.0, 30.0)], 50));
+        let bvh = Bvh::build(&tris);
+        for k in 0..200 {
+            let ray = Ray::new(Vec3::new(0.05 + k as f32 * 0.097, 0.03 + k as f32 * 0.093, 5.0), Vec3::NEG_Z);
+            let (a, b) = (bvh.intersect(&ray, 0.0, f32::INFINITY), brute_force(&tris, &ray, 0.0, f32::INFINITY));
+            assert_eq!(a.map(|h| h.t), b.map(|h| h.t));
+            assert!(a.is_some());
+        }
+        let ray = Ray::new(Vec3::new(30.2, 30.2, 40.0), Vec3::NEG_Z);
+        assert!((bvh.intersect(&ray, 0.0, f32::INFINITY).unwrap().t - 10.0).abs() < 1e-5);
+    }
+}

@@ -1,0 +1,205 @@
+//! Materials and the optics they need: reflection, Snell refraction, Fresnel, dispersion and
+//! the folding of a photon's wavelength into RGB flux.
+
+use glam::Vec3;
+
+/// How a surface treats a photon.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Material {
+    /// Lambertian diffuse with an RGB `albedo`: where caustic photons are stored.
+    Diffuse { albedo: Vec3 },
+    /// A perfect mirror reflecting the fraction `reflectance` per RGB channel.
+    Mirror { reflectance: Vec3 },
+    /// A smooth dielectric interface: outside (the normal's side) has index 1, inside `ior`.
+    Dielectric(Dielectric),
+    /// Absorbs every photon that reaches it.
+    Absorber,
+}
+
+impl Material {
+    pub fn is_specular(&self) -> bool {
+        matches!(self, Material::Mirror { .. } | Material::Dielectric(_))
+    }
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dielectric {
+    /// Index of refraction without dispersion (and the value reported for it).
+    pub ior: f32,
+    /// Wavelength-dependent index, when the material disperses.
+    pub dispersion: Option<Dispersion>,
+    /// No Fresnel reflection: every photon refracts unless it is totally internally reflected.
+    pub ideal: bool,
+    /// Fraction of flux passed per RGB channel at each refraction.
+    pub tint: Vec3,
+}
+
+impl Dielectric {
+    /// Index of refraction at `wavelength_nm` (or the plain index without a wavelength).
+    pub fn ior_at(&self, wavelength_nm: Option<f32>) -> f32 {
+        match (&self.dispersion, wavelength_nm) {
+            (Some(d), Some(l)) => d.ior(l),
+            _ => self.ior,
+        }
+    }
+}
+
+/// A wavelength-dependent index of refraction; wavelengths in micrometres inside the formulas.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Dispersion {
+    /// n(λ) = A + B/λ² + C/λ⁴ with λ in µm.
+    Cauchy { a: f64, b: f64, c: f64 },
+    /// n²(λ) = 1 + Σ Bᵢ λ² / (λ² − Cᵢ) with λ in µm and Cᵢ in µm².
+    Sellmeier { b: Vec<f64>, c: Vec<f64> },
+}
+
+impl Dispersion {
+    pub fn ior(&self, wavelength_nm: f32) -> f32 {
+        let l = wavelength_nm as f64 * 1e-3;
+        let l2 = l * l;
+        let n = match self {
+            Dispersion::Cauchy { a, b, c } => a + b / l2 + c / (l2 * l2),
+            Dispersion::Sellmeier { b, c } => {
+                (1.0 + b.iter().zip(c).map(|(b, c)| b * l2 / (l2 - c)).sum::<f64>()).max(0.0).sqrt()
+            }
+        };
+        n as f32
+    }
+}
+
+/// Mirror reflection of direction `d` about unit normal `n` (either side).
+pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
+    d - 2.0 * d.dot(n) * n
+}
+
+/// Snell refraction of unit `d` through the interface with unit normal `n` facing the incoming
+/// side (d·n < 0), with `eta` = n_incident / n_transmitted; `None` on total internal reflection.
+pub fn refract(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
+    let cos_i = -d.dot(n);
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
+    if sin2_t >= 1.0 {
+        return None;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    Some((eta * d + (eta * cos_i - cos_t) * n).normalize())
+}
+
+/// Fresnel reflectance of unpolarised light at a dielectric interface (the mean of the s and p
+/// reflectances), for incidence cosine `cos_i` ≥ 0 and `eta` = n_incident / n_transmitted;
+/// 1 under total internal reflection.
+pub fn fresnel(cos_i: f32, eta: f32) -> f32 {
+    let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
+    if sin2_t >= 1.0 {
+        return 1.0;
+    }
+    let cos_t = (1.0 - sin2_t).sqrt();
+    let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
+    let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
+    0.5 * (rs * rs + rp * rp)
+}
+
+/// The visible range photons' wavelengths are drawn from, nm.
+pub const WAVELENGTH_RANGE_NM: (f32, f32) = (380.0, 720.0);
+
+/// Linear sRGB weight of a wavelength, scaled so that each channel averages 1 over
+/// [`WAVELENGTH_RANGE_NM`]: a white photon that takes a uniformly drawn wavelength and
+/// multiplies its flux by this keeps its expected RGB flux (so white light stays white).
+pub fn wavelength_rgb(wavelength_nm: f32) -> Vec3 {
+    raw_rgb(wavelength_nm) / *RGB_MEAN
+}
+
+static RGB_MEAN: std::sync::LazyLock<Vec3> = std::sync::LazyLock::new(|| {
+    let (lo, hi) = WAVELENGTH_RANGE_NM;
+    let n = 4000;
+    let sum: glam::DVec3 =
+        (0..n).map(|k| raw_rgb(lo + (hi - lo) * (k as f32 + 0.5) / n as f32).as_dvec3()).sum();
+    (sum / n as f64).as_vec3()
+});
+
+/// CIE 1931 colour matching functions by the multi-lobe Gaussian fit of Wyman, Sloan and
+/// Shirley (JCGT 2013), converted to linear sRGB with negative lobes clipped.
+fn raw_rgb(l: f32) -> Vec3 {
+    let g = |mu: f32, s1: f32, s2: f32| {
+        let t = (l - mu) / if l < mu { s1 } else { s2 };
+        (-0.5 * t * t).exp()
+    };
+    let x = 1.056 * g(599.8, 37.9, 31.0) + 0.362 * g(442.0, 16.0, 26.7) - 0.065 * g(501.1, 20.4, 26.2);
+    let y = 0.821 * g(568.8, 46.9, 40.5) + 0.286 * g(530.9, 16.3, 31.1);
+    let z = 1.217 * g(437.0, 11.8, 36.0) + 0.681 * g(459.0, 26.0, 13.8);
+    Vec3::new(
+        3.2406 * x - 1.5372 * y - 0.4986 * z,
+        -0.9689 * x + 1.8758 * y + 0.0415 * z,
+        0.0557 * x - 0.2040 * y + 1.0570 * z,
+    )
+    .max(Vec3::ZERO)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fresnel_matches_closed_form_values() {
+        // Normal incidence: ((n1 − n2)/(n1 + n2))² = 0.04 for glass (n = 1.5).
+        assert!((fresnel(1.0, 1.0 / 1.5) - 0.04).abs() < 1e-6);
+        assert!((fresnel(1.0, 1.5) - 0.04).abs() < 1e-6);
+        // Brewster's angle: p-polarised reflectance vanishes, R = Rs/2.
+        let tb = 1.5f32.atan();
+        let (ci, ct) = (tb.cos(), (1.0 / 1.5 * tb.sin()).asin().cos());
+        let rs = ((ci - 1.5 * ct) / (ci + 1.5 * ct)).powi(2);
+        assert!((fresnel(ci, 1.0 / 1.5) - 0.5 * rs).abs() < 1e-6);
+        // 45° air→glass: Rs = 0.0920, Rp = 0.00847 (textbook values), mean 0.0502.
+        assert!((fresnel(45f32.to_radians().cos(), 1.0 / 1.5) - 0.0502).abs() < 2e-4);
+        // Grazing incidence reflects everything; beyond the critical angle, TIR.
+        assert!((fresnel(0.0, 1.0 / 1.5) - 1.0).abs() < 1e-6);
+        let crit = (1.0f32 / 1.5).asin();
+        assert_eq!(fresnel((crit + 0.01).cos(), 1.5), 1.0);
+        assert!(fresnel((crit - 0.01).cos(), 1.5) < 1.0);
+    }
+
+    #[test]
+    fn snell_refraction_and_total_internal_reflection() {
+        let n = Vec3::Z;
+        let theta = 30f32.to_radians();
+        let d = Vec3::new(theta.sin(), 0.0, -theta.cos());
+        let t = refract(d, n, 1.0 / 1.5).unwrap();
+        // n1 sin θ1 = n2 sin θ2.
+        assert!((t.x - theta.sin() / 1.5).abs() < 1e-6 && t.z < 0.0 && (t.length() - 1.0).abs() < 1e-6);
+        // Glass → air beyond the critical angle 41.81°: total internal reflection.
+        let g = 42f32.to_radians();
+        assert!(refract(Vec3::new(g.sin(), 0.0, -g.cos()), n, 1.5).is_none());
+        let g = 41f32.to_radians();
+        let t = refract(Vec3::new(g.sin(), 0.0, -g.cos()), n, 1.5).unwrap();
+        assert!((t.x - 1.5 * g.sin()).abs() < 1e-5);
+        let r = reflect(d, n);
+        assert!((r - Vec3::new(d.x, 0.0, -d.z)).length() < 1e-7);
+    }
+
+    #[test]
+    fn dispersion_formulas_give_catalogue_indices() {
+        // Schott N-BK7 Sellmeier coefficients: n_d (587.6 nm) = 1.5168, n_F (486.1) = 1.5224.
+        let bk7 = Dispersion::Sellmeier {
+            b: vec![1.03961212, 0.231792344, 1.01046945],
+            c: vec![0.00600069867, 0.0200179144, 103.560653],
+        };
+        assert!((bk7.ior(587.6) - 1.5168).abs() < 1e-4);
+        assert!((bk7.ior(486.1) - 1.5224).abs() < 1e-4);
+        let cauchy = Dispersion::Cauchy { a: 1.5046, b: 0.00420, c: 0.0 };
+        assert!((cauchy.ior(500.0) - (1.5046 + 0.0042 / 0.25)).abs() < 1e-6);
+        assert!(cauchy.ior(400.0) > cauchy.ior(700.0));
+    }
+
+    #[test]
+    fn wavelength_weights_keep_white_light_white() {
+        let (lo, hi) = WAVELENGTH_RANGE_NM;
+        let n = 10_000;
+        let mean: Vec3 = (0..n).map(|k| wavelength_rgb(lo + (hi - lo) * (k as f32 + 0.5) / n as f32)).sum::<Vec3>()
+            / n as f32;
+        assert!((mean - Vec3::ONE).abs().max_element() < 1e-3, "{mean}");
+        // Hue order: red at 650 nm, green at 540 nm, blue at 450 nm dominate.
+        let (r, g, b) = (wavelength_rgb(650.0), wavelength_rgb(540.0), wavelength_rgb(450.0));
+        assert!(r.x > r.y && r.x > r.z);
+        assert!(g.y > g.x && g.y > g.z);
+        assert!(b.z > b.x && b.z > b.y);
+    }
+}

@@ -1,0 +1,331 @@
+//! Scenes: the camera, emitters, shapes and materials the tracer shoots photons through.
+//!
+//! A scene is read from a TOML file (`docs/scene.md`; units are metres and watts) by
+//! [`Scene::load`] or [`Scene::parse`]. Shapes are numbered in file order: that number is the
+//! `surface` id stored with each photon. Analytic shapes are intersected directly; every
+//! triangle of every mesh goes into one [bounding volume hierarchy](bvh).
+
+pub mod bvh;
+pub mod camera;
+pub mod emitter;
+mod file;
+pub mod material;
+pub mod mesh;
+pub mod shape;
+
+use std::path::Path;
+
+use glam::Vec3;
+
+pub use camera::{Camera, Projection};
+pub use emitter::{Emitter, EmitterShape};
+pub use material::{Dielectric, Dispersion, Material};
+pub use mesh::{Mesh, Transform};
+pub use shape::{Hit, Ray, Shape};
+
+/// The scene `photonkit trace` uses when given none: a glass sphere above a floor under a
+/// vertical collimated beam (`samples/scenes/glass-sphere.toml`).
+pub const DEFAULT_SCENE: &str = include_str!("../../samples/scenes/glass-sphere.toml");
+/// The name the default scene goes by in messages and stage records.
+pub const DEFAULT_SCENE_NAME: &str = "<default scene: glass-sphere.toml>";
+
+/// Everything that can be wrong with a scene file.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum SceneError {
+    #[error("{file}: {source}")]
+    Io { file: String, source: std::io::Error },
+    /// A syntax, type or value error at a place in the file (line and column 1-based).
+    #[error("{file}:{line}:{column}: {field}: {message}")]
+    Invalid { file: String, line: usize, column: usize, field: String, message: String },
+}
+
+/// The geometry of one surface, in world space.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SurfaceGeometry {
+    Analytic(Shape),
+    Mesh(Mesh),
+}
+
+/// One shape of the scene: its name, material and geometry.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Surface {
+    pub name: String,
+    /// Index into [`Scene::materials`].
+    pub material: u32,
+    pub geometry: SurfaceGeometry,
+}
+
+#[derive(Clone, Copy, Debug)]
+struct TriInfo {
+    surface: u32,
+    /// Unit geometric normal, (b − a) × (c − a) normalised.
+    normal: Vec3,
+    /// Index into `vertex_normals`, or `u32::MAX` for a flat facet.
+    smooth: u32,
+}
+
+/// A scene ready to trace.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    pub name: Option<String>,
+    pub camera: Option<Camera>,
+    pub materials: Vec<Material>,
+    pub material_names: Vec<String>,
+    pub emitters: Vec<Emitter>,
+    pub emitter_names: Vec<String>,
+    pub surfaces: Vec<Surface>,
+    analytic: Vec<(Shape, u32)>,
+    triangles: Vec<[Vec3; 3]>,
+    tri_info: Vec<TriInfo>,
+    vertex_normals: Vec<[Vec3; 3]>,
+    bvh: bvh::Bvh,
+}
+
+impl Scene {
+    fn empty() -> Scene {
+        Scene {
+            name: None,
+            camera: None,
+            materials: Vec::new(),
+            material_names: Vec::new(),
+            emitters: Vec::new(),
+            emitter_names: Vec::new(),
+            surfaces: Vec::new(),
+            analytic: Vec::new(),
+            triangles: Vec::new(),
+            tri_info: Vec::new(),
+            vertex_normals: Vec::new(),
+            bvh: bvh::Bvh::default(),
+        }
+    }
+
+    /// A scene built in code: named materials, emitters and surfaces (whose `material` indexes
+    /// `materials`). Panics if a surface names a material that does not exist.
+    pub fn new(materials: Vec<(String, Material)>, emitters: Vec<Emitter>, surfaces: Vec<Surface>) -> Scene {
+        let mut s = Scene::empty();
+        (s.material_names, s.materials) = materials.into_iter().unzip();
+        s.emitter_names = (0..emitters.len()).map(|i| format!("emitter{i}")).collect();
+        s.emitters = emitters;
+        for surf in surfaces {
+            assert!((surf.material as usize) < s.materials.len(), "surface '{}' has no material", surf.name);
+            s.add_surface(surf.name, surf.material, surf.geometry);
+        }
+        s.finish();
+        s
+    }
+
+    /// Reads a scene file; relative paths inside it (OBJ files) are resolved beside it.
+    pub fn load(path: &Path) -> Result<Scene, SceneError> {
+        let file = path.display().to_string();
+        let src = std::fs::read_to_string(path).map_err(|source| SceneError::Io { file: file.clone(), source })?;
+        let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        Scene::parse(&src, &file, dir)
+    }
+
+    /// Reads a scene from TOML text; `file` names it in errors, `dir` resolves relative paths.
+    pub fn parse(src: &str, file: &str, dir: &Path) -> Result<Scene, SceneError> {
+        file::parse(src, file, dir)
+    }
+
+    /// The embedded default scene.
+    pub fn default_scene() -> Scene {
+        Scene::parse(DEFAULT_SCENE, DEFAULT_SCENE_NAME, Path::new(".")).expect("the embedded default scene is valid")
+    }
+
+    fn add_surface(&mut self, name: String, material: u32, geometry: SurfaceGeometry) {
+        let id = self.surfaces.len() as u32;
+        match &geometry {
+            SurfaceGeometry::Analytic(s) => self.analytic.push((s.clone(), id)),
+            SurfaceGeometry::Mesh(m) => {
+                for (i, t) in m.indices.iter().enumerate() {
+                    let tri = m.triangle(i);
+                    let normal = (tri[1] - tri[0]).cross(tri[2] - tri[0]).normalize_or_zero();
+                    let smooth = match &m.normals {
+                        Some(ns) => {
+                            self.vertex_normals.push(t.map(|k| ns[k as usize]));
+                            self.vertex_normals.len() as u32 - 1
+                        }
+                        None => u32::MAX,
+                    };
+                    self.triangles.push(tri);
+                    self.tri_info.push(TriInfo { surface: id, normal, smooth });
+                }
+            }
+        }
+        self.surfaces.push(Surface { name, material, geometry });
+    }
+
+    fn finish(&mut self) {
+        self.bvh = bvh::Bvh::build(&self.triangles);
+    }
+
+    /// Number of mesh triangles in the scene.
+    pub fn triangle_count(&self) -> usize {
+        self.triangles.len()
+    }
+
+    /// The material of surface `id`.
+    pub fn material(&self, surface: u32) -> &Material {
+        &self.materials[self.surfaces[surface as usize].material as usize]
+    }
+
+    /// Whether any material disperses light (photons then take a wavelength).
+    pub fn has_dispersion(&self) -> bool {
+        self.materials.iter().any(|m| matches!(m, Material::Dielectric(d) if d.dispersion.is_some()))
+    }
+
+    /// Largest number of trajectory parameters of any emitter (the `params` column's width).
+    pub fn param_dims(&self) -> u32 {
+        self.emitters.iter().map(|e| e.param_dims()).max().unwrap_or(0)
+    }
+
+    /// The nearest surface the ray meets with `t` in (`t_min`, `t_max`).
+    pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut t_best = t_max;
+        for (s, id) in &self.analytic {
+            if let Some((t, n)) = s.intersect(ray, t_min, t_best) {
+                t_best = t;
+                best = Some(Hit { t, normal: n, shading: n, shape: *id });
+            }
+        }
+        if let Some(h) = self.bvh.intersect(ray, t_min, t_best) {
+            let info = &self.tri_info[h.index as usize];
+            let shading = match self.vertex_normals.get(info.smooth as usize) {
+                Some([n0, n1, n2]) => {
+                    (*n0 * (1.0 - h.b1 - h.b2) + *n1 * h.b1 + *n2 * h.b2).try_normalize().unwrap_or(info.normal)
+                }
+                None => info.normal,
+            };
+            best = Some(Hit { t: h.t, normal: info.normal, shading, shape: info.surface });
+        }
+        best
+    }
+
+    /// The nearest hit by testing every shape and triangle in turn (the oracle for tests).
+    pub fn intersect_brute_force(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut t_best = t_max;
+        for (s, id) in &self.analytic {
+            if let Some((t, n)) = s.intersect(ray, t_min, t_best) {
+                t_best = t;
+                best = Some(Hit { t, normal: n, shading: n, shape: *id });
+            }
+        }
+        if let Some(h) = bvh::brute_force(&self.triangles, ray, t_min, t_best) {
+            let info = &self.tri_info[h.index as usize];
+            best = Some(Hit { t: h.t, normal: info.normal, shading: info.normal, shape: info.surface });
+        }
+        best
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn parse(src: &str) -> Result<Scene, SceneError> {
+        Scene::parse(src, "test.toml", Path::new("."))
+    }
+
+    const BASE: &str = r#"
+[materials.floor]
+kind = "diffuse"
+
+[materials.glass]
+kind = "dielectric"
+ior = 1.5
+
+[[emitters]]
+kind = "point"
+position = [0, 0, 2]
+power_w = 10
+
+[[shapes]]
+kind = "plane"
+normal = [0, 0, 1]
+material = "floor"
+"#;
+
+    /// (line of the error, field named, message) for BASE with `extra` appended.
+    fn bad(extra: &str) -> (usize, String, String) {
+        match parse(&format!("{BASE}{extra}")) {
+            Err(SceneError::Invalid { line, field, message, .. }) => (line, field, message),
+            Err(e) => panic!("unexpected error {e}"),
+            Ok(_) => panic!("accepted:\n{extra}"),
+        }
+    }
+
+    #[test]
+    fn default_scene_parses() {
+        let s = Scene::default_scene();
+        assert!(!s.emitters.is_empty() && !s.surfaces.is_empty());
+        assert!(s.camera.is_some());
+    }
+
+    #[test]
+    fn errors_name_line_and_field() {
+        // The appended text starts with a blank line: its header is line n + 2.
+        let n = BASE.lines().count();
+        let (l, f, _) = bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\nradius = -1\n");
+        assert_eq!((l, f.as_str()), (n + 5, "shapes[1].radius"));
+        let (l, f, _) = bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glas\"\nradius = 1\n");
+        assert_eq!((l, f.as_str()), (n + 4, "shapes[1].material"));
+        let (l, f, m) = bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\nradus = 1\n");
+        assert_eq!((l, f.as_str()), (n + 5, "radus"), "{m}");
+        let (l, f, _) = bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\nradius = \"big\"\n");
+        assert_eq!((l, f.as_str()), (n + 5, "radius"));
+        // Missing keys point at the table's header.
+        let (l, f, _) = bad("\n[[shapes]]\nkind = \"disc\"\nmaterial = \"glass\"\n");
+        assert_eq!((l, f.as_str()), (n + 2, "shapes[1].radius"));
+        // Keys that do not apply to the kind.
+        let (l, f, _) = bad("\n[[shapes]]\nkind = \"plane\"\nmaterial = \"glass\"\nnormal = [0,0,1]\nradius = 2\n");
+        assert_eq!((l, f.as_str()), (n + 6, "shapes[1].radius"));
+        // A non-uniform scale on a sphere.
+        let (l, f, _) =
+            bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\nradius = 1\ntransform = { scale = [1, 2, 1] }\n");
+        assert_eq!((l, f.as_str()), (n + 6, "shapes[1].transform"));
+        // Syntax errors.
+        let (l, _, _) = bad("\n[[shapes]]\nkind = \"sphere\n");
+        assert_eq!(l, n + 3);
+    }
+
+    #[test]
+    fn emitter_and_material_errors_name_their_fields() {
+        let src = BASE.replace("power_w = 10", "power_w = 0");
+        match parse(&src) {
+            Err(SceneError::Invalid { field, line, .. }) => {
+                assert_eq!(field, "emitters[0].power_w");
+                assert_eq!(BASE.lines().nth(line - 1), Some("power_w = 10"));
+            }
+            other => panic!("{other:?}"),
+        }
+        let src = BASE.replace("ior = 1.5", "ior = 0.5");
+        assert!(matches!(parse(&src), Err(SceneError::Invalid { field, .. }) if field == "materials.glass.ior"));
+        let src = BASE.replace("kind = \"point\"", "kind = \"laser\"");
+        assert!(matches!(parse(&src), Err(SceneError::Invalid { field, .. }) if field == "emitters[0].kind"));
+    }
+
+    #[test]
+    fn intersection_uses_the_nearest_of_shapes_and_meshes() {
+        let src = format!(
+            "{BASE}\n[[shapes]]\nkind = \"extrusion\"\nmaterial = \"glass\"\noutline = [[-1,-1],[1,-1],[1,1],[-1,1]]\n\
+             z_range = [1, 1.5]\n\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\ncenter = [0, 0, 3]\nradius = 0.5\n"
+        );
+        let s = parse(&src).unwrap();
+        assert_eq!(s.triangle_count(), 12);
+        let down = |x: f32| Ray::new(Vec3::new(x, 0.0, 5.0), Vec3::NEG_Z);
+        let h = s.intersect(&down(0.0), 1e-4, f32::INFINITY).unwrap();
+        assert_eq!((h.shape, h.t), (2, 1.5)); // the sphere's top at z = 3.5
+        let h = s.intersect(&down(0.9), 1e-4, f32::INFINITY).unwrap();
+        assert_eq!((h.shape, h.t, h.normal), (1, 3.5, Vec3::Z)); // the slab's top at z = 1.5
+        let h = s.intersect(&down(3.0), 1e-4, f32::INFINITY).unwrap();
+        assert_eq!((h.shape, h.t), (0, 5.0)); // the floor
+        for k in 0..100 {
+            let r = Ray::new(Vec3::new(-2.0 + 0.04 * k as f32, 0.3, 5.0), Vec3::new(0.1, -0.05, -1.0).normalize());
+            let (a, b) = (s.intersect(&r, 1e-4, f32::INFINITY), s.intersect_brute_force(&r, 1e-4, f32::INFINITY));
+            assert_eq!(a.map(|h| (h.shape, h.t)), b.map(|h| (h.shape, h.t)));
+        }
+    }
+}

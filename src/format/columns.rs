@@ -237,11 +237,14 @@ pub struct ColumnSpec {
     pub name: String,
     pub dtype: DType,
     pub components: u32,
+    /// Keys of the column's table entry that this version does not define (a newer minor
+    /// version's), carried through unchanged by a stage that passes the column on.
+    pub extra: serde_json::Map<String, serde_json::Value>,
 }
 
 impl ColumnSpec {
     pub fn new(name: &str, dtype: DType, components: u32) -> Self {
-        ColumnSpec { name: name.to_string(), dtype, components }
+        ColumnSpec { name: name.to_string(), dtype, components, extra: Default::default() }
     }
 
     /// The spec of a column whose elements are `T`.

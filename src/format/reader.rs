@@ -124,7 +124,8 @@ impl PhotonMap {
             .columns
             .iter()
             .map(|c| {
-                let spec = ColumnSpec::new(&c.name, c.dtype, c.components);
+                let spec =
+                    ColumnSpec { extra: c.extra.clone(), ..ColumnSpec::new(&c.name, c.dtype, c.components) };
                 (spec, self.column_bytes(&c.name).expect("listed column"))
             })
             .collect()
@@ -264,8 +265,9 @@ fn column_err(file: &str, column: &str, message: String) -> FormatError {
     FormatError::Column { file: file.to_string(), column: column.to_string(), message }
 }
 
-/// The rules of format-spec/phm-v1.md §3–4 that do not need to read photon data.
-fn validate(file: &str, pre: &Preamble, meta: &Metadata) -> Result<()> {
+/// The rules of format-spec/phm-v1.md §3–4 that do not need to read photon data (the writer
+/// applies them too, so it never writes a file this reader refuses).
+pub(super) fn validate(file: &str, pre: &Preamble, meta: &Metadata) -> Result<()> {
     let count = meta.photon_count;
     let data_start = PREAMBLE_LEN as u64 + pre.metadata_len;
     let mut names = HashSet::new();
@@ -360,7 +362,7 @@ fn validate(file: &str, pre: &Preamble, meta: &Metadata) -> Result<()> {
     Ok(())
 }
 
-fn validate_emitters(file: &str, meta: &Metadata) -> Result<()> {
+pub(super) fn validate_emitters(file: &str, meta: &Metadata) -> Result<()> {
     if meta.emitters.len() > u16::MAX as usize + 1 {
         return Err(invalid(file, format!("{} emitters; at most 65536 are allowed", meta.emitters.len())));
     }

@@ -9,6 +9,7 @@ use std::path::{Path, PathBuf};
 use super::columns::{known_column, name};
 use super::meta::{BoundingBox, ColumnEntry, MapInfo, Metadata};
 use super::preamble::{PREAMBLE_LEN, Preamble, VERSION_MAJOR, VERSION_MINOR, align_up};
+use super::reader::{validate, validate_emitters};
 use super::{ColumnSpec, FormatError, Result};
 
 /// Where a stage writes its photon map.
@@ -103,10 +104,13 @@ impl PhotonWriter {
                 offset: u64::MAX,
                 length: u64::MAX,
                 crc32: u32::MAX,
-                extra: Default::default(),
+                extra: s.extra.clone(),
             })
             .collect();
         let widest = metadata(&info, count, entries.clone(), Some(wide));
+        // Refuse up front what the reader would refuse (emitters against the column table),
+        // before any photon is streamed.
+        validate_emitters(&tname, &widest)?;
         let json_len = serde_json::to_vec_pretty(&widest).map_err(|e| bad(e.to_string()))?.len() as u64;
         let data_start = align_up(PREAMBLE_LEN as u64 + json_len + 64);
         let mut at = data_start;
@@ -268,6 +272,8 @@ impl PhotonWriter {
             metadata_len: self.metadata_len,
             file_len: self.file_len,
         };
+        // Never write a file our own reader refuses (the temporary file goes with `self`).
+        validate(&self.target.display(), &pre, &meta)?;
         let f = self.tmp.as_file();
         f.write_all_at(&pre.to_bytes(), 0).map_err(|e| self.io(e))?;
         f.write_all_at(&region, PREAMBLE_LEN as u64).map_err(|e| self.io(e))?;

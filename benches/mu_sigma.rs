@@ -32,7 +32,8 @@ fn main() {
                 .collect();
             // Pool the streams' means and variances (equal sizes).
             let mean = parts.iter().map(|p| p.0).sum::<f64>() / parts.len() as f64;
-            let var = parts.iter().map(|p| p.1 * p.1 + (p.0 - mean).powi(2)).sum::<f64>() / parts.len() as f64;
+            let var =
+                parts.iter().map(|p| p.1 * p.1 + (p.0 - mean).powi(2)).sum::<f64>() / parts.len() as f64;
             (k, mean, var.sqrt())
         })
         .collect();
@@ -59,6 +60,8 @@ fn main() {
     };
     let (dm, ds) = stats(&disc);
     let (fm, fs) = stats(&far);
-    eprintln!("K = 100 uniform in the unit disc, 100 000 sets: by disc radius² mean {dm:.4} sd {ds:.4}; by farthest point mean {fm:.4} sd {fs:.4}");
+    eprintln!(
+        "K = 100 uniform in the unit disc, 100 000 sets: by disc radius² mean {dm:.4} sd {ds:.4}; by farthest point mean {fm:.4} sd {fs:.4}"
+    );
     eprintln!("{sets} sets per K, {:.1} s", t.elapsed().as_secs_f64());
 }

@@ -140,7 +140,11 @@ fn main() {
     let t = Clock::start();
     let mut acc = 0.0f32;
     for &i in order.iter().filter(|_| with_kiddo) {
-        let found = kid.params.query(&pts2[i as usize]).nearest_n::<SquaredEuclidean<f32>>(NonZero::new(kc).unwrap()).execute();
+        let found = kid
+            .params
+            .query(&pts2[i as usize])
+            .nearest_n::<SquaredEuclidean<f32>>(NonZero::new(kc).unwrap())
+            .execute();
         acc += found.last().map_or(0.0, |l| l.distance);
     }
     let d_kiddo = t.secs();
@@ -157,7 +161,15 @@ fn main() {
         let mut fetched = 0usize;
         for &i in order.iter().filter(|_| with_kiddo) {
             let i = i as usize;
-            fetched += kiddo_constrained(&kid.world, &set, m.position[i], set.params_of(i), r_param[i], k, &mut kout);
+            fetched += kiddo_constrained(
+                &kid.world,
+                &set,
+                m.position[i],
+                set.params_of(i),
+                r_param[i],
+                k,
+                &mut kout,
+            );
         }
         let kid_s = t.secs();
         report.push((label, ours, kid_s, fetched as f64 / n as f64));
@@ -169,12 +181,18 @@ fn main() {
     let ours = t.secs();
     let t = Clock::start();
     for &i in order.iter().filter(|_| with_kiddo) {
-        let f = kid.world.query(&m.position[i as usize]).nearest_n::<SquaredEuclidean<f32>>(NonZero::new(kf).unwrap()).execute();
+        let f = kid
+            .world
+            .query(&m.position[i as usize])
+            .nearest_n::<SquaredEuclidean<f32>>(NonZero::new(kf).unwrap())
+            .execute();
         std::hint::black_box(f);
     }
     report.push(("world Kf = 16", ours, t.secs(), 0.0));
 
-    println!("\n| query | photonkit µs/query | kiddo µs/query | kiddo/photonkit | kiddo photons fetched per query |");
+    println!(
+        "\n| query | photonkit µs/query | kiddo µs/query | kiddo/photonkit | kiddo photons fetched per query |"
+    );
     println!("| --- | --- | --- | --- | --- |");
     for (label, ours, kid_s, fetched) in report {
         let f = if fetched > 0.0 { format!("{fetched:.0}") } else { "-".into() };
@@ -198,5 +216,8 @@ fn main() {
         let wd: Vec<f32> = want.iter().map(|x| x.dist2).collect();
         assert_eq!(kd, wd, "kiddo's distances differ from brute force at photon {i}");
     }
-    println!("\nchecked {} queries against brute force: photonkit exact (indices and distances), kiddo equal distances", sample.len());
+    println!(
+        "\nchecked {} queries against brute force: photonkit exact (indices and distances), kiddo equal distances",
+        sample.len()
+    );
 }

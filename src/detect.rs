@@ -164,7 +164,8 @@ pub fn erf(x: f64) -> f64 {
                 + t * (0.096_784_18
                     + t * (-0.186_288_06
                         + t * (0.278_868_07
-                            + t * (-1.135_203_98 + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
+                            + t * (-1.135_203_98
+                                + t * (1.488_515_87 + t * (-0.822_152_23 + t * 0.170_872_77))))))));
     let erfc = t * poly.exp();
     if x >= 0.0 { 1.0 - erfc } else { erfc - 1.0 }
 }
@@ -262,7 +263,13 @@ pub struct PhotonConstraint {
 impl PhotonConstraint {
     /// Free motion in the plane of (t1, t2).
     fn free(t1: DVec3, t2: DVec3, outcome: Outcome) -> Self {
-        PhotonConstraint { u: t1.as_vec3().into(), v: t2.as_vec3().into(), lambda2: 0.25, factor: 1.0, outcome }
+        PhotonConstraint {
+            u: t1.as_vec3().into(),
+            v: t2.as_vec3().into(),
+            lambda2: 0.25,
+            factor: 1.0,
+            outcome,
+        }
     }
 }
 
@@ -530,8 +537,7 @@ pub fn detect(
     } else {
         None
     };
-    let normals_ok =
-        input.normals.is_some_and(|ns| ns.iter().all(|&n| unit_normal(n).is_some()));
+    let normals_ok = input.normals.is_some_and(|ns| ns.iter().all(|&n| unit_normal(n).is_some()));
     let (points, space) = match p.method {
         Method::ParamPca => (input.points(true), Some(Space::WorldParams)),
         Method::WorldPca | Method::Gradient => (input.points(false), Some(Space::World)),
@@ -565,20 +571,21 @@ pub fn detect(
             }));
             let r2 = offsets.iter().map(|o| o.length_squared()).fold(0.0, f64::max);
             let hood = Neighbourhood { offsets: &offsets, r2, normal };
-            *res = match p.method {
-                Method::ParamPca | Method::WorldPca => pca_constraint(&hood, p.noise, &mut scratch),
-                Method::Gradient => {
-                    weights.clear();
-                    weights.extend(nb.indices().map(|j| {
-                        input.flux.map_or(1.0, |f| f[j as usize].iter().map(|&c| c as f64).sum())
-                    }));
-                    gradient_constraint(&hood, &weights, p.gain as f64, &mut scratch)
-                }
-                Method::None => {
-                    let (_, t1, t2) = hood.frame();
-                    PhotonConstraint::free(t1, t2, Outcome::Unconstrained)
-                }
-            };
+            *res =
+                match p.method {
+                    Method::ParamPca | Method::WorldPca => pca_constraint(&hood, p.noise, &mut scratch),
+                    Method::Gradient => {
+                        weights.clear();
+                        weights.extend(nb.indices().map(|j| {
+                            input.flux.map_or(1.0, |f| f[j as usize].iter().map(|&c| c as f64).sum())
+                        }));
+                        gradient_constraint(&hood, &weights, p.gain as f64, &mut scratch)
+                    }
+                    Method::None => {
+                        let (_, t1, t2) = hood.frame();
+                        PhotonConstraint::free(t1, t2, Outcome::Unconstrained)
+                    }
+                };
         }
         progress(ids.len() as u64);
     });
@@ -617,7 +624,10 @@ pub fn detect(
 /// The method to run on `map`: `requested` if given (an error if it is `param-pca` and the map
 /// has no trajectory parameters), else `param-pca`, or `world-pca` with a note to show the
 /// user when the map has no trajectory parameters.
-pub fn choose_method(map: &PhotonMap, requested: Option<Method>) -> Result<(Method, Option<String>), DetectError> {
+pub fn choose_method(
+    map: &PhotonMap,
+    requested: Option<Method>,
+) -> Result<(Method, Option<String>), DetectError> {
     let has = map_input(map)?.has_params();
     match requested {
         Some(Method::ParamPca) if !has => Err(DetectError::NoParameters { file: map.file_name().into() }),

@@ -93,16 +93,22 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let units = detect::work_units(&detect::map_input(&map)?);
     let bar = ProgressBar::with_draw_target(
         Some(units),
-        if std::io::stderr().is_terminal() { ProgressDrawTarget::stderr() } else { ProgressDrawTarget::hidden() },
+        if std::io::stderr().is_terminal() {
+            ProgressDrawTarget::stderr()
+        } else {
+            ProgressDrawTarget::hidden()
+        },
     )
     .with_style(
-        ProgressStyle::with_template("detect {bar:30} {percent}% {elapsed} (eta {eta})").expect("valid template"),
+        ProgressStyle::with_template("detect {bar:30} {percent}% {elapsed} (eta {eta})")
+            .expect("valid template"),
     );
     let t = Instant::now();
     let d = detect::detect_map(&map, &p, &|k| bar.inc(k))?;
     bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
-    detect::write_detected(&map, &d, &p, seconds, Output::parse(&a.output)).context("writing the detected map")?;
+    detect::write_detected(&map, &d, &p, seconds, Output::parse(&a.output))
+        .context("writing the detected map")?;
     let s = &d.summary;
     eprintln!(
         "detected {} photons with {} (Kc = {}) in {seconds:.2} s ({:.2} µs/photon): {:.1} % constrained \

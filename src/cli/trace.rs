@@ -140,7 +140,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let traced = traced?;
     let secs = t.elapsed().as_secs_f64();
     if traced.stored == 0 && a.shard.is_none() {
-        eprintln!("photonkit trace: warning: no photon was stored (does light reach a diffuse surface through a mirror or glass?)");
+        eprintln!(
+            "photonkit trace: warning: no photon was stored (does light reach a diffuse surface through a mirror or glass?)"
+        );
     }
     let info = trace::map_info(&scene, &opts, &traced, &label, &text);
     traced.write(Output::parse(&a.output), info)?;

@@ -17,7 +17,8 @@ fn stats(v: &[f64]) -> (f64, f64) {
 #[test]
 fn eigen2_matches_nalgebra_and_its_own_definition() {
     let mut r = rng(1);
-    let mut cases: Vec<[f64; 3]> = vec![[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    let mut cases: Vec<[f64; 3]> =
+        vec![[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
     cases.extend((0..500).map(|_| {
         let s = 10f64.powf(r.random_range(-8.0..8.0));
         [r.random_range(-1.0..1.0) * s, r.random_range(-1.0..1.0) * s, r.random_range(-1.0..1.0) * s]
@@ -46,7 +47,14 @@ fn eigen2_matches_nalgebra_and_its_own_definition() {
 #[test]
 fn erf_matches_tabulated_values() {
     // Abramowitz & Stegun, Table 7.1.
-    for (x, want) in [(0.0, 0.0), (0.1, 0.112_462_916), (0.5, 0.520_499_878), (1.0, 0.842_700_793), (2.0, 0.995_322_265), (3.0, 0.999_977_910)] {
+    for (x, want) in [
+        (0.0, 0.0),
+        (0.1, 0.112_462_916),
+        (0.5, 0.520_499_878),
+        (1.0, 0.842_700_793),
+        (2.0, 0.995_322_265),
+        (3.0, 0.999_977_910),
+    ] {
         assert!((erf(x) - want).abs() < 2e-7, "erf({x}) = {} not {want}", erf(x));
         assert!((erf(-x) + want).abs() < 2e-7);
     }
@@ -129,7 +137,8 @@ fn tangent_basis_is_orthonormal_for_every_normal() {
     let mut r = rng(4);
     let mut normals = vec![DVec3::Z, -DVec3::Z, DVec3::X, DVec3::new(0.0, 1e-9, -1.0).normalize()];
     normals.extend((0..200).map(|_| {
-        DVec3::new(r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), r.random_range(-1.0..1.0)).normalize()
+        DVec3::new(r.random_range(-1.0..1.0), r.random_range(-1.0..1.0), r.random_range(-1.0..1.0))
+            .normalize()
     }));
     for n in normals {
         let (t1, t2) = tangent_basis(n);
@@ -170,13 +179,15 @@ fn pca_holds_a_half_disc_across_its_edge_and_frees_a_full_disc() {
     let z = Some([0.0f32, 0.0, 1.0]);
     // A photon on the straight edge x = 0 of a lit half-plane x < 0.
     let (o, r2) = hood(&disc_points(49, 5, |p| p[0] < 0.0), flat);
-    let c = pca_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, NoiseModel::Simulated, &mut scratch);
+    let c =
+        pca_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, NoiseModel::Simulated, &mut scratch);
     assert_eq!(c.outcome, Outcome::Measured);
     assert!(c.factor < 0.1, "edge factor {}", c.factor);
     assert!(c.u[1].abs() > 0.95, "u_b along the edge: {:?}", c.u);
     // A photon inside a uniform region.
     let (o, r2) = hood(&disc_points(49, 6, |_| true), flat);
-    let c = pca_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, NoiseModel::Simulated, &mut scratch);
+    let c =
+        pca_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, NoiseModel::Simulated, &mut scratch);
     assert!(c.factor > 0.8, "uniform factor {} (λ2 {})", c.factor, c.lambda2);
     let v = DVec3::from(c.v.map(|x| x as f64));
     assert!((v.length() - c.factor as f64).abs() < 1e-6, "|v_b| is the factor");
@@ -224,7 +235,11 @@ fn pca_ignores_the_normals_length_and_the_scenes_scale() {
     let mut s = Vec::new();
     let pts = disc_points(49, 8, |p| p[0] + 0.3 * p[1] < 0.2);
     let (o, r2) = hood(&pts, flat);
-    let base = pca_constraint(&Neighbourhood { offsets: &o, r2, normal: Some([0.0, 0.0, 1.0]) }, NoiseModel::Simulated, &mut s);
+    let base = pca_constraint(
+        &Neighbourhood { offsets: &o, r2, normal: Some([0.0, 0.0, 1.0]) },
+        NoiseModel::Simulated,
+        &mut s,
+    );
     for (scale, len) in [(1e-6, 1.0f32), (1e6, 1.0), (1.0, 1e-3), (1.0, 1e4)] {
         let o: Vec<DVec3> = o.iter().map(|x| *x * scale).collect();
         let c = pca_constraint(
@@ -232,7 +247,10 @@ fn pca_ignores_the_normals_length_and_the_scenes_scale() {
             NoiseModel::Simulated,
             &mut s,
         );
-        assert!((c.lambda2 - base.lambda2).abs() < 1e-6 && (c.factor - base.factor).abs() < 1e-6, "{scale} {len}");
+        assert!(
+            (c.lambda2 - base.lambda2).abs() < 1e-6 && (c.factor - base.factor).abs() < 1e-6,
+            "{scale} {len}"
+        );
         for k in 0..3 {
             assert!((c.u[k] - base.u[k]).abs() < 1e-6 && (c.v[k] - base.v[k]).abs() < 1e-6);
         }
@@ -244,11 +262,21 @@ fn gradient_baseline_holds_an_edge_along_its_gradient_and_frees_a_uniform_region
     let mut s = Vec::new();
     let z = Some([0.0f32, 0.0, 1.0]);
     let (o, r2) = hood(&disc_points(49, 9, |p| p[0] < 0.0), flat);
-    let c = gradient_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, &[1.0; 50], DEFAULT_GAIN as f64, &mut s);
+    let c = gradient_constraint(
+        &Neighbourhood { offsets: &o, r2, normal: z },
+        &[1.0; 50],
+        DEFAULT_GAIN as f64,
+        &mut s,
+    );
     assert!(c.factor < 0.05, "edge {c:?}");
     assert!(c.u[1].abs() > 0.95, "u_b along the edge {c:?}");
     let (o, r2) = hood(&disc_points(49, 10, |_| true), flat);
-    let c = gradient_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, &[1.0; 50], DEFAULT_GAIN as f64, &mut s);
+    let c = gradient_constraint(
+        &Neighbourhood { offsets: &o, r2, normal: z },
+        &[1.0; 50],
+        DEFAULT_GAIN as f64,
+        &mut s,
+    );
     assert!(c.factor > 0.6, "uniform {c:?}");
     // Gain 0 frees everything.
     let c = gradient_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, &[1.0; 50], 0.0, &mut s);
@@ -309,7 +337,8 @@ fn param_pca_neighbourhoods_equal_a_brute_force_gather() {
     let r = d.r_param.as_ref().unwrap();
     let mut s = Vec::new();
     for i in (0..m.len()).step_by(37) {
-        let nb = crate::spatial::brute_force_knn(&points, Space::WorldParams, &points.query(i, Some(r[i])), p.kc);
+        let nb =
+            crate::spatial::brute_force_knn(&points, Space::WorldParams, &points.query(i, Some(r[i])), p.kc);
         let xi = m.position[i];
         let o: Vec<DVec3> = nb
             .iter()
@@ -319,7 +348,8 @@ fn param_pca_neighbourhoods_equal_a_brute_force_gather() {
             })
             .collect();
         let r2 = o.iter().map(|x| x.length_squared()).fold(0.0, f64::max);
-        let c = pca_constraint(&Neighbourhood { offsets: &o, r2, normal: Some(m.normal[i]) }, p.noise, &mut s);
+        let c =
+            pca_constraint(&Neighbourhood { offsets: &o, r2, normal: Some(m.normal[i]) }, p.noise, &mut s);
         assert_eq!((c.u, c.v, c.lambda2), (d.basis_u[i], d.basis_v[i], d.lambda2[i]), "photon {i}");
     }
 }
@@ -354,7 +384,9 @@ fn adversarial_photon_sets_give_finite_constraints_for_every_method() {
                 assert!(all_finite(&d), "{method:?} Kc {kc} on {} photons", m.len());
                 for (u, v) in d.basis_u.iter().zip(&d.basis_v) {
                     let (u, v) = (DVec3::from(u.map(|x| x as f64)), DVec3::from(v.map(|x| x as f64)));
-                    assert!((u.length() - 1.0).abs() < 1e-5 && v.length() <= 1.0 + 1e-5 && u.dot(v).abs() < 1e-5);
+                    assert!(
+                        (u.length() - 1.0).abs() < 1e-5 && v.length() <= 1.0 + 1e-5 && u.dot(v).abs() < 1e-5
+                    );
                 }
             }
         }
@@ -415,7 +447,10 @@ fn bad_parameters_and_missing_parameters_are_refused() {
         assert!(matches!(detect(&inp, &p, &|_| {}), Err(DetectError::Parameter(_))), "{p:?}");
     }
     let no_params = input(&m, &dims, 0);
-    assert!(matches!(detect(&no_params, &DetectParams::default(), &|_| {}), Err(DetectError::NoParameters { .. })));
+    assert!(matches!(
+        detect(&no_params, &DetectParams::default(), &|_| {}),
+        Err(DetectError::NoParameters { .. })
+    ));
     let p = DetectParams { method: Method::WorldPca, ..Default::default() };
     let d = detect(&no_params, &p, &|_| {}).unwrap();
     assert!(d.r_param.is_none() && all_finite(&d));

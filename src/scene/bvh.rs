@@ -250,7 +250,8 @@ impl Builder<'_> {
                     return leaf(self.nodes);
                 }
                 let centroids = self.centroids;
-                let m = partition(&mut self.order[first..first + count], |i| centroids[i as usize][axis] < pos);
+                let m =
+                    partition(&mut self.order[first..first + count], |i| centroids[i as usize][axis] < pos);
                 if m == 0 || m == count { count / 2 } else { m }
             }
             None if count <= MAX_LEAF => return leaf(self.nodes),
@@ -364,7 +365,8 @@ mod tests {
                 let o = v(&mut rng, 10.0);
                 let d = (v(&mut rng, 3.0) - o).normalize();
                 let ray = Ray::new(o, d);
-                let (a, b) = (bvh.intersect(&ray, 1e-4, f32::INFINITY), brute_force(&tris, &ray, 1e-4, f32::INFINITY));
+                let (a, b) =
+                    (bvh.intersect(&ray, 1e-4, f32::INFINITY), brute_force(&tris, &ray, 1e-4, f32::INFINITY));
                 match (a, b) {
                     (Some(a), Some(b)) => {
                         hits += 1;
@@ -390,11 +392,15 @@ mod tests {
             }
         }
         // Many copies of one triangle: centroids coincide, the build must still terminate.
-        tris.extend(std::iter::repeat_n([Vec3::splat(30.0), Vec3::new(31.0, 30.0, 30.0), Vec3::new(30.0, 31.0, 30.0)], 50));
+        tris.extend(std::iter::repeat_n(
+            [Vec3::splat(30.0), Vec3::new(31.0, 30.0, 30.0), Vec3::new(30.0, 31.0, 30.0)],
+            50,
+        ));
         let bvh = Bvh::build(&tris);
         for k in 0..200 {
             let ray = Ray::new(Vec3::new(0.05 + k as f32 * 0.097, 0.03 + k as f32 * 0.093, 5.0), Vec3::NEG_Z);
-            let (a, b) = (bvh.intersect(&ray, 0.0, f32::INFINITY), brute_force(&tris, &ray, 0.0, f32::INFINITY));
+            let (a, b) =
+                (bvh.intersect(&ray, 0.0, f32::INFINITY), brute_force(&tris, &ray, 0.0, f32::INFINITY));
             assert_eq!(a.map(|h| h.t), b.map(|h| h.t));
             assert!(a.is_some());
         }

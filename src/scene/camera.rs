@@ -28,7 +28,13 @@ pub enum Projection {
 
 impl Camera {
     /// A camera at `eye` looking at `look_at` with `up` roughly up; `None` if they are degenerate.
-    pub fn look_at(projection: Projection, eye: Vec3, look_at: Vec3, up: Vec3, resolution: [u32; 2]) -> Option<Self> {
+    pub fn look_at(
+        projection: Projection,
+        eye: Vec3,
+        look_at: Vec3,
+        up: Vec3,
+        resolution: [u32; 2],
+    ) -> Option<Self> {
         let forward = (look_at - eye).try_normalize()?;
         let right = forward.cross(up).try_normalize()?;
         let up = right.cross(forward);
@@ -73,13 +79,22 @@ mod tests {
         let top = c.ray(400.0, 0.0).dir;
         assert!((top.dot(Vec3::Y).acos().to_degrees() - 30.0).abs() < 1e-3 && top.z > 0.0);
         assert!(c.ray(800.0, 300.0).dir.x > 0.0, "image right is world +x here");
-        assert!(Camera::look_at(Projection::Pinhole { fov_y_rad: 1.0 }, Vec3::ZERO, Vec3::Z, Vec3::Z, [1, 1]).is_none());
+        assert!(
+            Camera::look_at(Projection::Pinhole { fov_y_rad: 1.0 }, Vec3::ZERO, Vec3::Z, Vec3::Z, [1, 1])
+                .is_none()
+        );
     }
 
     #[test]
     fn orthographic_rays_are_parallel_and_span_the_height() {
-        let c = Camera::look_at(Projection::Orthographic { height_m: 2.0 }, Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, [100, 100])
-            .unwrap();
+        let c = Camera::look_at(
+            Projection::Orthographic { height_m: 2.0 },
+            Vec3::new(0.0, 0.0, 5.0),
+            Vec3::ZERO,
+            Vec3::Y,
+            [100, 100],
+        )
+        .unwrap();
         let (a, b) = (c.ray(50.0, 0.0), c.ray(50.0, 100.0));
         assert_eq!(a.dir, b.dir);
         assert!(((a.origin - b.origin).length() - 2.0).abs() < 1e-6);

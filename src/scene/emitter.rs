@@ -139,7 +139,8 @@ mod tests {
 
     #[test]
     fn point_directions_are_uniform_on_the_sphere() {
-        let e = Emitter { kind: EmitterShape::Point { position: Vec3::ONE }, power_w: 1.0, colour: Vec3::ONE };
+        let e =
+            Emitter { kind: EmitterShape::Point { position: Vec3::ONE }, power_w: 1.0, colour: Vec3::ONE };
         let (mut mean, mut upper, mut n) = (Vec3::ZERO, 0, 0);
         for (s, t) in grid(100) {
             let (r, p) = e.emit(s, t);

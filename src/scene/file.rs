@@ -165,7 +165,13 @@ struct Ctx<'a> {
 impl Ctx<'_> {
     fn err(&self, span: Range<usize>, field: impl Into<String>, message: impl Into<String>) -> SceneError {
         let (line, column) = line_column(self.src, span.start);
-        SceneError::Invalid { file: self.file.to_string(), line, column, field: field.into(), message: message.into() }
+        SceneError::Invalid {
+            file: self.file.to_string(),
+            line,
+            column,
+            field: field.into(),
+            message: message.into(),
+        }
     }
 
     /// A TOML syntax or type error: the field is read off the line the error points at.
@@ -188,7 +194,8 @@ fn line_column(src: &str, at: usize) -> (usize, usize) {
 /// The key a span belongs to: the key itself, or the nearest `key =` before it on its line,
 /// or the `[table]` header it is.
 fn field_at(src: &str, span: Range<usize>) -> Option<String> {
-    let is_key = |s: &str| !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
+    let is_key =
+        |s: &str| !s.is_empty() && s.chars().all(|c| c.is_ascii_alphanumeric() || c == '_' || c == '-');
     let at = span.start.min(src.len());
     let line_start = src[..at].rfind('\n').map_or(0, |p| p + 1);
     let line_end = src[at..].find('\n').map_or(src.len(), |p| at + p);
@@ -199,7 +206,8 @@ fn field_at(src: &str, span: Range<usize>) -> Option<String> {
     let before = &src[line_start..at];
     if let Some(eq) = before.rfind('=') {
         let key = before[..eq].trim_end();
-        let k = key.rsplit(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '-')).next().unwrap_or("");
+        let k =
+            key.rsplit(|c: char| !(c.is_ascii_alphanumeric() || c == '_' || c == '-')).next().unwrap_or("");
         if is_key(k) {
             return Some(k.to_string());
         }
@@ -229,7 +237,8 @@ pub(super) fn parse(src: &str, file: &str, dir: &Path) -> Result<Scene, SceneErr
     let mut emitter_names = Vec::new();
     for (i, e) in raw.emitters.iter().enumerate() {
         emitters.push(emitter(&cx, i, e)?);
-        emitter_names.push(e.get_ref().name.as_ref().map_or_else(|| format!("emitter{i}"), |n| n.get_ref().clone()));
+        emitter_names
+            .push(e.get_ref().name.as_ref().map_or_else(|| format!("emitter{i}"), |n| n.get_ref().clone()));
     }
     if emitters.is_empty() {
         return Err(cx.err(0..0, "emitters", "the scene has no emitter: add an [[emitters]] table"));
@@ -276,7 +285,13 @@ fn only(
     Ok(())
 }
 
-fn req<'a, T>(cx: &Ctx, table: Range<usize>, what: &str, key: &str, v: &'a Option<Sp<T>>) -> Result<&'a T, SceneError> {
+fn req<'a, T>(
+    cx: &Ctx,
+    table: Range<usize>,
+    what: &str,
+    key: &str,
+    v: &'a Option<Sp<T>>,
+) -> Result<&'a T, SceneError> {
     v.as_ref().map(|s| s.get_ref()).ok_or_else(|| cx.err(table, format!("{what}.{key}"), "missing"))
 }
 
@@ -296,9 +311,10 @@ fn finite(cx: &Ctx, what: &str, key: &str, v: &Option<Sp<[f32; 3]>>) -> Result<O
 
 fn unit(cx: &Ctx, what: &str, key: &str, v: &Option<Sp<[f32; 3]>>) -> Result<Option<Vec3>, SceneError> {
     match (finite(cx, what, key, v)?, v) {
-        (Some(x), Some(s)) => {
-            x.try_normalize().map(Some).ok_or_else(|| cx.err(s.span(), format!("{what}.{key}"), "must not be zero"))
-        }
+        (Some(x), Some(s)) => x
+            .try_normalize()
+            .map(Some)
+            .ok_or_else(|| cx.err(s.span(), format!("{what}.{key}"), "must not be zero")),
         _ => Ok(None),
     }
 }
@@ -333,18 +349,28 @@ fn camera(cx: &Ctx, c: &Sp<RawCamera>) -> Result<Camera, SceneError> {
             only(cx, "camera", kind, r.present(), &[&common[..], &["fov_deg"]].concat())?;
             let fov = positive(cx, "camera", "fov_deg", &r.fov_deg)?.unwrap_or(40.0);
             if fov >= 180.0 {
-                return Err(cx.err(r.fov_deg.as_ref().map_or(span, |s| s.span()), "camera.fov_deg", "must be below 180"));
+                return Err(cx.err(
+                    r.fov_deg.as_ref().map_or(span, |s| s.span()),
+                    "camera.fov_deg",
+                    "must be below 180",
+                ));
             }
             Projection::Pinhole { fov_y_rad: fov.to_radians() }
         }
         "orthographic" => {
             only(cx, "camera", kind, r.present(), &[&common[..], &["height"]].concat())?;
             let h = positive(cx, "camera", "height", &r.height)?;
-            Projection::Orthographic { height_m: h.ok_or_else(|| cx.err(span.clone(), "camera.height", "missing"))? }
+            Projection::Orthographic {
+                height_m: h.ok_or_else(|| cx.err(span.clone(), "camera.height", "missing"))?,
+            }
         }
         _ => {
             let s = r.projection.as_ref().map_or(span, |s| s.span());
-            return Err(cx.err(s, "camera.projection", format!("unknown projection \"{kind}\" (pinhole, orthographic)")));
+            return Err(cx.err(
+                s,
+                "camera.projection",
+                format!("unknown projection \"{kind}\" (pinhole, orthographic)"),
+            ));
         }
     };
     let eye = finite(cx, "camera", "eye", &r.eye)?;
@@ -360,8 +386,9 @@ fn camera(cx: &Ctx, c: &Sp<RawCamera>) -> Result<Camera, SceneError> {
         let s = r.resolution.as_ref().map_or(span.clone(), |s| s.span());
         return Err(cx.err(s, "camera.resolution", "each side must be 1 to 65536 pixels"));
     }
-    Camera::look_at(projection, eye, look, up, res)
-        .ok_or_else(|| cx.err(span, "camera.look_at", "eye and look_at coincide, or the view is parallel to up"))
+    Camera::look_at(projection, eye, look, up, res).ok_or_else(|| {
+        cx.err(span, "camera.look_at", "eye and look_at coincide, or the view is parallel to up")
+    })
 }
 
 fn material(cx: &Ctx, name: &str, m: &Sp<RawMaterial>) -> Result<Material, SceneError> {
@@ -371,11 +398,15 @@ fn material(cx: &Ctx, name: &str, m: &Sp<RawMaterial>) -> Result<Material, Scene
     Ok(match kind {
         "diffuse" => {
             only(cx, &what, kind, r.present(), &["kind", "albedo"])?;
-            Material::Diffuse { albedo: fraction(cx, &what, "albedo", &r.albedo)?.unwrap_or(Vec3::splat(0.8)) }
+            Material::Diffuse {
+                albedo: fraction(cx, &what, "albedo", &r.albedo)?.unwrap_or(Vec3::splat(0.8)),
+            }
         }
         "mirror" => {
             only(cx, &what, kind, r.present(), &["kind", "reflectance"])?;
-            Material::Mirror { reflectance: fraction(cx, &what, "reflectance", &r.reflectance)?.unwrap_or(Vec3::ONE) }
+            Material::Mirror {
+                reflectance: fraction(cx, &what, "reflectance", &r.reflectance)?.unwrap_or(Vec3::ONE),
+            }
         }
         "absorber" => {
             only(cx, &what, kind, r.present(), &["kind"])?;
@@ -387,25 +418,40 @@ fn material(cx: &Ctx, name: &str, m: &Sp<RawMaterial>) -> Result<Material, Scene
                 (Some(c), None) => {
                     let v = c.get_ref();
                     if !(2..=3).contains(&v.len()) || v.iter().any(|x| !x.is_finite()) || v[0] < 1.0 {
-                        return Err(cx.err(c.span(), format!("{what}.cauchy"), "needs [A, B] or [A, B, C] with A ≥ 1 (λ in µm)"));
+                        return Err(cx.err(
+                            c.span(),
+                            format!("{what}.cauchy"),
+                            "needs [A, B] or [A, B, C] with A ≥ 1 (λ in µm)",
+                        ));
                     }
                     Some(Dispersion::Cauchy { a: v[0], b: v[1], c: v.get(2).copied().unwrap_or(0.0) })
                 }
                 (None, Some(s)) => {
                     let v = s.get_ref();
-                    if v.b.is_empty() || v.b.len() != v.c.len() || v.b.iter().chain(&v.c).any(|x| !x.is_finite() || *x < 0.0) {
+                    if v.b.is_empty()
+                        || v.b.len() != v.c.len()
+                        || v.b.iter().chain(&v.c).any(|x| !x.is_finite() || *x < 0.0)
+                    {
                         return Err(cx.err(s.span(), format!("{what}.sellmeier"), "needs b and c lists of equal, non-zero length with non-negative entries (c in µm²)"));
                     }
                     Some(Dispersion::Sellmeier { b: v.b.clone(), c: v.c.clone() })
                 }
-                (Some(_), Some(s)) => return Err(cx.err(s.span(), format!("{what}.sellmeier"), "give cauchy or sellmeier, not both")),
+                (Some(_), Some(s)) => {
+                    return Err(cx.err(
+                        s.span(),
+                        format!("{what}.sellmeier"),
+                        "give cauchy or sellmeier, not both",
+                    ));
+                }
                 (None, None) => None,
             };
             let ior = match (positive(cx, &what, "ior", &r.ior)?, &dispersion) {
                 (Some(n), _) => n,
                 // With dispersion, the index reported for the material is the one at 587.6 nm (n_d).
                 (None, Some(d)) => d.ior(587.6),
-                (None, None) => return Err(cx.err(span, format!("{what}.ior"), "missing (or give cauchy or sellmeier)")),
+                (None, None) => {
+                    return Err(cx.err(span, format!("{what}.ior"), "missing (or give cauchy or sellmeier)"));
+                }
             };
             if ior < 1.0 || !ior.is_finite() {
                 let s = r.ior.as_ref().map_or(span, |s| s.span());
@@ -420,7 +466,11 @@ fn material(cx: &Ctx, name: &str, m: &Sp<RawMaterial>) -> Result<Material, Scene
         }
         _ => {
             let s = r.kind.as_ref().map_or(span, |s| s.span());
-            return Err(cx.err(s, format!("{what}.kind"), format!("unknown material kind \"{kind}\" (diffuse, mirror, dielectric, absorber)")));
+            return Err(cx.err(
+                s,
+                format!("{what}.kind"),
+                format!("unknown material kind \"{kind}\" (diffuse, mirror, dielectric, absorber)"),
+            ));
         }
     })
 }
@@ -429,13 +479,21 @@ fn emitter(cx: &Ctx, i: usize, e: &Sp<RawEmitter>) -> Result<Emitter, SceneError
     let what = format!("emitters[{i}]");
     let (span, r) = (e.span(), e.get_ref());
     let kind = req(cx, span.clone(), &what, "kind", &r.kind)?.as_str();
-    let power = r.power_w.as_ref().ok_or_else(|| cx.err(span.clone(), format!("{what}.power_w"), "missing"))?;
+    let power =
+        r.power_w.as_ref().ok_or_else(|| cx.err(span.clone(), format!("{what}.power_w"), "missing"))?;
     if !(power.get_ref().is_finite() && *power.get_ref() > 0.0) {
         return Err(cx.err(power.span(), format!("{what}.power_w"), "must be a positive number of watts"));
     }
     let colour = match &r.colour {
-        Some(c) if c.get_ref().iter().any(|x| !(x.is_finite() && *x >= 0.0)) || c.get_ref().iter().sum::<f32>() <= 0.0 => {
-            return Err(cx.err(c.span(), format!("{what}.colour"), "needs non-negative channels, not all zero"));
+        Some(c)
+            if c.get_ref().iter().any(|x| !(x.is_finite() && *x >= 0.0))
+                || c.get_ref().iter().sum::<f32>() <= 0.0 =>
+        {
+            return Err(cx.err(
+                c.span(),
+                format!("{what}.colour"),
+                "needs non-negative channels, not all zero",
+            ));
         }
         Some(c) => vec3(c.get_ref()),
         None => Vec3::ONE,
@@ -445,10 +503,18 @@ fn emitter(cx: &Ctx, i: usize, e: &Sp<RawEmitter>) -> Result<Emitter, SceneError
         "point" => {
             only(cx, &what, kind, r.present(), &[&common[..], &["position"]].concat())?;
             let p = finite(cx, &what, "position", &r.position)?;
-            EmitterShape::Point { position: p.ok_or_else(|| cx.err(span.clone(), format!("{what}.position"), "missing"))? }
+            EmitterShape::Point {
+                position: p.ok_or_else(|| cx.err(span.clone(), format!("{what}.position"), "missing"))?,
+            }
         }
         "spot" => {
-            only(cx, &what, kind, r.present(), &[&common[..], &["position", "direction", "half_angle_deg"]].concat())?;
+            only(
+                cx,
+                &what,
+                kind,
+                r.present(),
+                &[&common[..], &["position", "direction", "half_angle_deg"]].concat(),
+            )?;
             let p = finite(cx, &what, "position", &r.position)?;
             let d = unit(cx, &what, "direction", &r.direction)?;
             let half = positive(cx, &what, "half_angle_deg", &r.half_angle_deg)?.unwrap_or(90.0);
@@ -472,38 +538,67 @@ fn emitter(cx: &Ctx, i: usize, e: &Sp<RawEmitter>) -> Result<Emitter, SceneError
             )?;
             let dir = unit(cx, &what, "direction", &r.direction)?;
             let (origin, eu, ev) = if r.center.is_some() || r.size.is_some() {
-                if let Some((k, s)) = r.present().into_iter().find(|(k, _)| ["origin", "edge_u", "edge_v"].contains(k)) {
-                    return Err(cx.err(s, format!("{what}.{k}"), "give center + size + direction, or origin + edge_u + edge_v, not both"));
+                if let Some((k, s)) =
+                    r.present().into_iter().find(|(k, _)| ["origin", "edge_u", "edge_v"].contains(k))
+                {
+                    return Err(cx.err(
+                        s,
+                        format!("{what}.{k}"),
+                        "give center + size + direction, or origin + edge_u + edge_v, not both",
+                    ));
                 }
-                let c = finite(cx, &what, "center", &r.center)?.ok_or_else(|| cx.err(span.clone(), format!("{what}.center"), "missing"))?;
-                let size = r.size.as_ref().ok_or_else(|| cx.err(span.clone(), format!("{what}.size"), "missing"))?;
+                let c = finite(cx, &what, "center", &r.center)?
+                    .ok_or_else(|| cx.err(span.clone(), format!("{what}.center"), "missing"))?;
+                let size =
+                    r.size.as_ref().ok_or_else(|| cx.err(span.clone(), format!("{what}.size"), "missing"))?;
                 let [w, h] = *size.get_ref();
                 if !(w > 0.0 && h > 0.0 && w.is_finite() && h.is_finite()) {
-                    return Err(cx.err(size.span(), format!("{what}.size"), "needs two positive lengths in metres"));
+                    return Err(cx.err(
+                        size.span(),
+                        format!("{what}.size"),
+                        "needs two positive lengths in metres",
+                    ));
                 }
                 let d = dir.ok_or_else(|| cx.err(span.clone(), format!("{what}.direction"), "missing"))?;
-                let up = unit(cx, &what, "up", &r.up)?.unwrap_or(if d.z.abs() > 0.9 { Vec3::Y } else { Vec3::Z });
+                let up =
+                    unit(cx, &what, "up", &r.up)?.unwrap_or(if d.z.abs() > 0.9 { Vec3::Y } else { Vec3::Z });
                 // edge_v along `up` (projected), edge_u to its right seen along the beam.
                 let eu = d.cross(up).try_normalize().ok_or_else(|| {
-                    cx.err(r.up.as_ref().map_or(span.clone(), |s| s.span()), format!("{what}.up"), "must not be parallel to direction")
+                    cx.err(
+                        r.up.as_ref().map_or(span.clone(), |s| s.span()),
+                        format!("{what}.up"),
+                        "must not be parallel to direction",
+                    )
                 })?;
                 let ev = eu.cross(d);
                 let (eu, ev) = (eu * w, ev * h);
                 (c - 0.5 * eu - 0.5 * ev, eu, ev)
             } else {
                 if r.up.is_some() {
-                    return Err(cx.err(r.up.as_ref().map_or(span.clone(), |s| s.span()), format!("{what}.up"), "applies only with center + size"));
+                    return Err(cx.err(
+                        r.up.as_ref().map_or(span.clone(), |s| s.span()),
+                        format!("{what}.up"),
+                        "applies only with center + size",
+                    ));
                 }
                 let o = finite(cx, &what, "origin", &r.origin)?;
                 let eu = finite(cx, &what, "edge_u", &r.edge_u)?;
                 let ev = finite(cx, &what, "edge_v", &r.edge_v)?;
                 match (o, eu, ev) {
                     (Some(o), Some(u), Some(v)) => (o, u, v),
-                    _ => return Err(cx.err(span, format!("{what}.center"), "a collimated emitter needs center + size + direction, or origin + edge_u + edge_v")),
+                    _ => return Err(cx.err(
+                        span,
+                        format!("{what}.center"),
+                        "a collimated emitter needs center + size + direction, or origin + edge_u + edge_v",
+                    )),
                 }
             };
             let n = eu.cross(ev).try_normalize().ok_or_else(|| {
-                cx.err(r.edge_v.as_ref().map_or(span.clone(), |s| s.span()), format!("{what}.edge_v"), "the edges are parallel or zero")
+                cx.err(
+                    r.edge_v.as_ref().map_or(span.clone(), |s| s.span()),
+                    format!("{what}.edge_v"),
+                    "the edges are parallel or zero",
+                )
             })?;
             let direction = dir.unwrap_or(n);
             if direction.dot(n).abs() < 1e-3 {
@@ -514,7 +609,11 @@ fn emitter(cx: &Ctx, i: usize, e: &Sp<RawEmitter>) -> Result<Emitter, SceneError
         }
         _ => {
             let s = r.kind.as_ref().map_or(span, |s| s.span());
-            return Err(cx.err(s, format!("{what}.kind"), format!("unknown emitter kind \"{kind}\" (collimated, point, spot)")));
+            return Err(cx.err(
+                s,
+                format!("{what}.kind"),
+                format!("unknown emitter kind \"{kind}\" (collimated, point, spot)"),
+            ));
         }
     };
     Ok(Emitter { kind: shape, power_w: *power.get_ref(), colour })
@@ -534,7 +633,11 @@ fn shape(
     let m = r.material.as_ref().ok_or_else(|| cx.err(span.clone(), format!("{what}.material"), "missing"))?;
     let material = *materials.get(m.get_ref()).ok_or_else(|| {
         let known: Vec<&str> = materials.keys().map(|k| k.as_str()).collect();
-        cx.err(m.span(), format!("{what}.material"), format!("no material named \"{}\" (defined: {})", m.get_ref(), known.join(", ")))
+        cx.err(
+            m.span(),
+            format!("{what}.material"),
+            format!("no material named \"{}\" (defined: {})", m.get_ref(), known.join(", ")),
+        )
     })?;
     let t = match &r.transform {
         Some(t) => {
@@ -548,7 +651,11 @@ fn shape(
             let tr = raw.translate.map_or(Vec3::ZERO, |a| vec3(&a));
             let all = scale.to_array().into_iter().chain(rot.to_array()).chain(tr.to_array());
             if scale.cmpeq(Vec3::ZERO).any() || all.clone().any(|x| !x.is_finite()) {
-                return Err(cx.err(t.span(), format!("{what}.transform"), "needs finite values and non-zero scale"));
+                return Err(cx.err(
+                    t.span(),
+                    format!("{what}.transform"),
+                    "needs finite values and non-zero scale",
+                ));
             }
             Transform::new(scale, rot, tr)
         }
@@ -559,7 +666,11 @@ fn shape(
     let missing = |k: &str| cx.err(span.clone(), format!("{what}.{k}"), "missing");
     let uniform = || {
         t.uniform_scale().ok_or_else(|| {
-            cx.err(r.transform.as_ref().map_or(span.clone(), |s| s.span()), format!("{what}.transform"), format!("a {kind} needs a uniform scale"))
+            cx.err(
+                r.transform.as_ref().map_or(span.clone(), |s| s.span()),
+                format!("{what}.transform"),
+                format!("a {kind} needs a uniform scale"),
+            )
         })
     };
     let radius = |key: &str, v: &Option<Sp<f32>>| positive(cx, &what, key, v)?.ok_or_else(|| missing(key));
@@ -582,7 +693,11 @@ fn shape(
             let u = finite(cx, &what, "edge_u", &r.edge_u)?.ok_or_else(|| missing("edge_u"))?;
             let v = finite(cx, &what, "edge_v", &r.edge_v)?.ok_or_else(|| missing("edge_v"))?;
             let sh = Shape::rectangle(t.point(o), t.vector(u), t.vector(v)).ok_or_else(|| {
-                cx.err(r.edge_v.as_ref().map_or(span.clone(), |s| s.span()), format!("{what}.edge_v"), "the edges are parallel or zero")
+                cx.err(
+                    r.edge_v.as_ref().map_or(span.clone(), |s| s.span()),
+                    format!("{what}.edge_v"),
+                    "the edges are parallel or zero",
+                )
             })?;
             SurfaceGeometry::Analytic(sh)
         }
@@ -591,7 +706,11 @@ fn shape(
             let c = finite(cx, &what, "center", &r.center)?.unwrap_or(Vec3::ZERO);
             let n = unit(cx, &what, "normal", &r.normal)?.unwrap_or(Vec3::Z);
             let rad = radius("radius", &r.radius)?;
-            SurfaceGeometry::Analytic(Shape::Disc { center: t.point(c), normal: t.normal(n), radius: rad * uniform()? })
+            SurfaceGeometry::Analytic(Shape::Disc {
+                center: t.point(c),
+                normal: t.normal(n),
+                radius: rad * uniform()?,
+            })
         }
         "cylinder" => {
             allow(&["base", "axis", "radius", "height"])?;
@@ -601,14 +720,20 @@ fn shape(
             let h = radius("height", &r.height)?;
             let k = uniform()?;
             let axis = t.vector(a).normalize();
-            SurfaceGeometry::Analytic(Shape::Cylinder { base: t.point(b), axis, radius: rad * k, height: h * k })
+            SurfaceGeometry::Analytic(Shape::Cylinder {
+                base: t.point(b),
+                axis,
+                radius: rad * k,
+                height: h * k,
+            })
         }
         "obj" => {
             allow(&["file", "smooth"])?;
             let f = r.file.as_ref().ok_or_else(|| missing("file"))?;
             let path = dir.join(f.get_ref());
-            let mut m = mesh::load_obj(&path)
-                .map_err(|e| cx.err(f.span(), format!("{what}.file"), format!("cannot load {}: {e}", path.display())))?;
+            let mut m = mesh::load_obj(&path).map_err(|e| {
+                cx.err(f.span(), format!("{what}.file"), format!("cannot load {}: {e}", path.display()))
+            })?;
             if r.smooth.as_ref().is_some_and(|s| !*s.get_ref()) {
                 m.normals = None;
             }
@@ -619,7 +744,11 @@ fn shape(
             let p = r.profile.as_ref().ok_or_else(|| missing("profile"))?;
             let pts: Vec<Vec2> = p.get_ref().iter().map(|a| Vec2::from_array(*a)).collect();
             if pts.len() < 2 || pts.iter().any(|q| !q.is_finite() || q.x < 0.0) {
-                return Err(cx.err(p.span(), format!("{what}.profile"), "needs at least two [r, z] points with r ≥ 0"));
+                return Err(cx.err(
+                    p.span(),
+                    format!("{what}.profile"),
+                    "needs at least two [r, z] points with r ≥ 0",
+                ));
             }
             let segs = count(cx, &what, "segments", &r.segments, 64, 3)?;
             let crease = r.crease_deg.as_ref().map_or(30.0, |c| *c.get_ref());
@@ -637,7 +766,11 @@ fn shape(
             let size = r.size.as_ref().ok_or_else(|| missing("size"))?;
             let sz = Vec2::from_array(*size.get_ref());
             if !(sz.x > 0.0 && sz.y > 0.0 && sz.is_finite()) {
-                return Err(cx.err(size.span(), format!("{what}.size"), "needs two positive lengths in metres"));
+                return Err(cx.err(
+                    size.span(),
+                    format!("{what}.size"),
+                    "needs two positive lengths in metres",
+                ));
             }
             let cells = r.cells.as_ref().map_or([64, 64], |c| *c.get_ref());
             if cells.contains(&0) || cells[0] as u64 * cells[1] as u64 > 1 << 24 {
@@ -649,8 +782,15 @@ fn shape(
                 Some(w) => {
                     let mut v = Vec::new();
                     for wave in w.get_ref() {
-                        if !(wave.wavelength > 0.0 && wave.amplitude.is_finite() && wave.wavelength.is_finite()) {
-                            return Err(cx.err(w.span(), format!("{what}.waves"), "each wave needs a finite amplitude and a positive wavelength"));
+                        if !(wave.wavelength > 0.0
+                            && wave.amplitude.is_finite()
+                            && wave.wavelength.is_finite())
+                        {
+                            return Err(cx.err(
+                                w.span(),
+                                format!("{what}.waves"),
+                                "each wave needs a finite amplitude and a positive wavelength",
+                            ));
                         }
                         let k = std::f32::consts::TAU / wave.wavelength;
                         let (s, c) = wave.direction_deg.to_radians().sin_cos();
@@ -681,9 +821,18 @@ fn shape(
                 let s = r.z_range.as_ref().map_or(span.clone(), |s| s.span());
                 return Err(cx.err(s, format!("{what}.z_range"), "needs two different finite heights"));
             }
-            let m = pts.iter().all(|p| p.is_finite()).then(|| mesh::extrusion(&pts, z[0], z[1])).flatten().ok_or_else(|| {
-                cx.err(o.span(), format!("{what}.outline"), "needs a simple polygon of at least 3 [x, y] points with non-zero area")
-            })?;
+            let m = pts
+                .iter()
+                .all(|p| p.is_finite())
+                .then(|| mesh::extrusion(&pts, z[0], z[1]))
+                .flatten()
+                .ok_or_else(|| {
+                    cx.err(
+                        o.span(),
+                        format!("{what}.outline"),
+                        "needs a simple polygon of at least 3 [x, y] points with non-zero area",
+                    )
+                })?;
             mesh_geometry(m, &t)
         }
         "paraboloid" => {
@@ -714,7 +863,14 @@ fn shape(
     Ok((name, material, geometry))
 }
 
-fn count(cx: &Ctx, what: &str, key: &str, v: &Option<Sp<u32>>, default: u32, min: u32) -> Result<u32, SceneError> {
+fn count(
+    cx: &Ctx,
+    what: &str,
+    key: &str,
+    v: &Option<Sp<u32>>,
+    default: u32,
+    min: u32,
+) -> Result<u32, SceneError> {
     match v {
         Some(s) if !(min..=1 << 16).contains(s.get_ref()) => {
             Err(cx.err(s.span(), format!("{what}.{key}"), format!("must lie in [{min}, 65536]")))

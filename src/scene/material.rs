@@ -193,8 +193,9 @@ mod tests {
     fn wavelength_weights_keep_white_light_white() {
         let (lo, hi) = WAVELENGTH_RANGE_NM;
         let n = 10_000;
-        let mean: Vec3 = (0..n).map(|k| wavelength_rgb(lo + (hi - lo) * (k as f32 + 0.5) / n as f32)).sum::<Vec3>()
-            / n as f32;
+        let mean: Vec3 =
+            (0..n).map(|k| wavelength_rgb(lo + (hi - lo) * (k as f32 + 0.5) / n as f32)).sum::<Vec3>()
+                / n as f32;
         assert!((mean - Vec3::ONE).abs().max_element() < 1e-3, "{mean}");
         // Hue order: red at 650 nm, green at 540 nm, blue at 450 nm dominate.
         let (r, g, b) = (wavelength_rgb(650.0), wavelength_rgb(540.0), wavelength_rgb(450.0));

@@ -249,7 +249,9 @@ pub fn load_obj(path: &std::path::Path) -> Result<Mesh, String> {
         let nv = m.positions.len() / 3;
         mesh.positions.extend(m.positions.chunks_exact(3).map(|c| Vec3::new(c[0], c[1], c[2])));
         match (&mut mesh.normals, m.normals.len() == m.positions.len()) {
-            (Some(ns), true) => ns.extend(m.normals.chunks_exact(3).map(|c| Vec3::new(c[0], c[1], c[2]).normalize_or_zero())),
+            (Some(ns), true) => {
+                ns.extend(m.normals.chunks_exact(3).map(|c| Vec3::new(c[0], c[1], c[2]).normalize_or_zero()))
+            }
             _ => mesh.normals = None,
         }
         for t in m.indices.chunks_exact(3) {

@@ -118,7 +118,8 @@ impl Scene {
     /// Reads a scene file; relative paths inside it (OBJ files) are resolved beside it.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         let file = path.display().to_string();
-        let src = std::fs::read_to_string(path).map_err(|source| SceneError::Io { file: file.clone(), source })?;
+        let src =
+            std::fs::read_to_string(path).map_err(|source| SceneError::Io { file: file.clone(), source })?;
         let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
         Scene::parse(&src, &file, dir)
     }
@@ -130,7 +131,8 @@ impl Scene {
 
     /// The embedded default scene.
     pub fn default_scene() -> Scene {
-        Scene::parse(DEFAULT_SCENE, DEFAULT_SCENE_NAME, Path::new(".")).expect("the embedded default scene is valid")
+        Scene::parse(DEFAULT_SCENE, DEFAULT_SCENE_NAME, Path::new("."))
+            .expect("the embedded default scene is valid")
     }
 
     fn add_surface(&mut self, name: String, material: u32, geometry: SurfaceGeometry) {
@@ -193,9 +195,9 @@ impl Scene {
         if let Some(h) = self.bvh.intersect(ray, t_min, t_best) {
             let info = &self.tri_info[h.index as usize];
             let shading = match self.vertex_normals.get(info.smooth as usize) {
-                Some([n0, n1, n2]) => {
-                    (*n0 * (1.0 - h.b1 - h.b2) + *n1 * h.b1 + *n2 * h.b2).try_normalize().unwrap_or(info.normal)
-                }
+                Some([n0, n1, n2]) => (*n0 * (1.0 - h.b1 - h.b2) + *n1 * h.b1 + *n2 * h.b2)
+                    .try_normalize()
+                    .unwrap_or(info.normal),
                 None => info.normal,
             };
             best = Some(Hit { t: h.t, normal: info.normal, shading, shape: info.surface });
@@ -280,11 +282,13 @@ material = "floor"
         let (l, f, _) = bad("\n[[shapes]]\nkind = \"disc\"\nmaterial = \"glass\"\n");
         assert_eq!((l, f.as_str()), (n + 2, "shapes[1].radius"));
         // Keys that do not apply to the kind.
-        let (l, f, _) = bad("\n[[shapes]]\nkind = \"plane\"\nmaterial = \"glass\"\nnormal = [0,0,1]\nradius = 2\n");
+        let (l, f, _) =
+            bad("\n[[shapes]]\nkind = \"plane\"\nmaterial = \"glass\"\nnormal = [0,0,1]\nradius = 2\n");
         assert_eq!((l, f.as_str()), (n + 6, "shapes[1].radius"));
         // A non-uniform scale on a sphere.
-        let (l, f, _) =
-            bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\nradius = 1\ntransform = { scale = [1, 2, 1] }\n");
+        let (l, f, _) = bad(
+            "\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\nradius = 1\ntransform = { scale = [1, 2, 1] }\n",
+        );
         assert_eq!((l, f.as_str()), (n + 6, "shapes[1].transform"));
         // Syntax errors.
         let (l, _, _) = bad("\n[[shapes]]\nkind = \"sphere\n");
@@ -302,7 +306,9 @@ material = "floor"
             other => panic!("{other:?}"),
         }
         let src = BASE.replace("ior = 1.5", "ior = 0.5");
-        assert!(matches!(parse(&src), Err(SceneError::Invalid { field, .. }) if field == "materials.glass.ior"));
+        assert!(
+            matches!(parse(&src), Err(SceneError::Invalid { field, .. }) if field == "materials.glass.ior")
+        );
         let src = BASE.replace("kind = \"point\"", "kind = \"laser\"");
         assert!(matches!(parse(&src), Err(SceneError::Invalid { field, .. }) if field == "emitters[0].kind"));
     }
@@ -323,8 +329,12 @@ material = "floor"
         let h = s.intersect(&down(3.0), 1e-4, f32::INFINITY).unwrap();
         assert_eq!((h.shape, h.t), (0, 5.0)); // the floor
         for k in 0..100 {
-            let r = Ray::new(Vec3::new(-2.0 + 0.04 * k as f32, 0.3, 5.0), Vec3::new(0.1, -0.05, -1.0).normalize());
-            let (a, b) = (s.intersect(&r, 1e-4, f32::INFINITY), s.intersect_brute_force(&r, 1e-4, f32::INFINITY));
+            let r = Ray::new(
+                Vec3::new(-2.0 + 0.04 * k as f32, 0.3, 5.0),
+                Vec3::new(0.1, -0.05, -1.0).normalize(),
+            );
+            let (a, b) =
+                (s.intersect(&r, 1e-4, f32::INFINITY), s.intersect_brute_force(&r, 1e-4, f32::INFINITY));
             assert_eq!(a.map(|h| (h.shape, h.t)), b.map(|h| (h.shape, h.t)));
         }
     }

@@ -38,15 +38,37 @@ pub struct Hit {
 /// An analytic shape.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Shape {
-    Sphere { center: Vec3, radius: f32 },
+    Sphere {
+        center: Vec3,
+        radius: f32,
+    },
     /// The plane through `point` with unit `normal`.
-    Plane { point: Vec3, normal: Vec3 },
+    Plane {
+        point: Vec3,
+        normal: Vec3,
+    },
     /// The parallelogram `origin + a·edge_u + b·edge_v`, a, b ∈ [0, 1]; normal edge_u × edge_v.
-    Rectangle { origin: Vec3, edge_u: Vec3, edge_v: Vec3, normal: Vec3, dual_u: Vec3, dual_v: Vec3 },
-    Disc { center: Vec3, normal: Vec3, radius: f32 },
+    Rectangle {
+        origin: Vec3,
+        edge_u: Vec3,
+        edge_v: Vec3,
+        normal: Vec3,
+        dual_u: Vec3,
+        dual_v: Vec3,
+    },
+    Disc {
+        center: Vec3,
+        normal: Vec3,
+        radius: f32,
+    },
     /// The side wall of a cylinder of `radius` around the unit `axis` from `base` to
     /// `base + height·axis`, with no caps; the outward normal points away from the axis.
-    Cylinder { base: Vec3, axis: Vec3, radius: f32, height: f32 },
+    Cylinder {
+        base: Vec3,
+        axis: Vec3,
+        radius: f32,
+        height: f32,
+    },
 }
 
 impl Shape {
@@ -165,7 +187,11 @@ mod tests {
 
     fn random_unit(rng: &mut Pcg64Mcg) -> Vec3 {
         loop {
-            let v = Vec3::new(rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0);
+            let v = Vec3::new(
+                rng.random::<f32>() * 2.0 - 1.0,
+                rng.random::<f32>() * 2.0 - 1.0,
+                rng.random::<f32>() * 2.0 - 1.0,
+            );
             if v.length_squared() > 0.01 && v.length_squared() <= 1.0 {
                 return v.normalize();
             }
@@ -247,13 +273,16 @@ mod tests {
         // From inside: the far wall, normal outward.
         let r = Ray::new(Vec3::new(0.0, 0.5, 0.25), Vec3::X);
         let (t, n) = c.intersect(&r, 1e-4, f32::INFINITY).unwrap();
-        assert!((t - 0.75f32.sqrt()).abs() < 1e-5 && (n - Vec3::new(0.75f32.sqrt(), 0.5, 0.0)).length() < 1e-5);
+        assert!(
+            (t - 0.75f32.sqrt()).abs() < 1e-5 && (n - Vec3::new(0.75f32.sqrt(), 0.5, 0.0)).length() < 1e-5
+        );
         // Above the rim: nothing; steep ray entering through the open top hits the inside wall.
         assert!(c.intersect(&Ray::new(Vec3::new(-3.0, 0.0, 0.6), Vec3::X), 1e-4, f32::INFINITY).is_none());
         let steep = Vec3::new(1.0, 0.0, -1.0).normalize(); // meets x = 1 at z = −0.1, below the base
         assert!(c.intersect(&Ray::new(Vec3::new(0.0, 0.0, 0.9), steep), 1e-4, f32::INFINITY).is_none());
         let d = Vec3::new(1.0, 0.0, -0.7);
-        let (t, n) = c.intersect(&Ray::new(Vec3::new(0.0, 0.0, 0.9), d.normalize()), 1e-4, f32::INFINITY).unwrap();
+        let (t, n) =
+            c.intersect(&Ray::new(Vec3::new(0.0, 0.0, 0.9), d.normalize()), 1e-4, f32::INFINITY).unwrap();
         assert!((t - d.length()).abs() < 1e-5 && (n - Vec3::X).length() < 1e-5);
     }
 }

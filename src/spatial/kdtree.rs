@@ -227,8 +227,11 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
         let mid = lo + (hi - lo) / 2;
         let q = if axis < W { self.qw[axis] } else { self.qp[axis - W] };
         let diff = q - n.split;
-        let ((near, nlo, nhi), (far, flo, fhi)) =
-            if diff < 0.0 { ((node + 1, lo, mid), (n.right as usize, mid, hi)) } else { ((n.right as usize, mid, hi), (node + 1, lo, mid)) };
+        let ((near, nlo, nhi), (far, flo, fhi)) = if diff < 0.0 {
+            ((node + 1, lo, mid), (n.right as usize, mid, hi))
+        } else {
+            ((n.right as usize, mid, hi), (node + 1, lo, mid))
+        };
         self.visit(near, nlo, nhi, ow, op);
         // The far child lies at least |diff| away along `axis`.
         if axis < W {

@@ -303,7 +303,11 @@ impl SpatialIndex {
         self.len = n;
         // Group photon indices by emitter with a counting sort (world space: one group).
         let by_emitter = self.space != Space::World;
-        let groups = if by_emitter { points.emitters.map_or(1, |e| e.iter().max().map_or(1, |&m| m as usize + 1)) } else { 1 };
+        let groups = if by_emitter {
+            points.emitters.map_or(1, |e| e.iter().max().map_or(1, |&m| m as usize + 1))
+        } else {
+            1
+        };
         let mut start = vec![0usize; groups + 1];
         for i in 0..n {
             let g = if by_emitter { points.emitter(i) as usize } else { 0 };
@@ -381,7 +385,9 @@ impl SpatialIndex {
         let pos = &q.position;
         match (&self.trees[t], self.space) {
             (Tree::Empty(_), _) => {}
-            (Tree::D3(tree), Space::World | Space::WorldParams) => tree.knn(pos, &[], None, q.exclude, k, out),
+            (Tree::D3(tree), Space::World | Space::WorldParams) => {
+                tree.knn(pos, &[], None, q.exclude, k, out)
+            }
             (Tree::D3B1(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
             (Tree::D3B2(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
             (Tree::D3B3(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
@@ -395,7 +401,10 @@ impl SpatialIndex {
 fn build_tree(space: Space, dims: usize, points: &PointSet, members: &[u32], old: Option<Tree>) -> Tree {
     let pos = points.positions;
     let par = |i: u32| points.params_of(i as usize);
-    fn take<const W: usize, const P: usize>(old: Option<Tree>, pick: fn(Tree) -> Option<KdTree<W, P>>) -> KdTree<W, P> {
+    fn take<const W: usize, const P: usize>(
+        old: Option<Tree>,
+        pick: fn(Tree) -> Option<KdTree<W, P>>,
+    ) -> KdTree<W, P> {
         old.and_then(pick).unwrap_or_default()
     }
     macro_rules! tree {

@@ -53,7 +53,11 @@ fn check_all(o: &Owned, space: Space, ks: &[usize], radii: &[Option<f32>], rng: 
             for &k in ks {
                 index.knn(q, k, &mut out);
                 let want = brute_force_knn(&set, space, q, k);
-                assert_eq!(out.as_slice(), &want[..], "space {space:?}, k {k}, radius {radius:?}, query {q:?}");
+                assert_eq!(
+                    out.as_slice(),
+                    &want[..],
+                    "space {space:?}, k {k}, radius {radius:?}, query {q:?}"
+                );
             }
         }
     }
@@ -65,7 +69,11 @@ fn random_points(n: usize, rng: &mut Pcg64Mcg) -> Vec<[f32; 3]> {
 
 fn unit(rng: &mut Pcg64Mcg) -> [f32; 3] {
     loop {
-        let v = [rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0, rng.random::<f32>() * 2.0 - 1.0];
+        let v = [
+            rng.random::<f32>() * 2.0 - 1.0,
+            rng.random::<f32>() * 2.0 - 1.0,
+            rng.random::<f32>() * 2.0 - 1.0,
+        ];
         let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
         if l > 0.1 && l <= 1.0 {
             return v.map(|c| c / l);
@@ -77,7 +85,13 @@ fn unit(rng: &mut Pcg64Mcg) -> [f32; 3] {
 fn world_knn_equals_brute_force_on_random_points() {
     let mut rng = Pcg64Mcg::seed_from_u64(1);
     for n in [0, 1, 5, 12, 13, 100, 700] {
-        let o = Owned { pos: random_points(n, &mut rng), params: vec![], stride: 0, dims: vec![], emitters: None };
+        let o = Owned {
+            pos: random_points(n, &mut rng),
+            params: vec![],
+            stride: 0,
+            dims: vec![],
+            emitters: None,
+        };
         check_all(&o, Space::World, &[0, 1, 7, 50, 1000], &[None], &mut rng);
     }
 }
@@ -96,7 +110,13 @@ fn constrained_knn_equals_brute_force_with_two_and_three_parameter_emitters() {
             _ => params.extend(unit(&mut rng)),
         }
     }
-    let o = Owned { pos: random_points(n, &mut rng), params, stride: 3, dims: vec![2, 0, 3], emitters: Some(emitters) };
+    let o = Owned {
+        pos: random_points(n, &mut rng),
+        params,
+        stride: 3,
+        dims: vec![2, 0, 3],
+        emitters: Some(emitters),
+    };
     let radii = [None, Some(0.0), Some(0.05), Some(0.3), Some(10.0), Some(-1.0), Some(f32::NAN)];
     check_all(&o, Space::WorldParams, &[1, 16, 50], &radii, &mut rng);
     check_all(&o, Space::Params, &[1, 16, 50], &[None], &mut rng);
@@ -117,7 +137,13 @@ fn one_dimensional_parameters_are_supported() {
 fn coincident_photons_tie_break_by_index() {
     let mut rng = Pcg64Mcg::seed_from_u64(4);
     let n = 200;
-    let o = Owned { pos: vec![[0.25, -3.0, 7.5]; n], params: vec![0.5; 2 * n], stride: 2, dims: vec![], emitters: None };
+    let o = Owned {
+        pos: vec![[0.25, -3.0, 7.5]; n],
+        params: vec![0.5; 2 * n],
+        stride: 2,
+        dims: vec![],
+        emitters: None,
+    };
     let index = SpatialIndex::build(&o.set(), Space::WorldParams).unwrap();
     let mut out = Neighbours::default();
     index.knn(&o.set().query(150, Some(0.0)), 10, &mut out);
@@ -147,7 +173,13 @@ fn photons_on_a_line_and_on_a_grid_with_many_equal_distances() {
 fn one_parameter_value_for_all_and_fewer_candidates_than_k() {
     let mut rng = Pcg64Mcg::seed_from_u64(6);
     let n = 500;
-    let o = Owned { pos: random_points(n, &mut rng), params: vec![0.3; 2 * n], stride: 2, dims: vec![], emitters: None };
+    let o = Owned {
+        pos: random_points(n, &mut rng),
+        params: vec![0.3; 2 * n],
+        stride: 2,
+        dims: vec![],
+        emitters: None,
+    };
     check_all(&o, Space::WorldParams, &[50], &[Some(0.0), Some(1e-9)], &mut rng);
     // Parameters spread on a line: tiny radii admit fewer photons than k.
     let params: Vec<f32> = (0..n).flat_map(|i| [i as f32 / n as f32, 0.0]).collect();
@@ -166,7 +198,8 @@ fn emitters_never_mix_in_parameter_aware_spaces() {
     let n = 300;
     let pos = random_points(n, &mut rng);
     let emitters: Vec<u16> = (0..n).map(|i| (i % 2) as u16 * 5).collect();
-    let o = Owned { pos, params: vec![0.0; 2 * n], stride: 2, dims: vec![], emitters: Some(emitters.clone()) };
+    let o =
+        Owned { pos, params: vec![0.0; 2 * n], stride: 2, dims: vec![], emitters: Some(emitters.clone()) };
     let set = o.set();
     let index = SpatialIndex::build(&set, Space::WorldParams).unwrap();
     let mut out = Neighbours::default();
@@ -219,13 +252,21 @@ fn bad_inputs_are_refused_with_the_photon() {
     assert!(matches!(e, SpatialError::NonFinite { index: 1, what: "position" }), "{e}");
     let pos = vec![[0.0f32; 3]; 2];
     let params = [0.0, 0.0, 1.0, f32::INFINITY];
-    let set = PointSet { positions: &pos, params: Some(ParamColumn { values: &params, stride: 2, dims: &[] }), emitters: None };
+    let set = PointSet {
+        positions: &pos,
+        params: Some(ParamColumn { values: &params, stride: 2, dims: &[] }),
+        emitters: None,
+    };
     let e = SpatialIndex::build(&set, Space::WorldParams).unwrap_err();
     assert!(matches!(e, SpatialError::NonFinite { index: 1, what: "params" }), "{e}");
     // World space never reads parameters, so they may be anything there.
     assert!(SpatialIndex::build(&set, Space::World).is_ok());
     let short = [0.0f32; 3];
-    let set = PointSet { positions: &pos, params: Some(ParamColumn { values: &short, stride: 2, dims: &[] }), emitters: None };
+    let set = PointSet {
+        positions: &pos,
+        params: Some(ParamColumn { values: &short, stride: 2, dims: &[] }),
+        emitters: None,
+    };
     assert!(matches!(SpatialIndex::build(&set, Space::World), Err(SpatialError::Length { .. })));
 }
 

@@ -18,7 +18,9 @@ pub struct Halton {
 impl Halton {
     pub fn new(seed: u64) -> Self {
         let mut s = seed ^ 0x5EED_0F_4A17_0A5E;
-        Halton { offsets: std::array::from_fn(|_| (splitmix64(&mut s) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)) }
+        Halton {
+            offsets: std::array::from_fn(|_| (splitmix64(&mut s) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)),
+        }
     }
 
     /// The point of `index`: four coordinates in [0, 1).

@@ -29,7 +29,12 @@ fn shard_info(map: &PhotonMap) -> Result<ShardInfo<'_>, TraceError> {
     let h = &map.meta().history;
     let record = match h.as_slice() {
         [r] if r.stage == "trace" => r,
-        _ => return Err(fail(map, "not a shard written by `photonkit trace --shard` (its history is not one trace record)")),
+        _ => {
+            return Err(fail(
+                map,
+                "not a shard written by `photonkit trace --shard` (its history is not one trace record)",
+            ));
+        }
     };
     let mut params = record.parameters.clone();
     let shard = params

@@ -249,7 +249,13 @@ impl Traced {
 /// The metadata of a traced map: the scene's emitters and the `trace` stage record.
 /// `scene_label` names the scene file; `scene_text` is hashed so shards of different scenes
 /// are not merged.
-pub fn map_info(scene: &Scene, opts: &TraceOptions, traced: &Traced, scene_label: &str, scene_text: &str) -> MapInfo {
+pub fn map_info(
+    scene: &Scene,
+    opts: &TraceOptions,
+    traced: &Traced,
+    scene_label: &str,
+    scene_text: &str,
+) -> MapInfo {
     let emitters = scene.emitters.iter().enumerate().map(|(i, e)| e.record(i as u32)).collect();
     let mut info = MapInfo::new(emitters, State::Traced);
     let mut params = json!({
@@ -325,7 +331,8 @@ pub fn trace(
         cdf,
         colour: scene.emitters.iter().map(|e| e.colour / e.colour.element_sum()).collect(),
     };
-    let tracer = Tracer { scene, opts, table, halton: Halton::new(opts.seed), dims: scene.param_dims() as usize };
+    let tracer =
+        Tracer { scene, opts, table, halton: Halton::new(opts.seed), dims: scene.param_dims() as usize };
     let mut traced = Traced {
         chunks: Vec::new(),
         param_dims: scene.param_dims(),
@@ -661,11 +668,19 @@ material = "glass"
 
     #[test]
     fn direct_photons_are_stored_only_on_request() {
-        let src = slab(true, 1.5).replace("[-2, -2], [2, -2], [2, 2], [-2, 2]", "[-2, -2], [0, -2], [0, 2], [-2, 2]");
+        let src = slab(true, 1.5)
+            .replace("[-2, -2], [2, -2], [2, 2], [-2, 2]", "[-2, -2], [0, -2], [0, 2], [-2, 2]");
         let s = scene(&src);
         let c = run(&s, &TraceOptions { budget: Budget::Emitted(10_000), ..Default::default() }).photons();
-        let d = run(&s, &TraceOptions { budget: Budget::Emitted(10_000), store: StorePolicy::Direct, ..Default::default() })
-            .photons();
+        let d = run(
+            &s,
+            &TraceOptions {
+                budget: Budget::Emitted(10_000),
+                store: StorePolicy::Direct,
+                ..Default::default()
+            },
+        )
+        .photons();
         // Half the beam misses the half-slab.
         assert!((c.len() as f64 / 5000.0 - 1.0).abs() < 0.01, "{}", c.len());
         assert_eq!(d.len(), 10_000);

@@ -1,6 +1,6 @@
 pub mod common;
-mod samples;
+mod format;
 mod phm_py;
 mod relax;
+mod samples;
 mod trace;
-mod format;

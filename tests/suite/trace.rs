@@ -71,7 +71,11 @@ material = "glass"
     }
     let z_focus = sum / used as f64;
     // Spherical aberration for a beam of half-width 1 cm (ρ = 0.028) is below 0.1 % of f.
-    assert!(((cz - f) as f64 - z_focus).abs() < 1e-3 * f as f64, "focus at z = {z_focus}, expected {}", cz - f);
+    assert!(
+        ((cz - f) as f64 - z_focus).abs() < 1e-3 * f as f64,
+        "focus at z = {z_focus}, expected {}",
+        cz - f
+    );
 }
 
 #[test]
@@ -251,9 +255,11 @@ fn bvh_agrees_with_brute_force_on_the_water_scene() {
         for j in 0..10 {
             k += 1;
             let o = Vec3::new(-0.6 + 0.03 * i as f32, -0.6 + 0.12 * j as f32, 1.0);
-            let d = Vec3::new(0.3 * ((k as f32) * 0.7).sin(), 0.3 * ((k as f32) * 1.3).cos(), -1.0).normalize();
+            let d =
+                Vec3::new(0.3 * ((k as f32) * 0.7).sin(), 0.3 * ((k as f32) * 1.3).cos(), -1.0).normalize();
             let r = Ray::new(o, d);
-            let (a, b) = (s.intersect(&r, 0.0, f32::INFINITY), s.intersect_brute_force(&r, 0.0, f32::INFINITY));
+            let (a, b) =
+                (s.intersect(&r, 0.0, f32::INFINITY), s.intersect_brute_force(&r, 0.0, f32::INFINITY));
             assert_eq!(a.map(|h| (h.shape, h.t)), b.map(|h| (h.shape, h.t)), "ray {k}");
             hits += a.is_some_and(|h| h.shape == 1) as u32;
         }
@@ -374,7 +380,11 @@ fn bad_scene_files_name_line_and_field_and_leave_no_output() {
     let line_of = |text: &str, needle: &str| text.lines().position(|l| l.contains(needle)).unwrap() + 1;
     let cases = [
         (good.replace("radius = 0.5", "radius = -0.5"), "radius = -0.5", "shapes[1].radius"),
-        (good.replace("material = \"glass\"", "material = \"crystal\""), "material = \"crystal\"", "shapes[1].material"),
+        (
+            good.replace("material = \"glass\"", "material = \"crystal\""),
+            "material = \"crystal\"",
+            "shapes[1].material",
+        ),
         (good.replace("power_w = 10.0", "power_w = \"ten\""), "power_w = \"ten\"", "power_w"),
         (good.replace("fov_deg = 35", "fov_degrees = 35"), "fov_degrees = 35", "fov_degrees"),
     ];

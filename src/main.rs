@@ -19,6 +19,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Run every stage on a scene (the embedded default without one): trace, detect, relax, collapse, relax.
+    Pipeline(cli::pipeline::Args),
     /// Trace caustic photons from a scene, recording their trajectory parameters.
     Trace(cli::trace::Args),
     /// Join the shards of one trace (`trace --shard i/n`) into the map a single run writes.
@@ -40,6 +42,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
+        Command::Pipeline(a) => cli::pipeline::run(a),
         Command::Trace(a) => cli::trace::run(a),
         Command::Merge(a) => cli::merge::run(a),
         Command::Detect(a) => cli::detect::run(a),

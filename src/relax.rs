@@ -75,6 +75,10 @@ pub struct IterationMeasure {
     /// Coefficient of variation (sd/mean) of nearest-neighbour distances before the move; it
     /// falls from ≈ 0.52 (uniform random points in 2-D) toward ≈ 0.1–0.2 for blue noise.
     pub nn_cv: f64,
+    /// Coefficient of variation of each photon's nearest-neighbour distance divided by its
+    /// distance to the Kf-th (photons with r_K > 0): the same measure made local, so density
+    /// variation (a caustic's bright core beside its sparse tail) does not swamp it.
+    pub local_nn_cv: f64,
     pub mean_displacement: f64,
     pub max_displacement: f64,
 }
@@ -122,34 +126,43 @@ pub fn iterate(
     let n = pos.len();
     step.resize(n, [0.0; 3]);
     nn.resize(n, 0.0);
+    let mut ratio = vec![f32::NAN; n];
     let snapshot: &[[f32; 3]] = pos;
-    step.par_chunks_mut(CHUNK).zip(nn.par_chunks_mut(CHUNK)).enumerate().for_each(|(c, (steps, nns))| {
-        let mut ids = Vec::with_capacity(p.kf);
-        let mut xs = Vec::with_capacity(p.kf);
-        for (o, (s, d1)) in steps.iter_mut().zip(nns.iter_mut()).enumerate() {
-            let i = c * CHUNK + o;
-            index.neighbours(i, p.kf, &mut ids);
-            let xi = Vec3::from(snapshot[i]);
-            xs.clear();
-            xs.extend(ids.iter().map(|&j| Vec3::from(snapshot[j as usize])));
-            let r_k = xs.last().map_or(0.0, |&x| xi.distance(x));
-            *d1 = xs.first().map_or(0.0, |&x| xi.distance(x));
-            let mut f = repulsion(xi, &xs, r_k, p.epsilon);
-            if *d1 == 0.0 {
-                // Photons stacked on one point feel identical forces and would stay stacked:
-                // give each its own direction (fixed by its index, so runs are reproducible),
-                // scaled by the nearest distinct photon (looking further if all Kf coincide).
-                let scale = if r_k > 0.0 { r_k } else { distinct_distance(index, i, xi, snapshot, p.kf) };
-                f += nudge(i) * (0.25 * scale);
+    step.par_chunks_mut(CHUNK)
+        .zip(nn.par_chunks_mut(CHUNK))
+        .zip(ratio.par_chunks_mut(CHUNK))
+        .enumerate()
+        .for_each(|(c, ((steps, nns), ratios))| {
+            let mut ids = Vec::with_capacity(p.kf);
+            let mut xs = Vec::with_capacity(p.kf);
+            for (o, ((s, d1), q)) in steps.iter_mut().zip(nns.iter_mut()).zip(ratios.iter_mut()).enumerate() {
+                let i = c * CHUNK + o;
+                index.neighbours(i, p.kf, &mut ids);
+                let xi = Vec3::from(snapshot[i]);
+                xs.clear();
+                xs.extend(ids.iter().map(|&j| Vec3::from(snapshot[j as usize])));
+                let r_k = xs.last().map_or(0.0, |&x| xi.distance(x));
+                *d1 = xs.first().map_or(0.0, |&x| xi.distance(x));
+                if r_k > 0.0 {
+                    *q = *d1 / r_k;
+                }
+                let mut f = repulsion(xi, &xs, r_k, p.epsilon);
+                if *d1 == 0.0 {
+                    // Photons stacked on one point feel identical forces and would stay stacked:
+                    // give each its own direction (fixed by its index, so runs are reproducible),
+                    // scaled by the nearest distinct photon (looking further if all Kf coincide).
+                    let scale = if r_k > 0.0 { r_k } else { distinct_distance(index, i, xi, snapshot, p.kf) };
+                    f += nudge(i) * (0.25 * scale);
+                }
+                let fb = match constraint {
+                    Constraint::Basis { u, v } => project_on_basis(f, u[i].into(), v[i].into()),
+                    Constraint::Tangent { normal } => project_on_tangent(f, normal[i].into()),
+                };
+                let spacing = r_k * (std::f32::consts::PI / xs.len().max(1) as f32).sqrt();
+                *s = if r_k > 0.0 { clamp_step(fb, p.step_limit * spacing).into() } else { fb.into() };
             }
-            let fb = match constraint {
-                Constraint::Basis { u, v } => project_on_basis(f, u[i].into(), v[i].into()),
-                Constraint::Tangent { normal } => project_on_tangent(f, normal[i].into()),
-            };
-            let spacing = r_k * (std::f32::consts::PI / xs.len().max(1) as f32).sqrt();
-            *s = if r_k > 0.0 { clamp_step(fb, p.step_limit * spacing).into() } else { fb.into() };
-        }
-    });
+        });
+    ratio.retain(|q| !q.is_nan());
     let (mut sum, mut max) = (0.0f64, 0.0f64);
     for (x, s) in pos.iter_mut().zip(step.iter()) {
         let l = Vec3::from(*s).length() as f64;
@@ -160,6 +173,7 @@ pub fn iterate(
     IterationMeasure {
         iteration,
         nn_cv: coefficient_of_variation(nn),
+        local_nn_cv: coefficient_of_variation(&ratio),
         mean_displacement: if n > 0 { sum / n as f64 } else { 0.0 },
         max_displacement: max,
     }

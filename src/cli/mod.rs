@@ -3,5 +3,6 @@ pub mod detect;
 pub mod inspect;
 pub mod merge;
 pub mod pending;
+pub mod pipeline;
 pub mod relax;
 pub mod trace;

@@ -54,9 +54,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         // Printed whether or not the bar is drawn (stderr may not be a terminal).
         bar.suspend(|| {
             eprintln!(
-                "iteration {:>2}: nearest-neighbour spread {:.4}, mean step {:.3e}, largest step {:.3e}",
+                "iteration {:>2}: nearest-neighbour spread {:.4} (local {:.4}), mean step {:.3e}, largest step {:.3e}",
                 m.iteration + 1,
                 m.nn_cv,
+                m.local_nn_cv,
                 m.mean_displacement,
                 m.max_displacement
             )

@@ -110,3 +110,33 @@ fn stages_pipe_through_standard_streams() {
     assert_eq!(map.len(), 2000);
     assert_eq!(map.meta().history.last().unwrap().stage, "relax");
 }
+
+/// `photonkit pipeline` on the embedded default scene: every stage's file, the state and
+/// history of the last, flux preserved exactly, photons relaxed toward blue noise.
+#[test]
+fn pipeline_runs_every_stage_on_the_default_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("run");
+    let o = photonkit(&["pipeline", "--photons", "30000", "--out-dir", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for stage in ["trace", "detect", "relax (params)", "collapse", "relax (world)", "total"] {
+        assert!(stderr(&o).lines().any(|l| l.starts_with(stage)), "no '{stage}' line in {}", stderr(&o));
+    }
+    let traced = PhotonMap::open_path(&out.join("traced.phm")).unwrap();
+    let last = PhotonMap::open_path(&out.join("relaxed.phm")).unwrap();
+    assert!(traced.len() > 1000);
+    assert_eq!(traced.len(), last.len());
+    assert_eq!(last.meta().state, photonkit::format::State::Collapsed);
+    let stages: Vec<_> = last.meta().history.iter().map(|h| h.stage.as_str()).collect();
+    assert_eq!(stages, ["trace", "detect", "relax", "collapse", "relax"]);
+    assert_eq!(traced.flux(), last.flux(), "flux is carried through unchanged");
+    assert_ne!(traced.positions(), last.positions());
+    // Photons stay on the floor (the default scene's receiver is the plane z = 0).
+    assert!(last.positions().iter().all(|p| p[2].abs() < 1e-5), "photons left the floor");
+    // The local nearest-neighbour spread fell in both relax stages.
+    for h in last.meta().history.iter().filter(|h| h.stage == "relax") {
+        let its = h.report["iterations"].as_array().unwrap();
+        let cv = |i: usize| its[i]["local_nn_cv"].as_f64().unwrap();
+        assert!(cv(its.len() - 1) < 0.8 * cv(0), "spread {} → {}", cv(0), cv(its.len() - 1));
+    }
+}

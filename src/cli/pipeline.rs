@@ -1,0 +1,177 @@
+//! `photonkit pipeline`: the paper's Algorithm 1 end to end, one stage after another.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use photonkit::detect::{self, DetectParams};
+use photonkit::format::{Output, PhotonMap};
+use photonkit::relax::{self, RelaxParams};
+use photonkit::scene::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, Scene};
+use photonkit::trace::{self, Budget, TraceOptions};
+
+/// Run every stage on a scene: trace → detect → relax → collapse → relax.
+///
+/// Uses the paper's defaults (Kc = 50, β = 3, Kf = 16, 7 + 7 iterations) and writes each
+/// stage's photon map into the output folder (traced.phm, detected.phm, relaxed-params.phm,
+/// collapsed.phm, relaxed.phm), printing each stage's time and photon count. Every stage
+/// also runs alone (`photonkit trace`, `detect`, …) and through pipes.
+#[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    photonkit pipeline                                   # the embedded default scene\n  \
+    photonkit pipeline samples/scenes/prism.toml --photons 2e6 --out-dir prism-run")]
+pub struct Args {
+    /// Scene file (TOML); without it, the embedded default scene (a glass sphere above a floor
+    /// under a vertical collimated beam, samples/scenes/glass-sphere.toml).
+    scene: Option<PathBuf>,
+    /// Folder for the stages' photon maps (created if missing).
+    #[arg(long, value_name = "DIR", default_value = "photonkit-out")]
+    out_dir: PathBuf,
+    /// Photons to emit (e.g. 1000000 or 1e6).
+    #[arg(long, value_name = "N", value_parser = parse_count, default_value = "1000000")]
+    photons: u64,
+    /// Seed of the emission sequence.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Kc: neighbours in feature detection.
+    #[arg(long, default_value_t = 50)]
+    kc: usize,
+    /// β of Eq. 1 (parameter-space radius in units of the mean photon spacing).
+    #[arg(long, default_value_t = 3.0)]
+    beta: f32,
+    /// R: relaxation iterations before the collapse and again after it.
+    #[arg(short = 'R', long, default_value_t = 7)]
+    iterations: usize,
+    /// Kf: neighbours in the repulsion force.
+    #[arg(long, default_value_t = 16)]
+    kf: usize,
+}
+
+fn parse_count(s: &str) -> Result<u64, String> {
+    match s.parse::<f64>() {
+        Ok(x) if x >= 1.0 && x.fract() == 0.0 && x < 1.8e19 => Ok(x as u64),
+        _ => Err(format!("'{s}' is not a whole number of photons (at least 1)")),
+    }
+}
+
+/// A spinner on a terminal, nothing otherwise.
+fn spinner(what: &str) -> ProgressBar {
+    let target = if std::io::stderr().is_terminal() {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    };
+    let bar = ProgressBar::with_draw_target(None, target)
+        .with_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
+    bar.set_message(what.to_string());
+    bar.enable_steady_tick(std::time::Duration::from_millis(200));
+    bar
+}
+
+/// One line of the stage table.
+fn report(stage: &str, seconds: f64, photons: usize, file: &Path, note: &str) {
+    eprintln!("{stage:<16} {seconds:>8.2} s {photons:>10} photons  {}{note}", file.display());
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let (scene, label, text) = match &a.scene {
+        Some(p) => {
+            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
+            let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            (Scene::parse(&text, &p.display().to_string(), dir)?, p.display().to_string(), text)
+        }
+        None => (Scene::default_scene(), DEFAULT_SCENE_NAME.to_string(), DEFAULT_SCENE.to_string()),
+    };
+    let dp = DetectParams { kc: a.kc, beta: a.beta, ..DetectParams::default() };
+    let rp = RelaxParams { iterations: a.iterations, kf: a.kf, ..RelaxParams::default() };
+    std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;
+    let file = |name: &str| a.out_dir.join(name);
+    let total = Instant::now();
+    eprintln!("{:<16} {:>10} {:>18}  output", "stage", "time", "");
+
+    // Trace.
+    let opts = TraceOptions { seed: a.seed, budget: Budget::Emitted(a.photons), ..TraceOptions::default() };
+    let bar = spinner("trace");
+    let t = Instant::now();
+    let traced = trace::trace(&scene, &opts, &|_, _| {});
+    bar.finish_and_clear();
+    let traced = traced?;
+    anyhow::ensure!(
+        traced.stored > 0,
+        "no photon was stored from {} emitted: does light reach a diffuse surface through a mirror or glass?",
+        a.photons
+    );
+    let info = trace::map_info(&scene, &opts, &traced, &label, &text);
+    traced.write(Output::Path(file("traced.phm")), info)?;
+    report(
+        "trace",
+        t.elapsed().as_secs_f64(),
+        traced.stored as usize,
+        &file("traced.phm"),
+        &format!("  ({} emitted)", a.photons),
+    );
+
+    // Detect.
+    let map = PhotonMap::open_path(&file("traced.phm"))?;
+    let (method, note) = detect::choose_method(&map, None)?;
+    if let Some(note) = note {
+        eprintln!("note: {note}");
+    }
+    let dp = DetectParams { method, ..dp };
+    let bar = spinner("detect");
+    let t = Instant::now();
+    let d = detect::detect_map(&map, &dp, &|_| {});
+    bar.finish_and_clear();
+    let d = d?;
+    let secs = t.elapsed().as_secs_f64();
+    detect::write_detected(&map, &d, &dp, secs, Output::Path(file("detected.phm")))?;
+    report(
+        "detect",
+        secs,
+        map.len(),
+        &file("detected.phm"),
+        &format!("  ({}, {:.1} % constrained)", method.name(), 100.0 * d.summary.constrained_fraction()),
+    );
+    drop(map);
+
+    // Relax in the high-dimensional space, collapse, relax in world space.
+    let relax_stage = |input: &str, output: &str, stage: &str| -> anyhow::Result<()> {
+        let map = PhotonMap::open_path(&file(input))?;
+        let bar = spinner(stage);
+        let t = Instant::now();
+        let r = relax::relax_map(&map, &rp, |m| {
+            bar.set_message(format!("{stage}: iteration {}", m.iteration + 1))
+        });
+        bar.finish_and_clear();
+        let r = r?;
+        let secs = t.elapsed().as_secs_f64();
+        relax::write_relaxed(&map, &r, &rp, secs, Output::Path(file(output)))?;
+        let cv = |i: usize| r.measures.get(i).map_or(f64::NAN, |m| m.local_nn_cv);
+        report(
+            stage,
+            secs,
+            map.len(),
+            &file(output),
+            &format!(
+                "  (local nearest-neighbour spread {:.3} → {:.3})",
+                cv(0),
+                cv(r.measures.len().saturating_sub(1))
+            ),
+        );
+        Ok(())
+    };
+    relax_stage("detected.phm", "relaxed-params.phm", "relax (params)")?;
+    let t = Instant::now();
+    let map = PhotonMap::open_path(&file("relaxed-params.phm"))?;
+    relax::collapse(&map, Output::Path(file("collapsed.phm")))?;
+    report("collapse", t.elapsed().as_secs_f64(), map.len(), &file("collapsed.phm"), "");
+    drop(map);
+    relax_stage("collapsed.phm", "relaxed.phm", "relax (world)")?;
+
+    eprintln!("{:<16} {:>8.2} s", "total", total.elapsed().as_secs_f64());
+    eprintln!("next: photonkit inspect {}", file("relaxed.phm").display());
+    Ok(ExitCode::SUCCESS)
+}

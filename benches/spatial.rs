@@ -131,8 +131,10 @@ fn main() {
 
     // Density (parameter space, k = Kc) and r_param = β·r_Kc.
     let mut r_param = vec![0f32; n];
+    // Each workload loops in its own tree's leaf order, as the stages do.
+    let order_p = ours_p.order();
     let t = Clock::start();
-    for &i in &order {
+    for &i in &order_p {
         ours_p.knn(&set.query(i as usize, None), kc, &mut out);
         r_param[i as usize] = beta * out.last().map_or(0.0, |l| l.dist2.sqrt());
     }
@@ -174,13 +176,14 @@ fn main() {
         let kid_s = t.secs();
         report.push((label, ours, kid_s, fetched as f64 / n as f64));
     }
+    let order_w = ours_w.order();
     let t = Clock::start();
-    for &i in &order {
+    for &i in &order_w {
         ours_w.knn(&set.query(i as usize, None), kf, &mut out);
     }
     let ours = t.secs();
     let t = Clock::start();
-    for &i in order.iter().filter(|_| with_kiddo) {
+    for &i in order_w.iter().filter(|_| with_kiddo) {
         let f = kid
             .world
             .query(&m.position[i as usize])

@@ -99,6 +99,12 @@ pub trait NeighbourSearch: Sync {
     /// Replaces `out` with the indices of up to `k` nearest neighbours of photon `i`, not
     /// counting `i` itself, nearest first, as the current space defines them.
     fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>);
+
+    /// An order to visit photons in that keeps successive queries in nearby memory (every
+    /// photon once); `None` for index order.
+    fn order(&self) -> Option<Vec<u32>> {
+        None
+    }
 }
 
 /// The per-photon constraint: a basis (after `detect`) or just the surface normal.
@@ -128,6 +134,8 @@ pub fn iterate(
     nn.resize(n, 0.0);
     let mut ratio = vec![f32::NAN; n];
     let snapshot: &[[f32; 3]] = pos;
+    // Steps are computed in the index's order (slot k is photon order[k]), then applied.
+    let order = index.order().filter(|o| o.len() == n).unwrap_or_else(|| (0..n as u32).collect());
     step.par_chunks_mut(CHUNK)
         .zip(nn.par_chunks_mut(CHUNK))
         .zip(ratio.par_chunks_mut(CHUNK))
@@ -136,7 +144,7 @@ pub fn iterate(
             let mut ids = Vec::with_capacity(p.kf);
             let mut xs = Vec::with_capacity(p.kf);
             for (o, ((s, d1), q)) in steps.iter_mut().zip(nns.iter_mut()).zip(ratios.iter_mut()).enumerate() {
-                let i = c * CHUNK + o;
+                let i = order[c * CHUNK + o] as usize;
                 index.neighbours(i, p.kf, &mut ids);
                 let xi = Vec3::from(snapshot[i]);
                 xs.clear();
@@ -164,10 +172,11 @@ pub fn iterate(
         });
     ratio.retain(|q| !q.is_nan());
     let (mut sum, mut max) = (0.0f64, 0.0f64);
-    for (x, s) in pos.iter_mut().zip(step.iter()) {
+    for (&i, s) in order.iter().zip(step.iter()) {
         let l = Vec3::from(*s).length() as f64;
         sum += l;
         max = max.max(l);
+        let x = &mut pos[i as usize];
         *x = (Vec3::from(*x) + Vec3::from(*s)).into();
     }
     IterationMeasure {
@@ -231,6 +240,10 @@ impl NeighbourSearch for IndexSearch<'_> {
             out.clear();
             out.extend(found.indices());
         });
+    }
+
+    fn order(&self) -> Option<Vec<u32>> {
+        Some(self.index.order())
     }
 }
 

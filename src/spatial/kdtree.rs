@@ -72,6 +72,11 @@ fn sum_sq<const N: usize>(o: &[f32; N]) -> f32 {
     s
 }
 
+/// The ranking of neighbours: distance², then photon index (distances are never NaN).
+fn order(a: &Neighbour, b: &Neighbour) -> std::cmp::Ordering {
+    a.dist2.total_cmp(&b.dist2).then(a.index.cmp(&b.index))
+}
+
 /// Internal nodes of a subtree of `m` records.
 fn count_nodes(m: usize) -> usize {
     if m <= LEAF { 0 } else { 1 + count_nodes(m / 2) + count_nodes(m - m / 2) }
@@ -136,6 +141,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         }
         let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);
         s.visit(0, 0, self.recs.len(), &mut ow, &mut op);
+        s.finish();
     }
 }
 
@@ -266,19 +272,34 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
         }
     }
 
-    /// Adds a candidate known to beat the current k-th best, keeping the list sorted by
-    /// (dist², index): for the k of photon queries (16–50) a sorted insert costs less than a
-    /// heap plus a final sort.
+    /// Adds a candidate known to beat the current k-th best. Candidates are appended to a
+    /// buffer of up to 2k and, when it fills, cut to the k best with one selection (linear
+    /// time), which sets the bound: far fewer comparisons than keeping the list sorted on
+    /// every insert (the bound lags a little, which costs less than it saves; measured in
+    /// BENCHMARKS.md, "Spatial index").
     #[inline(always)]
     fn push(&mut self, c: Neighbour) {
-        let h = &mut *self.heap;
-        if h.len() == self.k {
-            h.pop();
+        self.heap.push(c);
+        // The first k set the first bound; after that the buffer runs to 2k between cuts.
+        let len = self.heap.len();
+        if len == 2 * self.k || (len == self.k && self.worst.dist2 == f32::INFINITY) {
+            self.cut();
         }
-        let at = h.partition_point(|x| x.before(&c));
-        h.insert(at, c);
-        if h.len() == self.k {
-            self.worst = h[self.k - 1];
+    }
+
+    /// Keeps the k best candidates (unordered) and makes the k-th the bound.
+    fn cut(&mut self) {
+        let k = self.k;
+        let (_, kth, _) = self.heap.select_nth_unstable_by(k - 1, order);
+        self.worst = *kth;
+        self.heap.truncate(k);
+    }
+
+    /// The final list: the k best, sorted by (distance², index).
+    fn finish(&mut self) {
+        if self.heap.len() > self.k {
+            self.cut();
         }
+        self.heap.sort_unstable_by(order);
     }
 }

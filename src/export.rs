@@ -105,7 +105,9 @@ fn write_ply(map: &PhotonMap, out: &mut dyn Write, file: &str) -> Result<()> {
     let io = |source| ExportError::Io { file: file.into(), source };
     let cols = map.columns();
     let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
-    header.push_str("comment photonkit export (format-spec/phm-v1.md §11): flux_* in watts, red green blue for display\n");
+    header.push_str(
+        "comment photonkit export (format-spec/phm-v1.md §11): flux_* in watts, red green blue for display\n",
+    );
     header.push_str(&format!("element vertex {}\n", map.len()));
     for (s, _) in &cols {
         for t in text_names(&s.name, s.components) {

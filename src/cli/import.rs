@@ -72,6 +72,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     } else {
         format!("{dims} trajectory parameters")
     };
-    eprintln!("photonkit import: {n} photons from {} ({}), {emitters} emitter(s), {params}", a.input, format.name());
+    eprintln!(
+        "photonkit import: {n} photons from {} ({}), {emitters} emitter(s), {params}",
+        a.input,
+        format.name()
+    );
     Ok(ExitCode::SUCCESS)
 }

@@ -16,10 +16,12 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
         message: "a CSV/TSV file must be UTF-8 text".into(),
     })?;
     let text = text.strip_prefix('\u{feff}').unwrap_or(text);
-    let mut lines = text.lines().enumerate().map(|(i, l)| (i as u64 + 1, l)).filter(|(_, l)| !l.trim().is_empty());
-    let (header_line, header) = lines
-        .next()
-        .ok_or_else(|| ImportError::Invalid { file: file.into(), message: "the file is empty: no header row".into() })?;
+    let mut lines =
+        text.lines().enumerate().map(|(i, l)| (i as u64 + 1, l)).filter(|(_, l)| !l.trim().is_empty());
+    let (header_line, header) = lines.next().ok_or_else(|| ImportError::Invalid {
+        file: file.into(),
+        message: "the file is empty: no header row".into(),
+    })?;
     let delim = if header.contains('\t') { '\t' } else { ',' };
     let unquote = |s: &str| {
         let s = s.trim();
@@ -38,7 +40,9 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
         .iter()
         .map(|n| Field { name: n, dtype: None, colour_max: None, at: At::Line(header_line) })
         .collect();
-    let lay = layout(file, &fields, &|i| infer(rows.iter().map(|(_, l)| l.split(delim).nth(i).unwrap_or("").trim())))?;
+    let lay = layout(file, &fields, &|i| {
+        infer(rows.iter().map(|(_, l)| l.split(delim).nth(i).unwrap_or("").trim()))
+    })?;
     let mut cols = Columns::new(file, lay.specs, rows.len());
     for &(ln, line) in &rows {
         cols.begin_row();

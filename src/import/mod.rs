@@ -21,8 +21,8 @@ use serde_json::{Value, json};
 
 use crate::format::columns::{KNOWN_COLUMNS, KnownColumn};
 use crate::format::{
-    ColumnSpec, DType, Emitter, EmitterKind, FormatError, MapInfo, Output, Parameterisation, StageRecord, State,
-    name, write_map,
+    ColumnSpec, DType, Emitter, EmitterKind, FormatError, MapInfo, Output, Parameterisation, StageRecord,
+    State, name, write_map,
 };
 
 /// Where in an input file something was found.
@@ -147,7 +147,8 @@ impl Imported {
         let mut record = StageRecord::now("import", parameters);
         record.report = self.report;
         info.history.push(record);
-        let cols: Vec<(ColumnSpec, &[u8])> = self.columns.iter().map(|(s, b)| (s.clone(), b.as_slice())).collect();
+        let cols: Vec<(ColumnSpec, &[u8])> =
+            self.columns.iter().map(|(s, b)| (s.clone(), b.as_slice())).collect();
         write_map(target, info, &cols)?;
         Ok(())
     }
@@ -159,8 +160,15 @@ pub fn import(path: &Path, options: &Options) -> Result<Imported> {
     let bytes = std::fs::read(path).map_err(|source| ImportError::Io { file: file.clone(), source })?;
     let format = match options.format {
         Some(f) => f,
-        None => SourceFormat::detect(path, &bytes).ok_or_else(|| ImportError::UnknownFormat { file: file.clone() })?,
+        None => SourceFormat::detect(path, &bytes)
+            .ok_or_else(|| ImportError::UnknownFormat { file: file.clone() })?,
     };
+    if options.caustic_only && format != SourceFormat::Radiance {
+        return Err(ImportError::Invalid {
+            file,
+            message: format!("--caustic-only applies to Radiance photon maps, not to {}", format.name()),
+        });
+    }
     match format {
         SourceFormat::Ply => ply::read(&file, &bytes, options),
         SourceFormat::Csv => csv::read(&file, &bytes, options),
@@ -268,7 +276,7 @@ pub(crate) fn layout(file: &str, fields: &[Field], extra_dtype: &dyn Fn(usize) -
         slots[i] = Some(Slot { col, comp, scale });
     }
     // Every component of a known column must be present.
-    for s in &specs {
+    for (ci, s) in specs.iter().enumerate() {
         let names: Vec<&str> = if s.name == name::FLUX && colours_as_flux {
             COLOUR_NAMES.to_vec()
         } else {
@@ -277,20 +285,24 @@ pub(crate) fn layout(file: &str, fields: &[Field], extra_dtype: &dyn Fn(usize) -
         };
         let missing: Vec<&str> = names.iter().copied().filter(|n| !seen.contains_key(n)).collect();
         if !missing.is_empty() {
-            return Err(ImportError::Invalid {
-                file: file.to_string(),
-                message: format!(
-                    "column '{}' needs the fields {}; missing: {}",
+            let first =
+                slots.iter().position(|t| t.is_some_and(|t| t.col == ci)).expect("a field made the column");
+            return Err(bad(
+                fields[first].at,
+                format!(
+                    "field '{}' makes column '{}', which needs the fields {}; missing: {}",
+                    fields[first].name,
                     s.name,
                     names.join(" "),
                     missing.join(" ")
                 ),
-            });
+            ));
         }
     }
     for required in [name::POSITION, name::FLUX] {
         if !specs.iter().any(|s| s.name == required) {
-            let what = if required == name::POSITION { "x y z" } else { "flux_r flux_g flux_b (or red green blue)" };
+            let what =
+                if required == name::POSITION { "x y z" } else { "flux_r flux_g flux_b (or red green blue)" };
             return Err(ImportError::Invalid {
                 file: file.to_string(),
                 message: format!("no '{required}' column: the fields {what} are required"),
@@ -381,7 +393,11 @@ impl<'f> Columns<'f> {
     }
 
     fn err(&self, at: At, field: &str, message: String) -> ImportError {
-        ImportError::Malformed { file: self.file.to_string(), at, message: format!("field '{field}': {message}") }
+        ImportError::Malformed {
+            file: self.file.to_string(),
+            at,
+            message: format!("field '{field}': {message}"),
+        }
     }
 
     /// Stores a float value in the current photon.
@@ -444,7 +460,8 @@ impl<'f> Columns<'f> {
     pub fn set_text(&mut self, slot: Slot, text: &str, at: At, field: &str) -> Result<()> {
         let dtype = self.specs[slot.col].dtype;
         if slot.scale.is_none() && dtype == DType::F32 {
-            let x: f32 = text.parse().map_err(|_| self.err(at, field, format!("'{text}' is not a number")))?;
+            let x: f32 =
+                text.parse().map_err(|_| self.err(at, field, format!("'{text}' is not a number")))?;
             if !x.is_finite() {
                 return Err(self.err(at, field, format!("'{text}' is not a finite f32")));
             }
@@ -466,8 +483,14 @@ impl<'f> Columns<'f> {
 }
 
 /// Gives imported photons their emitters: one `external` emitter per value of the `emitter`
-/// column (one in all when there is none), parameterised by `param_override` or by the number
-/// of `param_*` fields (2: `rect_uv`, 3: `direction`, none: `none`).
+/// column (one in all when there is none).
+///
+/// Each emitter's parameterisation is `param_override` when given, else the first, in the order
+/// `direction` (only with three `param_*` fields), `rect_uv`, that every one of its photons
+/// satisfies by the invariants of format-spec/phm-v1.md §5: so a map with a `rect_uv` and a
+/// `direction` emitter, exported and imported again, keeps both. Photons whose parameters fit
+/// no parameterisation (or not the one asked for) are refused: the map written would fail
+/// `inspect --check`.
 pub(crate) fn with_emitters(
     file: &str,
     format: SourceFormat,
@@ -476,38 +499,75 @@ pub(crate) fn with_emitters(
     report: Value,
 ) -> Result<Imported> {
     let invalid = |message: String| ImportError::Invalid { file: file.to_string(), message };
-    let dims = columns.iter().find(|(s, _)| s.name == name::PARAMS).map_or(0, |(s, _)| s.components);
-    let p = match param_override {
-        Some(p) => p,
-        None => match dims {
-            0 => Parameterisation::None,
-            2 => Parameterisation::RectUv,
-            _ => Parameterisation::Direction,
-        },
-    };
-    let needed = p.dims().ok_or_else(|| invalid("unknown parameterisation".into()))?;
-    if needed != dims {
-        return Err(invalid(format!(
-            "parameterisation '{}' needs {needed} trajectory parameters (param_0 …) but the file has {dims}",
-            serde_json::to_value(p).ok().and_then(|v| v.as_str().map(str::to_string)).unwrap_or_default()
-        )));
+    let params: Option<(usize, Vec<f32>)> =
+        columns.iter().find(|(s, _)| s.name == name::PARAMS).map(|(s, b)| {
+            let v = b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+            (s.components as usize, v)
+        });
+    let dims = params.as_ref().map_or(0, |p| p.0);
+    if let Some(p) = param_override {
+        let needed = p.dims().ok_or_else(|| invalid("unknown parameterisation".into()))? as usize;
+        if needed != dims && !(p == Parameterisation::RectUv && dims == 3) {
+            return Err(invalid(format!(
+                "parameterisation '{}' needs {needed} trajectory parameters (param_0 …) but the file has {dims}",
+                p.name()
+            )));
+        }
     }
-    let n = columns.first().map_or(0, |(s, b)| b.len() / s.stride() as usize);
     let ids: Option<Vec<u16>> = columns
         .iter()
         .find(|(s, _)| s.name == name::EMITTER)
         .map(|(_, b)| b.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect());
     let count = ids.as_ref().map_or(1, |v| v.iter().copied().max().map_or(1, |m| m as usize + 1));
+    let emitter_of = |i: usize| ids.as_ref().map_or(0, |v| v[i] as usize);
     let flux = &columns.iter().find(|(s, _)| s.name == name::FLUX).expect("layout requires flux").1;
     let mut sums = vec![[0.0f64; 3]; count];
-    for i in 0..n {
-        let e = ids.as_ref().map_or(0, |v| v[i] as usize);
-        for k in 0..3 {
-            let at = (i * 3 + k) * 4;
-            sums[e][k] += f32::from_le_bytes([flux[at], flux[at + 1], flux[at + 2], flux[at + 3]]) as f64;
+    for (i, f) in flux.chunks_exact(12).enumerate() {
+        let sum = &mut sums[emitter_of(i)];
+        for (k, c) in f.chunks_exact(4).enumerate() {
+            sum[k] += f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64;
         }
     }
-    let emitters = sums.iter().enumerate().map(|(id, s)| external_emitter(id as u32, p, *s)).collect();
+
+    // Candidates per emitter, struck off by the first photon that breaks them.
+    let candidates: Vec<Parameterisation> = match (param_override, dims) {
+        (Some(p), _) => vec![p],
+        (None, 0) => vec![Parameterisation::None],
+        (None, 2) => vec![Parameterisation::RectUv],
+        (None, _) => vec![Parameterisation::Direction, Parameterisation::RectUv],
+    };
+    let mut open: Vec<Vec<Parameterisation>> = vec![candidates.clone(); count];
+    if let Some((d, v)) = &params {
+        for (i, q) in v.chunks_exact(*d).enumerate() {
+            let e = emitter_of(i);
+            open[e].retain(|p| p.admits(q));
+            if open[e].is_empty() {
+                let names: Vec<&str> = candidates.iter().map(|p| p.name()).collect();
+                let hint = if param_override.is_some() {
+                    "the parameterisation given does not fit"
+                } else {
+                    "give --parameterisation, or rename the param_* fields to keep them as extra columns"
+                };
+                return Err(invalid(format!(
+                    "photon {i} (emitter {e}) has trajectory parameters {q:?} that fit no parameterisation of {} \
+                     (format-spec/phm-v1.md §5: rect_uv in [0, 1]², direction of unit length); {hint}",
+                    names.join(" or ")
+                )));
+            }
+        }
+    }
+    let emitters: Vec<Emitter> =
+        sums.iter().enumerate().map(|(id, s)| external_emitter(id as u32, open[id][0], *s)).collect();
+    // Three fields but only `rect_uv` emitters: the column holds (u, v, 0) and must have the
+    // largest param_dims (2) components (§4.1), so the zeros go.
+    let mut columns = columns;
+    if dims == 3
+        && emitters.iter().all(|e| e.param_dims < 3)
+        && let Some((s, b)) = columns.iter_mut().find(|(s, _)| s.name == name::PARAMS)
+    {
+        s.components = 2;
+        *b = b.chunks_exact(12).flat_map(|q| q[..8].iter().copied()).collect();
+    }
     Ok(Imported { format, columns, emitters, report })
 }
 
@@ -544,12 +604,17 @@ mod tests {
     use super::*;
 
     fn fields<'a>(names: &[&'a str]) -> Vec<Field<'a>> {
-        names.iter().enumerate().map(|(i, n)| Field { name: n, dtype: None, colour_max: None, at: At::Line(i as u64) }).collect()
+        names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| Field { name: n, dtype: None, colour_max: None, at: At::Line(i as u64) })
+            .collect()
     }
 
     #[test]
     fn names_map_to_columns_and_extras_group() {
-        let f = fields(&["x", "y", "z", "flux_r", "flux_g", "flux_b", "w_0", "w_1", "q", "red", "green", "blue"]);
+        let f =
+            fields(&["x", "y", "z", "flux_r", "flux_g", "flux_b", "w_0", "w_1", "q", "red", "green", "blue"]);
         let l = layout("t", &f, &|_| DType::F32).unwrap();
         let names: Vec<_> = l.specs.iter().map(|s| (s.name.as_str(), s.components)).collect();
         assert_eq!(names, [("position", 3), ("flux", 3), ("w", 2), ("q", 1)]);

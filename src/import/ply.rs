@@ -65,7 +65,11 @@ fn scalar_type(s: &str) -> Option<DType> {
 }
 
 fn parse_header(file: &str, bytes: &[u8]) -> Result<Header> {
-    let bad = |line: u64, message: String| ImportError::Malformed { file: file.into(), at: At::Line(line), message };
+    let bad = |line: u64, message: String| ImportError::Malformed {
+        file: file.into(),
+        at: At::Line(line),
+        message,
+    };
     let mut pos = 0usize;
     let mut line_no = 0u64;
     let mut encoding = None;
@@ -107,15 +111,17 @@ fn parse_header(file: &str, bytes: &[u8]) -> Result<Header> {
                 }
             }
             ["element", name, count] => {
-                let count: u64 =
-                    count.parse().map_err(|_| bad(line_no, format!("element count '{count}' is not a count")))?;
+                let count: u64 = count
+                    .parse()
+                    .map_err(|_| bad(line_no, format!("element count '{count}' is not a count")))?;
                 elements.push(Element { name: name.to_string(), count, props: Vec::new() });
             }
             ["property", "list", count, item, name] => {
-                let count_t = scalar_type(count)
-                    .filter(|t| !t.is_float())
-                    .ok_or_else(|| bad(line_no, format!("'{count}' is not an integer type for a list count")))?;
-                let item_t = scalar_type(item).ok_or_else(|| bad(line_no, format!("unknown PLY type '{item}'")))?;
+                let count_t = scalar_type(count).filter(|t| !t.is_float()).ok_or_else(|| {
+                    bad(line_no, format!("'{count}' is not an integer type for a list count"))
+                })?;
+                let item_t =
+                    scalar_type(item).ok_or_else(|| bad(line_no, format!("unknown PLY type '{item}'")))?;
                 let e = elements
                     .last_mut()
                     .ok_or_else(|| bad(line_no, "a property before any 'element' line".into()))?;
@@ -225,18 +231,19 @@ fn read_binary(
     // Elements before the vertices are skipped, record by record when they hold lists.
     for e in &h.elements[..vi] {
         if let Some(size) = fixed_size(e) {
-            let need = e.count.checked_mul(size).filter(|&n| n <= (bytes.len() - pos) as u64).ok_or_else(|| {
-                truncated(
-                    file,
-                    pos,
-                    format!(
-                        "element '{}' declares {} records of {size} bytes but only {} bytes follow",
-                        e.name,
-                        e.count,
-                        bytes.len() - pos
-                    ),
-                )
-            })?;
+            let need =
+                e.count.checked_mul(size).filter(|&n| n <= (bytes.len() - pos) as u64).ok_or_else(|| {
+                    truncated(
+                        file,
+                        pos,
+                        format!(
+                            "element '{}' declares {} records of {size} bytes but only {} bytes follow",
+                            e.name,
+                            e.count,
+                            bytes.len() - pos
+                        ),
+                    )
+                })?;
             pos += need as usize;
             continue;
         }
@@ -257,10 +264,10 @@ fn read_binary(
                         (item.size() as usize, n)
                     }
                 };
-                let need = n
-                    .checked_mul(size as u64)
-                    .filter(|&b| b <= (bytes.len() - pos) as u64)
-                    .ok_or_else(|| truncated(file, pos, format!("element '{}' record {i} is cut short", e.name)))?;
+                let need =
+                    n.checked_mul(size as u64).filter(|&b| b <= (bytes.len() - pos) as u64).ok_or_else(
+                        || truncated(file, pos, format!("element '{}' record {i} is cut short", e.name)),
+                    )?;
                 pos += need as usize;
             }
         }
@@ -325,9 +332,16 @@ fn read_ascii(
         message: "an ASCII PLY body must be text".into(),
     })?;
     // One element record per non-empty line, as every ASCII PLY writer lays them out.
-    let mut lines =
-        body.lines().enumerate().map(|(i, l)| (h.lines + 1 + i as u64, l)).filter(|(_, l)| !l.trim().is_empty());
-    let bad = |line: u64, message: String| ImportError::Malformed { file: file.into(), at: At::Line(line), message };
+    let mut lines = body
+        .lines()
+        .enumerate()
+        .map(|(i, l)| (h.lines + 1 + i as u64, l))
+        .filter(|(_, l)| !l.trim().is_empty());
+    let bad = |line: u64, message: String| ImportError::Malformed {
+        file: file.into(),
+        at: At::Line(line),
+        message,
+    };
     let last_line = h.lines + body.lines().count() as u64;
     let short = |e: &Element, got: u64| {
         bad(
@@ -340,10 +354,12 @@ fn read_ascii(
             let (ln, l) = lines.next().ok_or_else(|| short(e, got))?;
             let mut words = l.split_ascii_whitespace();
             for p in &e.props {
-                let mut take = || words.next().ok_or_else(|| bad(ln, format!("too few values for '{}'", e.name)));
+                let mut take =
+                    || words.next().ok_or_else(|| bad(ln, format!("too few values for '{}'", e.name)));
                 if let Kind::List { .. } = p.kind {
                     let c = take()?;
-                    let n: u64 = c.parse().map_err(|_| bad(ln, format!("list length '{c}' is not a count")))?;
+                    let n: u64 =
+                        c.parse().map_err(|_| bad(ln, format!("list length '{c}' is not a count")))?;
                     for _ in 0..n {
                         take()?;
                     }
@@ -361,7 +377,10 @@ fn read_ascii(
         let (ln, l) = lines.next().ok_or_else(|| short(v, got))?;
         let words: Vec<&str> = l.split_ascii_whitespace().collect();
         if words.len() != v.props.len() {
-            return Err(bad(ln, format!("expected {} values for a vertex, found {}", v.props.len(), words.len())));
+            return Err(bad(
+                ln,
+                format!("expected {} values for a vertex, found {}", v.props.len(), words.len()),
+            ));
         }
         cols.begin_row();
         for ((p, w), slot) in v.props.iter().zip(&words).zip(&lay.slots) {

@@ -96,7 +96,10 @@ impl<'a> Reader<'a> {
         if n > self.remaining() {
             return Err(self.err(
                 self.pos,
-                format!("truncated: {what} needs {n} bytes but the file ends {} bytes later", self.remaining()),
+                format!(
+                    "truncated: {what} needs {n} bytes but the file ends {} bytes later",
+                    self.remaining()
+                ),
             ));
         }
         let b = &self.bytes[self.pos..self.pos + n];
@@ -186,7 +189,11 @@ struct TextHeader {
 }
 
 fn text_header(file: &str, bytes: &[u8]) -> Result<TextHeader> {
-    let bad = |line: u64, message: String| ImportError::Malformed { file: file.into(), at: At::Line(line), message };
+    let bad = |line: u64, message: String| ImportError::Malformed {
+        file: file.into(),
+        at: At::Line(line),
+        message,
+    };
     let mut pos = 0;
     let mut line = 0u64;
     let (mut command, mut format, mut version) = (String::new(), None, None);
@@ -266,7 +273,9 @@ pub fn read(path: &Path, bytes: &[u8], options: &Options) -> Result<Imported> {
     if let Some(v) = &th.version
         && *v != version
     {
-        return Err(r.err(vstart, format!("binary version '{version}' differs from the header's VERSION={v}")));
+        return Err(
+            r.err(vstart, format!("binary version '{version}' differs from the header's VERSION={v}"))
+        );
     }
     let n_at = r.pos;
     let num_photons = r.int(8, "numPhotons")?;
@@ -361,7 +370,8 @@ pub fn read(path: &Path, bytes: &[u8], options: &Options) -> Result<Imported> {
         let e = emitter.get(i).copied().unwrap_or(0) as usize;
         (0..3).for_each(|k| sums[e][k] += f[k] as f64);
     }
-    let emitters = sums.iter().enumerate().map(|(id, s)| external_emitter(id as u32, parameterisation, *s)).collect();
+    let emitters =
+        sums.iter().enumerate().map(|(id, s)| external_emitter(id as u32, parameterisation, *s)).collect();
 
     let mut columns = vec![
         (ColumnSpec::of::<[f32; 3]>(name::POSITION), bytemuck::cast_slice(&pos).to_vec()),
@@ -450,7 +460,9 @@ fn read_ooc(path: &Path, r: &mut Reader, variant: Variant, n: usize) -> Result<V
     }
     // Nodes: 9 bytes (leaf: 0xFF + 8 counts) or 10 (interior: 0x00, child, count, branch).
     if num_nodes.checked_mul(9).is_none_or(|b| b > r.remaining()) {
-        return Err(r.err(nd_at + 4, format!("{num_nodes} octree nodes can not fit in {} bytes", r.remaining())));
+        return Err(
+            r.err(nd_at + 4, format!("{num_nodes} octree nodes can not fit in {} bytes", r.remaining()))
+        );
     }
     for i in 0..num_nodes {
         let at = r.pos;

@@ -89,11 +89,9 @@ fn export_ply_has_viewer_colours_and_normals() {
 fn unknown_columns_survive_a_round_trip() {
     let t = "x,y,z,flux_r,flux_g,flux_b,weight,tag_0,tag_1\n0,1,2,1,1,1,0.1,3,4\n5,6,7,1,1,1,2.5,-1,8\n";
     let m = import_bytes("t.csv", t.as_bytes()).unwrap();
-    let specs: Vec<_> = m.columns.iter().map(|(s, _)| (s.name.as_str(), s.dtype.name(), s.components)).collect();
-    assert_eq!(
-        specs,
-        [("position", "f32", 3), ("flux", "f32", 3), ("weight", "f32", 1), ("tag", "i64", 2)]
-    );
+    let specs: Vec<_> =
+        m.columns.iter().map(|(s, _)| (s.name.as_str(), s.dtype.name(), s.components)).collect();
+    assert_eq!(specs, [("position", "f32", 3), ("flux", "f32", 3), ("weight", "f32", 1), ("tag", "i64", 2)]);
     assert_eq!(f32s(m.column("weight").unwrap()), [0.1, 2.5]);
 }
 
@@ -115,7 +113,8 @@ fn hand_written_ply_imports_in_all_three_encodings() {
         assert_eq!(col("bounces"), [1, 2, 0], "{f}");
         assert_eq!(f32s(col("path_length")), [2.5, 10.0, 0.0625], "{f}");
         assert_eq!(f32s(col("weight")), [7.25, 0.0, 1.0], "{f}");
-        let tag: Vec<i32> = col("tag").chunks_exact(4).map(|c| i32::from_le_bytes(c.try_into().unwrap())).collect();
+        let tag: Vec<i32> =
+            col("tag").chunks_exact(4).map(|c| i32::from_le_bytes(c.try_into().unwrap())).collect();
         assert_eq!(tag, [-3, 42, 0], "{f}");
         assert_eq!(m.emitters.len(), 2);
         assert!(m.emitters.iter().all(|e| e.kind == EmitterKind::External
@@ -143,7 +142,11 @@ fn printf_g(v: f64) -> String {
         return if v.is_sign_negative() { "-0" } else { "0" }.into();
     }
     let strip = |s: &str| -> String {
-        if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.').to_string() } else { s.to_string() }
+        if s.contains('.') {
+            s.trim_end_matches('0').trim_end_matches('.').to_string()
+        } else {
+            s.to_string()
+        }
     };
     let sci = format!("{v:.5e}");
     let (mant, exp) = sci.split_once('e').unwrap();
@@ -214,7 +217,8 @@ fn radiance_maps_reproduce_pmapdump() {
 
 #[test]
 fn radiance_pd_primaries_become_emission_directions() {
-    let m = import::import(&fixture("radiance/kdt_PD/glass_sphere_contrib_10k.pm"), &Options::default()).unwrap();
+    let m =
+        import::import(&fixture("radiance/kdt_PD/glass_sphere_contrib_10k.pm"), &Options::default()).unwrap();
     assert_eq!(m.emitters.len(), 1);
     assert_eq!(m.emitters[0].parameterisation, Parameterisation::Direction);
     assert_eq!(m.emitters[0].param_dims, 3);
@@ -235,19 +239,48 @@ fn radiance_pd_primaries_become_emission_directions() {
     let v = photonkit::inspect::check(&map);
     assert!(v.is_empty(), "{v:?}");
     // Caustic maps carry no primaries: no parameters.
-    let c = import::import(&fixture("radiance/kdt/glass_sphere_caustic_10k.pm"), &Options::default()).unwrap();
+    let c =
+        import::import(&fixture("radiance/kdt/glass_sphere_caustic_10k.pm"), &Options::default()).unwrap();
     assert!(c.column("params").is_none());
     assert_eq!(c.emitters[0].parameterisation, Parameterisation::None);
 }
 
 #[test]
 fn radiance_caustic_only_keeps_flagged_photons() {
-    let p = fixture("radiance/kdt/glass_sphere_contrib_10k.pm");
+    // Every photon of the fixture maps is flagged caustic (the only diffuse receiver is a flat
+    // floor, so stored photons all arrive from the glass or the metal), so clear the flag (bit 2
+    // of the last byte of a kd-tree record) of a few records and see exactly those go.
+    let mut b = std::fs::read(fixture("radiance/kdt/glass_sphere_contrib_10k.pm")).unwrap();
+    let n = 10713;
+    let records = b.len() - n * 27;
+    let cleared = [0usize, 1, 7, 500, n - 1];
+    for &i in &cleared {
+        b[records + i * 27 + 26] &= !0b100;
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("m.pm");
+    std::fs::write(&p, &b).unwrap();
     let all = import::import(&p, &Options::default()).unwrap();
+    assert_eq!(all.len(), n);
+    let caustic = all.column("caustic").unwrap();
+    let unflagged: Vec<usize> = (0..n).filter(|&i| caustic[i] == 0).collect();
+    assert_eq!(unflagged, cleared);
     let some = import::import(&p, &Options { caustic_only: true, ..Options::default() }).unwrap();
-    let flagged = all.column("caustic").unwrap().iter().filter(|&&c| c == 1).count();
-    assert_eq!(some.len(), flagged);
-    assert!(some.len() < all.len());
+    assert_eq!(some.len(), n - cleared.len());
+    let kept: Vec<f32> = f32s(all.column("position").unwrap())
+        .chunks_exact(3)
+        .enumerate()
+        .filter(|(i, _)| !cleared.contains(i))
+        .flat_map(|(_, p)| p.to_vec())
+        .collect();
+    assert_eq!(f32s(some.column("position").unwrap()), kept);
+    assert!(some.column("caustic").unwrap().iter().all(|&c| c == 1));
+    // The option means nothing to other formats: refused rather than ignored.
+    let csv = dir.path().join("t.csv");
+    std::fs::write(&csv, "x,y,z,flux_r,flux_g,flux_b\n0,0,0,1,1,1\n").unwrap();
+    let e =
+        import::import(&csv, &Options { caustic_only: true, ..Options::default() }).unwrap_err().to_string();
+    assert!(e.contains("caustic"), "{e}");
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -269,7 +302,8 @@ fn malformed_ply_headers_name_their_line() {
         ("ply\nformat ascii 1.0\nelement vertex many\nend_header\n", "line 3"),
         ("ply\nformat ascii 1.0\nelement vertex 1\nproperty quad x\nend_header\n", "line 4"),
         ("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\n", "without an 'end_header'"),
-        ("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n", "no 'position'"),
+        ("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n", "line 4"),
+        ("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n", "missing: y z"),
     ];
     for (text, want) in cases {
         let e = import_err("t.ply", text.as_bytes());
@@ -309,8 +343,9 @@ fn nan_and_inf_are_refused_where_they_are() {
     }
     let e = import_err("t.ply", &b);
     assert!(e.contains(&format!("byte {at}")) && e.contains("'z'") && e.contains("NaN"), "{e}");
+    // The header takes 10 lines: the first vertex is on line 11.
     let e = import_err("t.ply", format!("{}0 0 0 1 inf 1\n", ply_header("ascii", 1, XYZ_FLUX)).as_bytes());
-    assert!(e.contains("line 10") && e.contains("'flux_g'"), "{e}");
+    assert!(e.contains("line 11") && e.contains("'flux_g'"), "{e}");
     let e = import_err("t.csv", b"x,y,z,flux_r,flux_g,flux_b\n0,0,0,1,1,1\n0,1e39,0,1,1,1\n");
     assert!(e.contains("line 3") && e.contains("'y'"), "{e}");
     let e = import_err("t.tsv", b"x\ty\tz\tflux_r\tflux_g\tflux_b\tw\n0\t0\t0\t1\t1\t1\tNaN\n");
@@ -331,8 +366,9 @@ fn counts_that_disagree_with_the_data_are_refused() {
     let e = import_err("t.ply", a.as_bytes());
     assert!(e.contains("1000000000") && e.contains("ends after 10"), "{e}");
     // Fewer declared than held in ASCII: a row with the wrong number of values.
+    // (the header takes 10 lines, so the vertex is line 11)
     let e = import_err("t.ply", format!("{}0 0 0 1 1\n", ply_header("ascii", 1, XYZ_FLUX)).as_bytes());
-    assert!(e.contains("line 10") && e.contains("found 5"), "{e}");
+    assert!(e.contains("line 11") && e.contains("found 5"), "{e}");
     assert!(t.elapsed().as_secs_f64() < 1.0, "refusing took {:?}", t.elapsed());
 }
 

@@ -1,7 +1,8 @@
 //! Photons out to point-cloud viewers (MeshLab, CloudCompare, ParaView): PLY and CSV.
 //!
-//! Both forms name every column with the text names of format-spec §7/§11, in file order, so
-//! `photonkit import` reads them back to the same f32 bits. The PLY file is binary
+//! Both forms name every column with the text names of format-spec/phm-v1.md §7 (mapping in
+//! format-spec/import.md), in file order, so `photonkit import` reads them back to the same
+//! f32 bits. The PLY file is binary
 //! little-endian with one `vertex` per photon: flux stays as float `flux_r flux_g flux_b`
 //! (watts) and 8-bit `red green blue` are added for display; normals are `nx ny nz`, which
 //! the viewers shade with. PLY has no 64-bit integers: u64/i64 columns are written as
@@ -106,7 +107,7 @@ fn write_ply(map: &PhotonMap, out: &mut dyn Write, file: &str) -> Result<()> {
     let cols = map.columns();
     let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
     header.push_str(
-        "comment photonkit export (format-spec/phm-v1.md §11): flux_* in watts, red green blue for display\n",
+        "comment photonkit export (format-spec/import.md): flux_* in watts, red green blue for display\n",
     );
     header.push_str(&format!("element vertex {}\n", map.len()));
     for (s, _) in &cols {

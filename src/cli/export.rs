@@ -6,7 +6,7 @@ use photonkit::export::{self, ExportFormat};
 use photonkit::format::{Output, PhotonMap};
 
 /// Write a photon map as PLY (binary little-endian) or CSV for MeshLab, CloudCompare or
-/// ParaView: every column under its format-spec §11 name, flux as floats (watts) plus 8-bit
+/// ParaView: every column under its format-spec/import.md name, flux as floats (watts) plus 8-bit
 /// red green blue colours in PLY, normals as nx ny nz. `photonkit import` reads both back.
 #[derive(clap::Args)]
 pub struct Args {

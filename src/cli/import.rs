@@ -8,7 +8,7 @@ use photonkit::import::{self, Options, SourceFormat};
 
 /// Import photons from a PLY point cloud, a CSV/TSV table or a Radiance photon map (mkpmap).
 ///
-/// PLY and CSV name their fields as format-spec/phm-v1.md §11 says (x y z, flux_r flux_g
+/// PLY and CSV name their fields as format-spec/import.md says (x y z, flux_r flux_g
 /// flux_b or red green blue, nx ny nz, dx dy dz, emitter, param_0 param_1 [param_2], …);
 /// fields with other names are kept as extra columns. The TSV that `inspect --dump` prints
 /// reads back unchanged. Radiance maps of format 3.1 (kd-tree, or out-of-core with the

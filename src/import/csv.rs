@@ -1,4 +1,4 @@
-//! CSV and TSV tables with a header row of format-spec §7 names → photon columns.
+//! CSV and TSV tables with a header row of format-spec/phm-v1.md §7 names → photon columns.
 //!
 //! The delimiter is a tab when the header row holds one (the TSV `inspect --dump` writes),
 //! a comma otherwise. Values are parsed straight into their column's type, so the shortest

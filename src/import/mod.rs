@@ -3,8 +3,9 @@
 //! Every importer ends in the same place: photon columns in memory ([`Imported`]) with the
 //! names and types of format-spec/phm-v1.md §4.1, plus the emitters they belong to, written
 //! as one PHM file by [`Imported::write`]. Text and PLY sources name their fields with the
-//! text names of §7 (`x y z`, `flux_r flux_g flux_b`, …, mapping in §11); [`Layout`] turns a
-//! list of field names into columns, so PLY and CSV share one mapping.
+//! text names of §7 (`x y z`, `flux_r flux_g flux_b`, …; the whole mapping is in
+//! format-spec/import.md); [`Layout`] turns a list of field names into columns, so PLY and CSV
+//! share one mapping.
 //!
 //! Input is distrusted: a count read from a file never sizes an allocation before the bytes
 //! that back it have been seen to exist, and every error names the file and the line or byte

@@ -232,6 +232,15 @@ fn text_header(file: &str, bytes: &[u8]) -> Result<TextHeader> {
             message: "only photon maps (FORMAT=Radiance_*_Photon_Map) are imported".into(),
         });
     }
+    if format.starts_with("Radiance_Volume_") {
+        return Err(ImportError::Unsupported {
+            file: file.into(),
+            variant: format!("Radiance volume photon map ({format})"),
+            message: "volume photons lie in participating media, not on surfaces, and their normal \
+                      bytes hold the incident direction; photonkit imports surface photon maps"
+                .into(),
+        });
+    }
     Ok(TextHeader { command, format, version: version.map(|v| v.1), end: pos })
 }
 
@@ -270,6 +279,14 @@ pub fn read(path: &Path, bytes: &[u8], options: &Options) -> Result<Imported> {
                   optional suffixes f, P, D"
             .into(),
     })?;
+    let storage_ok = if variant.out_of_core {
+        th.format.ends_with("_OOC_Photon_Map")
+    } else {
+        th.format.ends_with("_kdT_Photon_Map")
+    };
+    if !storage_ok {
+        return Err(r.err(vstart, format!("binary version '{version}' contradicts FORMAT={}", th.format)));
+    }
     if let Some(v) = &th.version
         && *v != version
     {
@@ -438,8 +455,8 @@ fn read_kd(r: &mut Reader, variant: Variant, n: usize) -> Result<Vec<Photon>> {
 }
 
 fn read_ooc(path: &Path, r: &mut Reader, variant: Variant, n: usize) -> Result<Vec<Photon>> {
-    let _origin = r.flt3("octree origin")?;
-    let _size = r.flt("octree size")?;
+    let origin = r.flt3("octree origin")?;
+    let size = r.flt("octree size")?;
     let rs_at = r.pos;
     let rec_size = r.uint32("record size")? as usize;
     let nd_at = r.pos;
@@ -498,6 +515,7 @@ fn read_ooc(path: &Path, r: &mut Reader, variant: Variant, n: usize) -> Result<V
     }
     // Raw little-endian `struct Photon`: pos f32×3, normal i8×3, flags, flux, primary u32.
     let f32_at = |b: &[u8], o: usize| f32::from_le_bytes([b[o], b[o + 1], b[o + 2], b[o + 3]]);
+    let slack = 1e-4 * size.abs().max(1e-30);
     let mut out = Vec::with_capacity(n);
     for (i, b) in leaf.chunks_exact(rec).enumerate() {
         let pos = [f32_at(b, 0), f32_at(b, 4), f32_at(b, 8)];
@@ -514,6 +532,21 @@ fn read_ooc(path: &Path, r: &mut Reader, variant: Variant, n: usize) -> Result<V
                 file: leaf_name,
                 at: At::Byte((i * rec) as u64),
                 message: format!("photon {i} has a non-finite position or flux"),
+            });
+        }
+        // The leaf file is written in the writer's native byte order and struct layout; a
+        // photon outside the octree's cube means the machine that wrote it was not this one's
+        // kind (little-endian, GCC bit-field order), which would otherwise go unnoticed.
+        if (0..3).any(|k| !(origin[k] - slack..=origin[k] + size + slack).contains(&(pos[k] as f64))) {
+            return Err(ImportError::Unsupported {
+                file: leaf_name,
+                variant: format!(
+                    "an out-of-core leaf file whose photon {i} (byte {}) lies outside its octree",
+                    i * rec
+                ),
+                message: "the .leaf file is raw native records; this importer reads those of little-endian \
+                          x86-64 builds"
+                    .into(),
             });
         }
         out.push(Photon { pos, normal, flux, primary, caustic: flags & 1 != 0, at: i * rec });

@@ -246,6 +246,50 @@ fn radiance_pd_primaries_become_emission_directions() {
 }
 
 #[test]
+fn radiance_direction_codes_match_read_pmap() {
+    // The first 20 primaries of the PD map as the layout notes' independent reader decoded them:
+    // "i srcIdx=0 dircode=0x... dir=(x, y, z) pos=(...)", directions printed to 6 decimals.
+    let text = std::fs::read_to_string(fixture(
+        "radiance/kdt_PD/glass_sphere_contrib_10k.read_pmap_primaries_first20.txt",
+    ))
+    .unwrap();
+    let mut n = 0;
+    for line in text.lines() {
+        let code = line.split("dircode=0x").nth(1).unwrap().split_whitespace().next().unwrap();
+        let code = u32::from_str_radix(code, 16).unwrap();
+        let dir = line.split("dir=(").nth(1).unwrap().split(')').next().unwrap();
+        let want: Vec<f64> = dir.split(", ").map(|v| v.parse().unwrap()).collect();
+        let got = import::radiance::decode_dir(code);
+        assert!((0..3).all(|k| (got[k] - want[k]).abs() <= 5e-7), "{line}: {got:?}");
+        n += 1;
+    }
+    assert_eq!(n, 20);
+}
+
+#[test]
+fn imported_maps_without_parameters_detect_in_world_space() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("caustic.phm");
+    let m =
+        import::import(&fixture("radiance/kdt/glass_sphere_caustic_10k.pm"), &Options::default()).unwrap();
+    m.write(Output::Path(p.clone()), serde_json::json!({})).unwrap();
+    let map = PhotonMap::open_path(&p).unwrap();
+    use photonkit::detect::{Method, choose_method};
+    let (method, note) = choose_method(&map, None).unwrap();
+    assert_eq!(method, Method::WorldPca);
+    assert!(note.unwrap().contains("no trajectory parameters"));
+    let e = choose_method(&map, Some(Method::ParamPca)).unwrap_err().to_string();
+    assert!(e.contains("param-pca needs trajectory parameters"), "{e}");
+    // The PD map's emission directions are trajectory parameters: the paper's method applies.
+    let p = dir.path().join("pd.phm");
+    let m =
+        import::import(&fixture("radiance/kdt_PD/glass_sphere_contrib_10k.pm"), &Options::default()).unwrap();
+    m.write(Output::Path(p.clone()), serde_json::json!({})).unwrap();
+    let map = PhotonMap::open_path(&p).unwrap();
+    assert_eq!(choose_method(&map, None).unwrap().0, Method::ParamPca);
+}
+
+#[test]
 fn radiance_caustic_only_keeps_flagged_photons() {
     // Every photon of the fixture maps is flagged caustic (the only diffuse receiver is a flat
     // floor, so stored photons all arrive from the glass or the metal), so clear the flag (bit 2
@@ -369,6 +413,16 @@ fn counts_that_disagree_with_the_data_are_refused() {
     // (the header takes 10 lines, so the vertex is line 11)
     let e = import_err("t.ply", format!("{}0 0 0 1 1\n", ply_header("ascii", 1, XYZ_FLUX)).as_bytes());
     assert!(e.contains("line 11") && e.contains("found 5"), "{e}");
+    // More held than declared: refused too, at the first byte or line past the declared data.
+    let mut b = ply_header("binary_big_endian", 1, XYZ_FLUX).into_bytes();
+    let at = b.len() + 24;
+    b.extend(std::iter::repeat_n(0u8, 2 * 24));
+    let e = import_err("t.ply", &b);
+    assert!(e.contains(&format!("byte {at}")) && e.contains("24 bytes follow"), "{e}");
+    let mut a = ply_header("ascii", 1, XYZ_FLUX);
+    a.push_str("0 0 0 1 1 1\n0 0 0 1 1 1\n");
+    let e = import_err("t.ply", a.as_bytes());
+    assert!(e.contains("line 12") && e.contains("more than its header declares"), "{e}");
     assert!(t.elapsed().as_secs_f64() < 1.0, "refusing took {:?}", t.elapsed());
 }
 
@@ -400,6 +454,22 @@ fn bad_radiance_maps_are_refused_with_their_offset_or_variant() {
         b[v + 3] = b'x';
     });
     assert!(e.contains("'3.1x'") && e.contains("not supported"), "{e}");
+    // A volume photon map: named, and refused.
+    let e = radiance_variant(|b| {
+        let s = String::from_utf8_lossy(b).into_owned();
+        let at = s.find("Radiance_Caustic_").unwrap();
+        b[at..at + 17].copy_from_slice(b"Radiance_Volume__");
+    });
+    assert!(e.contains("volume photon map") && e.contains("not supported"), "{e}");
+    // A version string that contradicts FORMAT (kd-tree format, out-of-core version).
+    let e = radiance_variant(|b| {
+        let s = String::from_utf8_lossy(b).into_owned();
+        let v = s.find("VERSION=3.1k").unwrap() + 11;
+        b[v] = b'o';
+        let start = radiance_binary_start(b);
+        b[start + 3] = b'o';
+    });
+    assert!(e.contains("'3.1o' contradicts FORMAT="), "{e}");
     // Not a photon map at all.
     let e = import_err("p.hdr", b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1 +X 1\n");
     assert!(e.contains("32-bit_rle_rgbe") && e.contains("not supported"), "{e}");
@@ -416,6 +486,16 @@ fn bad_radiance_maps_are_refused_with_their_offset_or_variant() {
     std::fs::write(&pm, &ooc).unwrap();
     let e = import::import(&pm, &Options::default()).unwrap_err().to_string();
     assert!(e.contains("records of 40 bytes") && e.contains("not supported"), "{e}");
+    // A leaf file of the other byte order: its photons fall outside the octree, refused.
+    ooc[rs..rs + 4].copy_from_slice(&24u32.to_be_bytes());
+    std::fs::write(&pm, &ooc).unwrap();
+    let mut leaf = std::fs::read(fixture("radiance/ooc/glass_sphere_caustic_10k.pm.leaf")).unwrap();
+    for r in leaf.chunks_exact_mut(24) {
+        r[..4].reverse();
+    }
+    std::fs::write(dir.path().join("o.pm.leaf"), &leaf).unwrap();
+    let e = import::import(&pm, &Options::default()).unwrap_err().to_string();
+    assert!(e.contains("outside its octree") && e.contains("not supported"), "{e}");
 }
 
 #[test]

@@ -12,15 +12,16 @@
 //!
 //! - `ply-rs-bw` 3.0.3 reads all three encodings and arbitrary properties, but into an
 //!   `IndexMap<String, Property>` per vertex: 1 000 000 vertices of six floats (24 MB of data)
-//!   took 1.40 s and a peak RSS of 830 MB. Its binary errors carry no byte offset
-//!   ("Line 22: Unexpected end of file while reading binary element 'vertex' (expected
-//!   1000000000, got 10)"), and it accepts NaN without a way to say where it was.
+//!   took 1.40 s and a peak RSS of 830 MB (this importer: 0.26 s and 51 MB, PHM file written,
+//!   dev profile; BENCHMARKS.md). Its header and ASCII errors name the line, but its binary
+//!   errors carry no byte offset ("Line 22: Unexpected end of file while reading binary
+//!   element 'vertex' (expected 1000000000, got 10)"), and NaN passes through as a value.
 //! - `serde-ply` 0.2.2 reads all three encodings through serde, but its errors name neither a
 //!   line nor an offset: a truncated binary body, a short ASCII row and a declared billion
 //!   vertices all give "failed to fill whole buffer"; an unknown type gives "Unknown scalar
 //!   type: quad" without its line.
 //!
-//! Neither gives errors that map to a line or byte, so the parser stays here: it reads each
+//! Neither gives binary errors that map to a byte offset, so the parser stays here: it reads each
 //! property straight into its typed column (no per-vertex map), keeps unknown properties in
 //! their declared type, and sizes nothing from the header's count before the bytes behind
 //! it are known to exist.

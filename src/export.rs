@@ -22,6 +22,8 @@ pub enum ExportError {
     Io { file: String, source: std::io::Error },
     #[error("{file}: column '{column}', photon {photon}: {message}")]
     Value { file: String, column: String, photon: usize, message: String },
+    #[error("{file}: column '{column}' can not be named in {format}: {message}")]
+    Name { file: String, column: String, format: &'static str, message: String },
 }
 
 pub type Result<T, E = ExportError> = std::result::Result<T, E>;
@@ -102,7 +104,58 @@ fn display_colours(flux: &[[f32; 3]]) -> impl Fn(usize) -> [u8; 3] + '_ {
     }
 }
 
+/// Refuses column names the output can not carry so that `import` reads them back: PLY
+/// property names are single words and `red green blue` are the display colours; CSV fields
+/// are unquoted and trimmed on import.
+fn check_names(map: &PhotonMap, to: ExportFormat, file: &str) -> Result<()> {
+    let (format, bad_char): (&str, fn(char) -> bool) = match to {
+        ExportFormat::Ply => ("PLY", |c| c.is_whitespace() || c.is_control()),
+        ExportFormat::Csv => ("CSV", |c| c == ',' || c == '"' || c.is_whitespace() || c.is_control()),
+    };
+    for c in &map.meta().columns {
+        let message = if c.name.chars().any(bad_char) {
+            "it holds white space, a control character or a delimiter"
+        } else if to == ExportFormat::Ply && ["red", "green", "blue"].contains(&c.name.as_str()) {
+            "the export adds red green blue display colours under that name"
+        } else {
+            continue;
+        };
+        return Err(ExportError::Name {
+            file: file.into(),
+            column: c.name.clone(),
+            format,
+            message: message.into(),
+        });
+    }
+    Ok(())
+}
+
+/// A 64-bit integer as a PLY `double`, when the double holds it exactly.
+fn as_double(dtype: DType, a: [u8; 8]) -> Option<f64> {
+    if dtype == DType::U64 {
+        let v = u64::from_le_bytes(a);
+        (v <= MAX_EXACT).then_some(v as f64)
+    } else {
+        let v = i64::from_le_bytes(a);
+        (v.unsigned_abs() <= MAX_EXACT).then_some(v as f64)
+    }
+}
+
 fn write_ply(map: &PhotonMap, out: &mut dyn Write, file: &str) -> Result<()> {
+    check_names(map, ExportFormat::Ply, file)?;
+    // Checked before the first byte goes out, so standard output gets all or nothing.
+    for (s, b) in map.columns().iter().filter(|(s, _)| matches!(s.dtype, DType::U64 | DType::I64)) {
+        if let Some(at) =
+            b.chunks_exact(8).position(|c| as_double(s.dtype, c.try_into().expect("8")).is_none())
+        {
+            return Err(ExportError::Value {
+                file: file.into(),
+                column: s.name.clone(),
+                photon: at / s.components as usize,
+                message: "the value exceeds 2^53 and PLY's double can not hold it exactly".into(),
+            });
+        }
+    }
     let io = |source| ExportError::Io { file: file.into(), source };
     let cols = map.columns();
     let mut header = String::from("ply\nformat binary_little_endian 1.0\n");
@@ -128,20 +181,7 @@ fn write_ply(map: &PhotonMap, out: &mut dyn Write, file: &str) -> Result<()> {
                 DType::U64 | DType::I64 => {
                     for c in bytes.chunks_exact(8) {
                         let a: [u8; 8] = c.try_into().expect("8 bytes");
-                        let v = if s.dtype == DType::U64 {
-                            let v = u64::from_le_bytes(a);
-                            (v <= MAX_EXACT).then_some(v as f64)
-                        } else {
-                            let v = i64::from_le_bytes(a);
-                            (v.unsigned_abs() <= MAX_EXACT).then_some(v as f64)
-                        };
-                        let v = v.ok_or_else(|| ExportError::Value {
-                            file: file.into(),
-                            column: s.name.clone(),
-                            photon: i,
-                            message: "the value exceeds 2^53 and PLY's double can not hold it exactly".into(),
-                        })?;
-                        rec.extend_from_slice(&v.to_le_bytes());
+                        rec.extend_from_slice(&as_double(s.dtype, a).unwrap_or(f64::NAN).to_le_bytes());
                     }
                 }
                 _ => rec.extend_from_slice(bytes),
@@ -154,6 +194,7 @@ fn write_ply(map: &PhotonMap, out: &mut dyn Write, file: &str) -> Result<()> {
 }
 
 fn write_csv(map: &PhotonMap, out: &mut dyn Write, file: &str) -> Result<()> {
+    check_names(map, ExportFormat::Csv, file)?;
     let io = |source| ExportError::Io { file: file.into(), source };
     let cols = map.columns();
     let header: Vec<String> = cols.iter().flat_map(|(s, _)| text_names(&s.name, s.components)).collect();

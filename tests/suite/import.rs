@@ -524,3 +524,42 @@ fn the_command_line_fails_cleanly_and_leaves_no_output() {
     let o = photonkit(&["inspect", "--check", out.to_str().unwrap()]);
     assert!(o.status.success(), "{}{}", stdout(&o), stderr(&o));
 }
+
+#[test]
+fn exports_refuse_what_would_not_read_back_and_write_nothing() {
+    use photonkit::format::{ColumnSpec, DType, MapInfo, State, write_map};
+    let dir = tempfile::tempdir().unwrap();
+    let write = |extra: (&str, DType, Vec<u8>)| {
+        let p = dir.path().join("m.phm");
+        let pos: Vec<u8> = [0.5f32, 0.25, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let flux: Vec<u8> = [1f32, 1.0, 1.0].iter().flat_map(|v| v.to_le_bytes()).collect();
+        let cols = [
+            (ColumnSpec::new("position", DType::F32, 3), pos.as_slice()),
+            (ColumnSpec::new("flux", DType::F32, 3), flux.as_slice()),
+            (ColumnSpec::new(extra.0, extra.1, 1), extra.2.as_slice()),
+        ];
+        write_map(Output::Path(p.clone()), MapInfo::new(vec![], State::Traced), &cols).unwrap();
+        PhotonMap::open_path(&p).unwrap()
+    };
+    let spaced = write(("my weight", DType::F32, 2f32.to_le_bytes().to_vec()));
+    let red = write(("red", DType::U8, vec![7]));
+    let big = write(("count", DType::U64, (1u64 << 60).to_le_bytes().to_vec()));
+    for (map, to, want) in [
+        (&spaced, ExportFormat::Ply, "'my weight' can not be named in PLY"),
+        (&spaced, ExportFormat::Csv, "'my weight' can not be named in CSV"),
+        (&red, ExportFormat::Ply, "display colours"),
+        (&big, ExportFormat::Ply, "exceeds 2^53"),
+    ] {
+        let mut out = Vec::new();
+        let e = export::write(map, to, &mut out, "t").unwrap_err().to_string();
+        assert!(e.contains(want), "{e}");
+        assert!(out.is_empty(), "{want}: {} bytes written before the error", out.len());
+        let target = dir.path().join("out");
+        assert!(export::export(map, to, &Output::Path(target.clone())).is_err());
+        assert!(!target.exists());
+    }
+    // The same map with a CSV-safe u64 goes out as CSV, and its PLY column name 'red' as CSV too.
+    let mut out = Vec::new();
+    export::write(&big, ExportFormat::Csv, &mut out, "t").unwrap();
+    assert!(String::from_utf8(out).unwrap().ends_with(&format!(",{}\n", 1u64 << 60)));
+}

@@ -14,7 +14,7 @@
 //! 13 floats        average flux ×3, min/max interleaved ×6, centre of gravity ×3, mean dist² ×1
 //! numPrimary       4-byte big-endian unsigned
 //! primaries        srcIdx (2, signed) [+ direction code (4)] [+ position (3 floats)]
-//! kd-tree photons  pos (3 floats) | normal (3 signed bytes, ×1/127) | flux RGBE (4) or 3 floats
+//! kd-tree photons  pos (3 floats) | normal (3 signed bytes, ×1/127) | flux RGBE (4) or 3 floats (15)
 //!                  | primary index (4) | flags (1: bits 0–1 split axis, bit 2 caustic)
 //! out-of-core      octree (origin, size, record size, counts, nodes) in the .pm file; photons in
 //!                  <map>.leaf as raw little-endian 24-byte records
@@ -65,9 +65,11 @@ impl Variant {
         2 + if self.primary_dir { 4 } else { 0 } + if self.primary_pos { 15 } else { 0 }
     }
 
-    /// Bytes per kd-tree photon record in the .pm file.
+    /// Bytes per kd-tree photon record in the .pm file: position (3 × 5), normal (3), flux
+    /// (RGBE 4, or 3 × 5 with `f`: kdT_SavePhotons writes float flux with putflt), primary (4),
+    /// flags (1).
     fn kd_record(self) -> usize {
-        if self.float_flux { 35 } else { 27 }
+        if self.float_flux { 38 } else { 27 }
     }
 
     /// Bytes per photon record in the out-of-core .leaf file.

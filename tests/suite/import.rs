@@ -563,3 +563,46 @@ fn exports_refuse_what_would_not_read_back_and_write_nothing() {
     export::write(&big, ExportFormat::Csv, &mut out, "t").unwrap();
     assert!(String::from_utf8(out).unwrap().ends_with(&format!(",{}\n", 1u64 << 60)));
 }
+
+/// Radiance's `putflt`: mantissa `(long)(frexp(f) * 0x7fffffff)` (truncated), then the exponent.
+fn putflt(f: f64) -> [u8; 5] {
+    if f == 0.0 {
+        return [0; 5];
+    }
+    let e = ((f.to_bits() >> 52) & 0x7ff) as i32 - 1022;
+    let m = (f / 2f64.powi(e) * 2147483647.0) as i32;
+    let b = m.to_be_bytes();
+    [b[0], b[1], b[2], b[3], e as i8 as u8]
+}
+
+#[test]
+fn radiance_float_flux_variant_reads_like_rgbe() {
+    // No mkpmap build with PMAP_FLOAT_FLUX was at hand: rewrite a real map into that variant
+    // (version "3.1kf", flux as 3 portable floats, 38-byte records) and expect the same photons.
+    let src = std::fs::read(fixture("radiance/kdt/glass_sphere_caustic_10k.pm")).unwrap();
+    let rgbe =
+        import::import(&fixture("radiance/kdt/glass_sphere_caustic_10k.pm"), &Options::default()).unwrap();
+    let start = radiance_binary_start(&src);
+    let header =
+        String::from_utf8(src[..start].to_vec()).unwrap().replace("VERSION=3.1k\n", "VERSION=3.1kf\n");
+    let n = rgbe.len();
+    let records = src.len() - n * 27;
+    let mut b = header.into_bytes();
+    b.extend_from_slice(b"3.1kf\0");
+    b.extend_from_slice(&src[start + 5..records]);
+    let flux = f32s(rgbe.column("flux").unwrap());
+    for (i, r) in src[records..].chunks_exact(27).enumerate() {
+        b.extend_from_slice(&r[..18]);
+        for k in 0..3 {
+            b.extend_from_slice(&putflt(flux[i * 3 + k] as f64));
+        }
+        b.extend_from_slice(&r[22..]);
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("f.pm");
+    std::fs::write(&p, &b).unwrap();
+    let float = import::import(&p, &Options::default()).unwrap();
+    for c in ["position", "normal", "flux", "caustic"] {
+        assert!(float.column(c) == rgbe.column(c), "column {c}");
+    }
+}

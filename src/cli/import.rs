@@ -24,7 +24,9 @@ pub struct Args {
     /// The input's format (detected from its first bytes or its extension when not given).
     #[arg(long, value_enum)]
     from: Option<Source>,
-    /// What the param_* fields of a PLY or CSV file are (default: 2 → rect-uv, 3 → direction).
+    /// What the param_* fields of a PLY or CSV file are, for every emitter (default: per
+    /// emitter, direction if its 3 parameters are unit vectors, else rect-uv if they lie in
+    /// [0,1]²; see format-spec/import.md).
     #[arg(long, value_enum)]
     parameterisation: Option<Param>,
     /// Radiance: keep only photons whose caustic flag is set.

@@ -8,8 +8,8 @@ use rayon::prelude::*;
 use serde::Serialize;
 
 use crate::format::{
-    BoundingBox, ColumnSpec, DType, Emitter, FormatError, MapInfo, Output, Parameterisation, PhotonMap,
-    StageRecord, Units, columns::text_names, name, write_map,
+    BoundingBox, ColumnSpec, DType, Emitter, FormatError, MapInfo, Output, PhotonMap, StageRecord,
+    UNIT_TOLERANCE, Units, columns::text_names, name, write_map,
 };
 
 /// Statistics of one component of one column, over its finite values.
@@ -122,9 +122,6 @@ pub struct Violation {
     pub first: Option<u64>,
 }
 
-/// Tolerance on unit-vector lengths (f32 vectors normalised in f32 are good to ~1e-6).
-const UNIT_TOLERANCE: f32 = 1e-3;
-
 /// Verifies checksums and the data invariants of format-spec/phm-v1.md §5.
 pub fn check(map: &PhotonMap) -> Vec<Violation> {
     let mut out = Vec::new();
@@ -178,16 +175,11 @@ pub fn check(map: &PhotonMap) -> Vec<Violation> {
         let mut it = params.chunks_exact(dims).enumerate().map(|(i, q)| {
             let e = emitter_of.as_ref().map_or(0, |ids| ids[i] as usize);
             let Some(em) = meta.emitters.get(e) else { return false };
-            let used = em.param_dims as usize;
-            let tail_zero = q[used.min(dims)..].iter().all(|&x| x == 0.0);
-            let in_range = match em.parameterisation {
-                Parameterisation::RectUv => q[..2].iter().all(|&x| (0.0..=1.0).contains(&x)),
-                Parameterisation::Direction => {
-                    ((q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() - 1.0).abs() <= UNIT_TOLERANCE
-                }
-                _ => true,
+            let ok = match em.parameterisation.dims() {
+                Some(_) => em.parameterisation.admits(q),
+                None => q[(em.param_dims as usize).min(dims)..].iter().all(|&x| x == 0.0),
             };
-            !(tail_zero && in_range)
+            !ok
         });
         rule("trajectory parameters lie in their emitter's range".into(), &mut it);
     }

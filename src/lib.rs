@@ -1,6 +1,8 @@
 //! photonkit: caustic photon maps with parameter-space relaxation constraints.
 pub mod detect;
+pub mod export;
 pub mod format;
+pub mod import;
 pub mod inspect;
 pub mod relax;
 pub mod scene;

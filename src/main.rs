@@ -36,7 +36,9 @@ enum Command {
     /// Summarise, check, dump or subsample a photon map.
     Inspect(cli::inspect::Args),
     /// Import photons from PLY, CSV/TSV or Radiance photon maps.
-    Import(cli::pending::Args),
+    Import(cli::import::Args),
+    /// Export a photon map as PLY or CSV for point-cloud viewers.
+    Export(cli::export::Args),
 }
 
 fn main() -> ExitCode {
@@ -50,7 +52,8 @@ fn main() -> ExitCode {
         Command::Collapse(a) => cli::relax::collapse(a),
         Command::Render(a) => cli::pending::run("render", 6, a),
         Command::Inspect(a) => cli::inspect::run(a),
-        Command::Import(a) => cli::pending::run("import", 8, a),
+        Command::Import(a) => cli::import::run(a),
+        Command::Export(a) => cli::export::run(a),
     };
     match result {
         Ok(code) => code,

@@ -1,5 +1,7 @@
 //! One module per subcommand: its arguments (clap) and the call into the library.
 pub mod detect;
+pub mod export;
+pub mod import;
 pub mod inspect;
 pub mod merge;
 pub mod pending;

@@ -80,7 +80,40 @@ impl Parameterisation {
             Parameterisation::Unknown => None,
         }
     }
+
+    /// Whether one photon's `params` entry (every component of the column) is valid for this
+    /// parameterisation (format-spec/phm-v1.md §5): `rect_uv` in [0, 1]², `direction` of unit
+    /// length within [`UNIT_TOLERANCE`], and zeros past the parameterisation's dimensions.
+    /// An unknown parameterisation admits anything.
+    pub fn admits(self, q: &[f32]) -> bool {
+        let Some(used) = self.dims() else { return true };
+        let used = used as usize;
+        if q.len() < used || q[used..].iter().any(|&x| x != 0.0) {
+            return false;
+        }
+        match self {
+            Parameterisation::RectUv => q[..2].iter().all(|x| (0.0..=1.0).contains(x)),
+            Parameterisation::Direction => {
+                ((q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() - 1.0).abs() <= UNIT_TOLERANCE
+            }
+            Parameterisation::None | Parameterisation::Unknown => true,
+        }
+    }
+
+    /// The name written in the metadata (`rect_uv`, `direction`, `none`, `unknown`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Parameterisation::RectUv => "rect_uv",
+            Parameterisation::Direction => "direction",
+            Parameterisation::None => "none",
+            Parameterisation::Unknown => "unknown",
+        }
+    }
 }
+
+/// Tolerance on the length of unit vectors in the data invariants (format-spec/phm-v1.md §5);
+/// f32 vectors normalised in f32 are good to about 1e-6.
+pub const UNIT_TOLERANCE: f32 = 1e-3;
 
 /// A light source and the space its photons' trajectory parameters live in.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]

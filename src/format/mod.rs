@@ -18,7 +18,7 @@ mod writer;
 pub use columns::{ColumnSpec, DType, Element, name};
 pub use meta::{
     BoundingBox, ColumnEntry, Emitter, EmitterKind, MapInfo, Metadata, Parameterisation, StageRecord, State,
-    Units,
+    UNIT_TOLERANCE, Units,
 };
 pub use reader::PhotonMap;
 pub use writer::{Output, PhotonWriter, write_map};

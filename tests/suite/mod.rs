@@ -1,5 +1,6 @@
 pub mod common;
 mod format;
+mod import;
 mod phm_py;
 mod relax;
 mod samples;

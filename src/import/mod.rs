@@ -1,0 +1,646 @@
+//! Photons from other tracers: PLY point clouds, CSV/TSV tables and Radiance photon maps.
+//!
+//! Every importer ends in the same place: photon columns in memory ([`Imported`]) with the
+//! names and types of format-spec/phm-v1.md §4.1, plus the emitters they belong to, written
+//! as one PHM file by [`Imported::write`]. Text and PLY sources name their fields with the
+//! text names of §7 (`x y z`, `flux_r flux_g flux_b`, …; the whole mapping is in
+//! format-spec/import.md); [`Layout`] turns a list of field names into columns, so PLY and CSV
+//! share one mapping.
+//!
+//! Input is distrusted: a count read from a file never sizes an allocation before the bytes
+//! that back it have been seen to exist, and every error names the file and the line or byte
+//! offset where it was found.
+
+pub mod csv;
+pub mod ply;
+pub mod radiance;
+
+use std::fmt;
+use std::path::Path;
+
+use serde_json::{Value, json};
+
+use crate::format::columns::{KNOWN_COLUMNS, KnownColumn};
+use crate::format::{
+    ColumnSpec, DType, Emitter, EmitterKind, FormatError, MapInfo, Output, Parameterisation, StageRecord,
+    State, name, write_map,
+};
+
+/// Where in an input file something was found.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum At {
+    /// 1-based line of a text file or text header.
+    Line(u64),
+    /// 0-based byte offset from the start of the file.
+    Byte(u64),
+}
+
+impl fmt::Display for At {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            At::Line(l) => write!(f, "line {l}"),
+            At::Byte(b) => write!(f, "byte {b}"),
+        }
+    }
+}
+
+/// Everything that can be wrong with a file to import.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ImportError {
+    #[error("{file}: {source}")]
+    Io { file: String, source: std::io::Error },
+    /// Bad bytes or text at a known place.
+    #[error("{file}: {at}: {message}")]
+    Malformed { file: String, at: At, message: String },
+    /// Well-formed input that does not make a photon map (no positions, inconsistent options).
+    #[error("{file}: {message}")]
+    Invalid { file: String, message: String },
+    /// A variant of a format this importer knows of but does not read.
+    #[error("{file}: {variant} is not supported: {message}")]
+    Unsupported { file: String, variant: String, message: String },
+    #[error(
+        "{file}: format not recognised (expected a PLY file starting with 'ply', a Radiance photon map \
+         starting with '#?RADIANCE', or a .csv/.tsv/.txt table); name it with --from"
+    )]
+    UnknownFormat { file: String },
+    #[error(transparent)]
+    Format(#[from] FormatError),
+}
+
+pub type Result<T, E = ImportError> = std::result::Result<T, E>;
+
+/// The formats `photonkit import` reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SourceFormat {
+    Ply,
+    /// Comma- or tab-separated text with a header row (the delimiter is taken from the header).
+    Csv,
+    Radiance,
+}
+
+impl SourceFormat {
+    pub fn name(self) -> &'static str {
+        match self {
+            SourceFormat::Ply => "ply",
+            SourceFormat::Csv => "csv",
+            SourceFormat::Radiance => "radiance",
+        }
+    }
+
+    /// Recognises a file by its first bytes, then by its extension.
+    pub fn detect(path: &Path, head: &[u8]) -> Option<Self> {
+        if head.starts_with(b"ply\n") || head.starts_with(b"ply\r\n") {
+            return Some(SourceFormat::Ply);
+        }
+        if head.starts_with(b"#?RADIANCE") {
+            return Some(SourceFormat::Radiance);
+        }
+        let ext = path.extension()?.to_str()?.to_ascii_lowercase();
+        match ext.as_str() {
+            "csv" | "tsv" | "txt" => Some(SourceFormat::Csv),
+            "ply" => Some(SourceFormat::Ply),
+            "pm" | "pmap" => Some(SourceFormat::Radiance),
+            _ => None,
+        }
+    }
+}
+
+/// Choices the user makes about an import.
+#[derive(Clone, Debug, Default)]
+pub struct Options {
+    /// The source format; detected from the file when `None`.
+    pub format: Option<SourceFormat>,
+    /// How to read the `param_*` fields of a PLY or CSV file; when `None`, two parameters are
+    /// `rect_uv` and three are `direction`.
+    pub parameterisation: Option<Parameterisation>,
+    /// Radiance: keep only photons whose caustic flag is set (last segment specular).
+    pub caustic_only: bool,
+}
+
+/// Photons read from another format, held as PHM columns in memory.
+#[derive(Clone, Debug)]
+pub struct Imported {
+    pub format: SourceFormat,
+    /// Columns in the order they will be written; `position` and `flux` always present.
+    pub columns: Vec<(ColumnSpec, Vec<u8>)>,
+    pub emitters: Vec<Emitter>,
+    /// What the importer learnt about the source (stored in the stage record's `report`).
+    pub report: Value,
+}
+
+impl Imported {
+    pub fn len(&self) -> usize {
+        self.columns.first().map_or(0, |(s, b)| b.len() / s.stride().max(1) as usize)
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    pub fn column(&self, column: &str) -> Option<&[u8]> {
+        self.columns.iter().find(|(s, _)| s.name == column).map(|(_, b)| b.as_slice())
+    }
+
+    /// Writes the photons as a PHM file (state `traced`) with one `import` stage record.
+    pub fn write(self, target: Output, parameters: Value) -> Result<()> {
+        let mut info = MapInfo::new(self.emitters, State::Traced);
+        let mut record = StageRecord::now("import", parameters);
+        record.report = self.report;
+        info.history.push(record);
+        let cols: Vec<(ColumnSpec, &[u8])> =
+            self.columns.iter().map(|(s, b)| (s.clone(), b.as_slice())).collect();
+        write_map(target, info, &cols)?;
+        Ok(())
+    }
+}
+
+/// Reads `path` in the format given or detected.
+pub fn import(path: &Path, options: &Options) -> Result<Imported> {
+    let file = path.display().to_string();
+    let bytes = std::fs::read(path).map_err(|source| ImportError::Io { file: file.clone(), source })?;
+    let format = match options.format {
+        Some(f) => f,
+        None => SourceFormat::detect(path, &bytes)
+            .ok_or_else(|| ImportError::UnknownFormat { file: file.clone() })?,
+    };
+    if options.caustic_only && format != SourceFormat::Radiance {
+        return Err(ImportError::Invalid {
+            file,
+            message: format!("--caustic-only applies to Radiance photon maps, not to {}", format.name()),
+        });
+    }
+    match format {
+        SourceFormat::Ply => ply::read(&file, &bytes, options),
+        SourceFormat::Csv => csv::read(&file, &bytes, options),
+        SourceFormat::Radiance => radiance::read(path, &bytes, options),
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Field names → columns (shared by PLY and CSV)
+
+/// Where one named field of the source goes.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Slot {
+    pub col: usize,
+    pub comp: usize,
+    /// Multiplier applied to the value (8-bit colours read as flux: 1/255).
+    pub scale: Option<f64>,
+}
+
+/// The columns a list of field names makes, and where each field goes (`None`: ignored).
+#[derive(Clone, Debug)]
+pub(crate) struct Layout {
+    pub specs: Vec<ColumnSpec>,
+    pub slots: Vec<Option<Slot>>,
+}
+
+/// What the layout needs to know of one source field.
+pub(crate) struct Field<'a> {
+    pub name: &'a str,
+    /// The field's own element type where the source declares one (PLY); `None` for text.
+    pub dtype: Option<DType>,
+    /// Largest integer value of the field's type (for colours: 255 for uchar).
+    pub colour_max: Option<f64>,
+    pub at: At,
+}
+
+const COLOUR_NAMES: [&str; 3] = ["red", "green", "blue"];
+
+fn known_field(name: &str) -> Option<(&'static KnownColumn, usize)> {
+    KNOWN_COLUMNS.iter().find_map(|k| k.text_names.iter().position(|t| *t == name).map(|i| (k, i)))
+}
+
+/// Maps field names to columns: §4.1's text names to their columns, `red green blue` to flux
+/// when there is no `flux_*`, runs `c_0 … c_{n-1}` of other names to one column `c` with n
+/// components, and every other name to a column of its own.
+pub(crate) fn layout(file: &str, fields: &[Field], extra_dtype: &dyn Fn(usize) -> DType) -> Result<Layout> {
+    let bad = |at: At, message: String| ImportError::Malformed { file: file.to_string(), at, message };
+    let mut seen = std::collections::HashMap::new();
+    for f in fields {
+        if f.name.is_empty() || f.name.len() > 256 {
+            return Err(bad(f.at, format!("field name '{}' must be 1 to 256 bytes long", f.name)));
+        }
+        if seen.insert(f.name, f.at).is_some() {
+            return Err(bad(f.at, format!("field '{}' is named twice", f.name)));
+        }
+    }
+    let has_flux = fields.iter().any(|f| f.name.starts_with("flux_") && known_field(f.name).is_some());
+    let colours_as_flux = !has_flux && COLOUR_NAMES.iter().all(|c| seen.contains_key(c));
+
+    let mut specs: Vec<ColumnSpec> = Vec::new();
+    let mut slots: Vec<Option<Slot>> = vec![None; fields.len()];
+    let col_of = |specs: &mut Vec<ColumnSpec>, spec: ColumnSpec| -> usize {
+        match specs.iter().position(|s| s.name == spec.name) {
+            Some(i) => i,
+            None => {
+                specs.push(spec);
+                specs.len() - 1
+            }
+        }
+    };
+
+    // Known columns first, in the order of their first field.
+    for (i, f) in fields.iter().enumerate() {
+        let (known, comp, scale) = if let Some((k, comp)) = known_field(f.name) {
+            (k, comp, None)
+        } else if let Some(c) = COLOUR_NAMES.iter().position(|c| *c == f.name) {
+            if !colours_as_flux {
+                continue; // display colours beside flux (as `export` writes them): not data
+            }
+            let k = KNOWN_COLUMNS.iter().find(|k| k.name == name::FLUX).expect("flux is known");
+            (k, c, f.colour_max.map(|m| 1.0 / m))
+        } else {
+            continue;
+        };
+        if let Some(d) = f.dtype
+            && !fits(d, known.dtype)
+        {
+            return Err(bad(
+                f.at,
+                format!(
+                    "field '{}' is {} but column '{}' holds {} values",
+                    f.name,
+                    d.name(),
+                    known.name,
+                    known.dtype.name()
+                ),
+            ));
+        }
+        let comps = if known.name == name::PARAMS {
+            if seen.contains_key("param_2") { 3 } else { 2 }
+        } else {
+            known.components[0]
+        };
+        let col = col_of(&mut specs, ColumnSpec::new(known.name, known.dtype, comps));
+        slots[i] = Some(Slot { col, comp, scale });
+    }
+    // Every component of a known column must be present.
+    for (ci, s) in specs.iter().enumerate() {
+        let names: Vec<&str> = if s.name == name::FLUX && colours_as_flux {
+            COLOUR_NAMES.to_vec()
+        } else {
+            let k = crate::format::columns::known_column(&s.name).expect("known");
+            k.text_names[..s.components as usize].to_vec()
+        };
+        let missing: Vec<&str> = names.iter().copied().filter(|n| !seen.contains_key(n)).collect();
+        if !missing.is_empty() {
+            let first =
+                slots.iter().position(|t| t.is_some_and(|t| t.col == ci)).expect("a field made the column");
+            return Err(bad(
+                fields[first].at,
+                format!(
+                    "field '{}' makes column '{}', which needs the fields {}; missing: {}",
+                    fields[first].name,
+                    s.name,
+                    names.join(" "),
+                    missing.join(" ")
+                ),
+            ));
+        }
+    }
+    for required in [name::POSITION, name::FLUX] {
+        if !specs.iter().any(|s| s.name == required) {
+            let what =
+                if required == name::POSITION { "x y z" } else { "flux_r flux_g flux_b (or red green blue)" };
+            return Err(ImportError::Invalid {
+                file: file.to_string(),
+                message: format!("no '{required}' column: the fields {what} are required"),
+            });
+        }
+    }
+
+    // Other fields become extra columns, kept; `c_0 … c_{n-1}` (n ≥ 2, same type) is one column.
+    let mut i = 0;
+    while i < fields.len() {
+        let f = &fields[i];
+        let taken = slots[i].is_some() || known_field(f.name).is_some() || COLOUR_NAMES.contains(&f.name);
+        if taken {
+            i += 1;
+            continue;
+        }
+        let dtype = f.dtype.unwrap_or_else(|| extra_dtype(i));
+        let mut n = 1;
+        if let Some(base) = f.name.strip_suffix("_0") {
+            while i + n < fields.len()
+                && n < 64
+                && fields[i + n].name == format!("{base}_{n}")
+                && fields[i + n].dtype.unwrap_or_else(|| extra_dtype(i + n)) == dtype
+            {
+                n += 1;
+            }
+        }
+        let (col_name, n) = match f.name.strip_suffix("_0") {
+            Some(base) if n >= 2 && !base.is_empty() => (base.to_string(), n),
+            _ => (f.name.to_string(), 1),
+        };
+        if specs.iter().any(|s| s.name == col_name) || known_field(&col_name).is_some() {
+            return Err(bad(f.at, format!("field '{}' would make a second column '{col_name}'", f.name)));
+        }
+        specs.push(ColumnSpec::new(&col_name, dtype, n as u32));
+        let col = specs.len() - 1;
+        for k in 0..n {
+            slots[i + k] = Some(Slot { col, comp: k, scale: None });
+        }
+        i += n;
+    }
+    Ok(Layout { specs, slots })
+}
+
+/// Whether values of type `from` can be stored in a column of type `to` without losing their
+/// meaning: anything into floats, integers into integers (each value range-checked), and
+/// `double` into 64-bit integers (PLY has no 64-bit integer type; values checked integral).
+fn fits(from: DType, to: DType) -> bool {
+    match to {
+        DType::F32 | DType::F64 => true,
+        DType::U64 | DType::I64 => !matches!(from, DType::F32),
+        _ => !from.is_float(),
+    }
+}
+
+/// Photon columns being filled row by row.
+pub(crate) struct Columns<'f> {
+    file: &'f str,
+    pub specs: Vec<ColumnSpec>,
+    pub data: Vec<Vec<u8>>,
+    rows: usize,
+}
+
+impl<'f> Columns<'f> {
+    /// `rows_hint` must already be capped by what the input's remaining bytes can hold.
+    pub fn new(file: &'f str, specs: Vec<ColumnSpec>, rows_hint: usize) -> Self {
+        let data = specs.iter().map(|s| Vec::with_capacity(rows_hint * s.stride() as usize)).collect();
+        Columns { file, specs, data, rows: 0 }
+    }
+
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+
+    /// Starts a photon: every component zero until set.
+    pub fn begin_row(&mut self) {
+        for (s, d) in self.specs.iter().zip(&mut self.data) {
+            d.resize(d.len() + s.stride() as usize, 0);
+        }
+        self.rows += 1;
+    }
+
+    fn slot_bytes(&mut self, slot: Slot) -> (DType, &mut [u8]) {
+        let s = &self.specs[slot.col];
+        let size = s.dtype.size() as usize;
+        let at = (self.rows - 1) * s.stride() as usize + slot.comp * size;
+        (s.dtype, &mut self.data[slot.col][at..at + size])
+    }
+
+    fn err(&self, at: At, field: &str, message: String) -> ImportError {
+        ImportError::Malformed {
+            file: self.file.to_string(),
+            at,
+            message: format!("field '{field}': {message}"),
+        }
+    }
+
+    /// Stores a float value in the current photon.
+    pub fn set_f64(&mut self, slot: Slot, v: f64, at: At, field: &str) -> Result<()> {
+        let v = slot.scale.map_or(v, |s| v * s);
+        let (dtype, b) = self.slot_bytes(slot);
+        if !v.is_finite() {
+            return Err(self.err(at, field, format!("{v} is not a finite number")));
+        }
+        match dtype {
+            DType::F32 => {
+                let x = v as f32;
+                if !x.is_finite() {
+                    return Err(self.err(at, field, format!("{v} is out of the range of f32")));
+                }
+                b.copy_from_slice(&x.to_le_bytes());
+            }
+            DType::F64 => b.copy_from_slice(&v.to_le_bytes()),
+            _ => {
+                if v.fract() != 0.0 || v.abs() > 9.007_199_254_740_992e15 {
+                    return Err(self.err(at, field, format!("{v} is not an integer exactly representable")));
+                }
+                return self.set_i128(slot, v as i128, at, field);
+            }
+        }
+        Ok(())
+    }
+
+    /// Stores an integer value in the current photon, range-checked against the column type.
+    pub fn set_i128(&mut self, slot: Slot, v: i128, at: At, field: &str) -> Result<()> {
+        if slot.scale.is_some() {
+            return self.set_f64(slot, v as f64, at, field);
+        }
+        let (dtype, b) = self.slot_bytes(slot);
+        let ok = match dtype {
+            DType::U8 => u8::try_from(v).map(|x| b.copy_from_slice(&x.to_le_bytes())).is_ok(),
+            DType::U16 => u16::try_from(v).map(|x| b.copy_from_slice(&x.to_le_bytes())).is_ok(),
+            DType::U32 => u32::try_from(v).map(|x| b.copy_from_slice(&x.to_le_bytes())).is_ok(),
+            DType::U64 => u64::try_from(v).map(|x| b.copy_from_slice(&x.to_le_bytes())).is_ok(),
+            DType::I8 => i8::try_from(v).map(|x| b.copy_from_slice(&x.to_le_bytes())).is_ok(),
+            DType::I16 => i16::try_from(v).map(|x| b.copy_from_slice(&x.to_le_bytes())).is_ok(),
+            DType::I32 => i32::try_from(v).map(|x| b.copy_from_slice(&x.to_le_bytes())).is_ok(),
+            DType::I64 => i64::try_from(v).map(|x| b.copy_from_slice(&x.to_le_bytes())).is_ok(),
+            DType::F32 => {
+                b.copy_from_slice(&(v as f32).to_le_bytes());
+                true
+            }
+            DType::F64 => {
+                b.copy_from_slice(&(v as f64).to_le_bytes());
+                true
+            }
+        };
+        if !ok {
+            return Err(self.err(at, field, format!("{v} does not fit in {}", dtype.name())));
+        }
+        Ok(())
+    }
+
+    /// Parses text straight into the column's type (so a shortest-form f32 reads back exactly).
+    pub fn set_text(&mut self, slot: Slot, text: &str, at: At, field: &str) -> Result<()> {
+        let dtype = self.specs[slot.col].dtype;
+        if slot.scale.is_none() && dtype == DType::F32 {
+            let x: f32 =
+                text.parse().map_err(|_| self.err(at, field, format!("'{text}' is not a number")))?;
+            if !x.is_finite() {
+                return Err(self.err(at, field, format!("'{text}' is not a finite f32")));
+            }
+            self.slot_bytes(slot).1.copy_from_slice(&x.to_le_bytes());
+            return Ok(());
+        }
+        if slot.scale.is_none() && !dtype.is_float() {
+            let v: i128 =
+                text.parse().map_err(|_| self.err(at, field, format!("'{text}' is not an integer")))?;
+            return self.set_i128(slot, v, at, field);
+        }
+        let v: f64 = text.parse().map_err(|_| self.err(at, field, format!("'{text}' is not a number")))?;
+        self.set_f64(slot, v, at, field)
+    }
+
+    pub fn into_columns(self) -> Vec<(ColumnSpec, Vec<u8>)> {
+        self.specs.into_iter().zip(self.data).collect()
+    }
+}
+
+/// Gives imported photons their emitters: one `external` emitter per value of the `emitter`
+/// column (one in all when there is none).
+///
+/// Each emitter's parameterisation is `param_override` when given, else the first, in the order
+/// `direction` (only with three `param_*` fields), `rect_uv`, that every one of its photons
+/// satisfies by the invariants of format-spec/phm-v1.md §5: so a map with a `rect_uv` and a
+/// `direction` emitter, exported and imported again, keeps both. Photons whose parameters fit
+/// no parameterisation (or not the one asked for) are refused: the map written would fail
+/// `inspect --check`.
+pub(crate) fn with_emitters(
+    file: &str,
+    format: SourceFormat,
+    columns: Vec<(ColumnSpec, Vec<u8>)>,
+    param_override: Option<Parameterisation>,
+    report: Value,
+) -> Result<Imported> {
+    let invalid = |message: String| ImportError::Invalid { file: file.to_string(), message };
+    let params: Option<(usize, Vec<f32>)> =
+        columns.iter().find(|(s, _)| s.name == name::PARAMS).map(|(s, b)| {
+            let v = b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();
+            (s.components as usize, v)
+        });
+    let dims = params.as_ref().map_or(0, |p| p.0);
+    if let Some(p) = param_override {
+        let needed = p.dims().ok_or_else(|| invalid("unknown parameterisation".into()))? as usize;
+        if needed != dims && !(p == Parameterisation::RectUv && dims == 3) {
+            return Err(invalid(format!(
+                "parameterisation '{}' needs {needed} trajectory parameters (param_0 …) but the file has {dims}",
+                p.name()
+            )));
+        }
+    }
+    let ids: Option<Vec<u16>> = columns
+        .iter()
+        .find(|(s, _)| s.name == name::EMITTER)
+        .map(|(_, b)| b.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect());
+    let count = ids.as_ref().map_or(1, |v| v.iter().copied().max().map_or(1, |m| m as usize + 1));
+    let emitter_of = |i: usize| ids.as_ref().map_or(0, |v| v[i] as usize);
+    let flux = &columns.iter().find(|(s, _)| s.name == name::FLUX).expect("layout requires flux").1;
+    let mut sums = vec![[0.0f64; 3]; count];
+    for (i, f) in flux.chunks_exact(12).enumerate() {
+        let sum = &mut sums[emitter_of(i)];
+        for (k, c) in f.chunks_exact(4).enumerate() {
+            sum[k] += f32::from_le_bytes([c[0], c[1], c[2], c[3]]) as f64;
+        }
+    }
+
+    // Candidates per emitter, struck off by the first photon that breaks them.
+    let candidates: Vec<Parameterisation> = match (param_override, dims) {
+        (Some(p), _) => vec![p],
+        (None, 0) => vec![Parameterisation::None],
+        (None, 2) => vec![Parameterisation::RectUv],
+        (None, _) => vec![Parameterisation::Direction, Parameterisation::RectUv],
+    };
+    let mut open: Vec<Vec<Parameterisation>> = vec![candidates.clone(); count];
+    if let Some((d, v)) = &params {
+        for (i, q) in v.chunks_exact(*d).enumerate() {
+            let e = emitter_of(i);
+            open[e].retain(|p| p.admits(q));
+            if open[e].is_empty() {
+                let names: Vec<&str> = candidates.iter().map(|p| p.name()).collect();
+                let hint = if param_override.is_some() {
+                    "the parameterisation given does not fit"
+                } else {
+                    "give --parameterisation, or rename the param_* fields to keep them as extra columns"
+                };
+                return Err(invalid(format!(
+                    "photon {i} (emitter {e}) has trajectory parameters {q:?} that fit no parameterisation of {} \
+                     (format-spec/phm-v1.md §5: rect_uv in [0, 1]², direction of unit length); {hint}",
+                    names.join(" or ")
+                )));
+            }
+        }
+    }
+    let emitters: Vec<Emitter> =
+        sums.iter().enumerate().map(|(id, s)| external_emitter(id as u32, open[id][0], *s)).collect();
+    // Three fields but only `rect_uv` emitters: the column holds (u, v, 0) and must have the
+    // largest param_dims (2) components (§4.1), so the zeros go.
+    let mut columns = columns;
+    if dims == 3
+        && emitters.iter().all(|e| e.param_dims < 3)
+        && let Some((s, b)) = columns.iter_mut().find(|(s, _)| s.name == name::PARAMS)
+    {
+        s.components = 2;
+        *b = b.chunks_exact(12).flat_map(|q| q[..8].iter().copied()).collect();
+    }
+    Ok(Imported { format, columns, emitters, report })
+}
+
+/// An emitter known only by its photons: power is the flux that reached the map (a lower
+/// bound on what was emitted), colour that flux's relative RGB.
+pub(crate) fn external_emitter(id: u32, p: Parameterisation, flux_w: [f64; 3]) -> Emitter {
+    let max = flux_w.iter().copied().fold(0.0f64, f64::max);
+    let colour = if max > 0.0 { flux_w.map(|c| (c / max) as f32) } else { [1.0; 3] };
+    Emitter {
+        id,
+        kind: EmitterKind::External,
+        parameterisation: p,
+        param_dims: p.dims().unwrap_or(0),
+        power_w: flux_w.iter().sum(),
+        colour,
+        param_measure: None,
+        geometry: Value::Null,
+        extra: Default::default(),
+    }
+}
+
+/// The parameters recorded for an import stage.
+pub fn stage_parameters(path: &Path, format: SourceFormat, options: &Options) -> Value {
+    json!({
+        "from": path.display().to_string(),
+        "format": format.name(),
+        "parameterisation": options.parameterisation.map(|p| serde_json::to_value(p).unwrap_or(Value::Null)),
+        "caustic_only": options.caustic_only,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn fields<'a>(names: &[&'a str]) -> Vec<Field<'a>> {
+        names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| Field { name: n, dtype: None, colour_max: None, at: At::Line(i as u64) })
+            .collect()
+    }
+
+    #[test]
+    fn names_map_to_columns_and_extras_group() {
+        let f =
+            fields(&["x", "y", "z", "flux_r", "flux_g", "flux_b", "w_0", "w_1", "q", "red", "green", "blue"]);
+        let l = layout("t", &f, &|_| DType::F32).unwrap();
+        let names: Vec<_> = l.specs.iter().map(|s| (s.name.as_str(), s.components)).collect();
+        assert_eq!(names, [("position", 3), ("flux", 3), ("w", 2), ("q", 1)]);
+        assert!(l.slots[9].is_none(), "display colours beside flux are dropped");
+    }
+
+    #[test]
+    fn colours_become_flux_and_missing_components_are_named() {
+        let f = fields(&["x", "y", "z", "red", "green", "blue"]);
+        let l = layout("t", &f, &|_| DType::F32).unwrap();
+        assert_eq!(l.specs[1].name, "flux");
+        let f = fields(&["x", "y", "flux_r", "flux_g", "flux_b"]);
+        let e = layout("t", &f, &|_| DType::F32).unwrap_err().to_string();
+        assert!(e.contains("missing: z"), "{e}");
+    }
+
+    #[test]
+    fn integer_columns_refuse_out_of_range_and_fractions() {
+        let specs = vec![ColumnSpec::new("bounces", DType::U8, 1)];
+        let mut c = Columns::new("t", specs, 0);
+        c.begin_row();
+        let s = Slot { col: 0, comp: 0, scale: None };
+        assert!(c.set_i128(s, 300, At::Line(2), "bounces").unwrap_err().to_string().contains("line 2"));
+        assert!(c.set_text(s, "1.5", At::Line(2), "bounces").is_err());
+        c.set_text(s, "7", At::Line(2), "bounces").unwrap();
+        assert_eq!(c.data[0], [7]);
+    }
+}

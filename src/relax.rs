@@ -321,7 +321,6 @@ pub fn relax_map(
         // The index borrows `positions`; `iterate` moves a copy, then the two swap.
         next.copy_from_slice(&positions);
         let m = iterate(&mut next, &search, constraint, p, it, &mut step, &mut nn);
-        drop(search);
         std::mem::swap(&mut positions, &mut next);
         on_iteration(&m);
         measures.push(m);
@@ -492,13 +491,13 @@ mod tests {
         }
     }
 
-    fn relax_plane(pos: &mut Vec<[f32; 3]>, iterations: usize) -> Vec<IterationMeasure> {
+    fn relax_plane(pos: &mut [[f32; 3]], iterations: usize) -> Vec<IterationMeasure> {
         let normal = vec![[0.0, 0.0, 1.0]; pos.len()];
         let p = RelaxParams::default();
         let (mut step, mut nn) = (Vec::new(), Vec::new());
         (0..iterations)
             .map(|it| {
-                let snapshot = pos.clone();
+                let snapshot = pos.to_vec();
                 let index = BruteForce(&snapshot);
                 iterate(pos, &index, Constraint::Tangent { normal: &normal }, &p, it, &mut step, &mut nn)
             })

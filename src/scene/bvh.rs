@@ -125,9 +125,7 @@ impl Bvh {
         let mut stack = [0u32; 64];
         let mut sp = 0usize;
         let mut node = &self.nodes[0];
-        if slab(node, ray.origin, inv, t_min, t_best).is_none() {
-            return None;
-        }
+        slab(node, ray.origin, inv, t_min, t_best)?;
         loop {
             if node.count > 0 {
                 let first = node.first as usize;

@@ -264,7 +264,7 @@ pub fn load_obj(path: &std::path::Path) -> Result<Mesh, String> {
     if mesh.indices.is_empty() {
         return Err("no faces".into());
     }
-    if mesh.normals.as_ref().is_some_and(|ns| ns.iter().any(|n| *n == Vec3::ZERO)) {
+    if mesh.normals.as_ref().is_some_and(|ns| ns.contains(&Vec3::ZERO)) {
         mesh.normals = None;
     }
     Ok(mesh.drop_degenerate())

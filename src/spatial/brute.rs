@@ -16,7 +16,7 @@ fn dist2(a: &[f32], b: &[f32]) -> f32 {
 /// index): the definition [`super::SpatialIndex::knn`] implements. O(n) per query; for
 /// tests and checks.
 pub fn brute_force_knn(points: &PointSet, space: Space, q: &Query, k: usize) -> Vec<Neighbour> {
-    if matches!(q.radius, Some(r) if !(r >= 0.0)) {
+    if matches!(q.radius, Some(r) if r.is_nan() || r < 0.0) {
         return Vec::new();
     }
     let r2 = q.radius.map(|r| r * r);

@@ -136,7 +136,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             worst: Neighbour { dist2: f32::INFINITY, index: u32::MAX },
         };
         // A NaN radius admits nothing; so does a negative one (no distance is below it).
-        if s.ball && !(s.r2 >= 0.0) {
+        if s.ball && (s.r2.is_nan() || s.r2 < 0.0) {
             return;
         }
         let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);

@@ -375,7 +375,7 @@ impl SpatialIndex {
         let g = if self.space == Space::World { 0 } else { q.emitter as usize };
         let Some(&t) = self.tree_of.get(g).filter(|&&t| t != usize::MAX) else { return };
         let radius = match q.radius {
-            Some(r) if !(r >= 0.0) => return,
+            Some(r) if r.is_nan() || r < 0.0 => return,
             r => r.map(|r| r * r),
         };
         fn arr<const N: usize>(s: &[f32]) -> [f32; N] {

@@ -17,7 +17,7 @@ pub struct Halton {
 
 impl Halton {
     pub fn new(seed: u64) -> Self {
-        let mut s = seed ^ 0x5EED_0F_4A17_0A5E;
+        let mut s = seed ^ 0x005E_ED0F_4A17_0A5E;
         Halton {
             offsets: std::array::from_fn(|_| (splitmix64(&mut s) >> 11) as f64 * (1.0 / (1u64 << 53) as f64)),
         }

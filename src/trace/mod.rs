@@ -363,7 +363,7 @@ pub fn trace(
                     if next >= 50_000_000 {
                         return Err(TraceError::NothingStored { emitted: next });
                     }
-                    (next.max(CHUNK * 16)).min(1 << 24)
+                    next.clamp(CHUNK * 16, 1 << 24)
                 } else {
                     let rate = stored as f64 / next as f64;
                     (((target - stored) as f64 / rate * 1.05) as u64).clamp(CHUNK, 1 << 26)

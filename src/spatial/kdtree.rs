@@ -72,9 +72,11 @@ fn sum_sq<const N: usize>(o: &[f32; N]) -> f32 {
     s
 }
 
-/// The ranking of neighbours: distance², then photon index (distances are never NaN).
-fn order(a: &Neighbour, b: &Neighbour) -> std::cmp::Ordering {
-    a.dist2.total_cmp(&b.dist2).then(a.index.cmp(&b.index))
+/// The ranking of neighbours, distance² then photon index, as one integer: a distance² is
+/// never negative or NaN, and the bits of non-negative floats order as the floats do.
+#[inline(always)]
+fn rank(n: &Neighbour) -> u64 {
+    ((n.dist2.to_bits() as u64) << 32) | n.index as u64
 }
 
 /// Internal nodes of a subtree of `m` records.
@@ -290,7 +292,7 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
     /// Keeps the k best candidates (unordered) and makes the k-th the bound.
     fn cut(&mut self) {
         let k = self.k;
-        let (_, kth, _) = self.heap.select_nth_unstable_by(k - 1, order);
+        let (_, kth, _) = self.heap.select_nth_unstable_by_key(k - 1, rank);
         self.worst = *kth;
         self.heap.truncate(k);
     }
@@ -300,6 +302,6 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
         if self.heap.len() > self.k {
             self.cut();
         }
-        self.heap.sort_unstable_by(order);
+        self.heap.sort_unstable_by_key(rank);
     }
 }

@@ -218,6 +218,10 @@ pub struct Relaxed {
     /// False when the map has no constraint basis and photons moved freely in their tangent plane.
     pub constrained: bool,
     pub measures: Vec<IterationMeasure>,
+    /// New surface normals when photons were returned to curved surfaces ([`relax_map_on`]).
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// Moves refused because the photon's surface was not found near the moved point.
+    pub refused_moves: u64,
 }
 
 /// [`NeighbourSearch`] over a [`crate::spatial::SpatialIndex`], excluding the query photon.
@@ -254,6 +258,18 @@ impl NeighbourSearch for IndexSearch<'_> {
 pub fn relax_map(
     map: &crate::format::PhotonMap,
     p: &RelaxParams,
+    on_iteration: impl FnMut(&IterationMeasure),
+) -> Result<Relaxed, RelaxError> {
+    relax_map_on(map, p, None, on_iteration)
+}
+
+/// [`relax_map`], and with a scene, photons that moved are returned to their surface (the
+/// `surface` column names it) by [`return_to_surface`], and their normals follow: photons on
+/// curved receivers stay on them. A move whose surface is not found is refused.
+pub fn relax_map_on(
+    map: &crate::format::PhotonMap,
+    p: &RelaxParams,
+    scene: Option<&crate::scene::Scene>,
     mut on_iteration: impl FnMut(&IterationMeasure),
 ) -> Result<Relaxed, RelaxError> {
     use crate::format::{State, name};
@@ -294,6 +310,12 @@ pub fn relax_map(
     let emitters = map.column::<u16>(name::EMITTER)?;
     let mut positions = map.positions().to_vec();
     let mut next = positions.clone();
+    let surfaces = map.column::<u32>(name::SURFACE)?;
+    let mut normals: Option<Vec<[f32; 3]>> = match (scene, surfaces, normal) {
+        (Some(_), Some(_), Some(n)) => Some(n.to_vec()),
+        _ => None,
+    };
+    let mut refused_moves = 0u64;
     let (mut step, mut nn) = (Vec::new(), Vec::new());
     let mut measures = Vec::with_capacity(p.iterations);
     let mut index: Option<SpatialIndex> = None;
@@ -321,11 +343,81 @@ pub fn relax_map(
         // The index borrows `positions`; `iterate` moves a copy, then the two swap.
         next.copy_from_slice(&positions);
         let m = iterate(&mut next, &search, constraint, p, it, &mut step, &mut nn);
+        if let (Some(scene), Some(surf), Some(ns)) = (scene, surfaces, normals.as_mut()) {
+            refused_moves += back_to_surfaces(scene, surf, &positions, &mut next, ns);
+        }
         std::mem::swap(&mut positions, &mut next);
         on_iteration(&m);
         measures.push(m);
     }
-    Ok(Relaxed { positions, space, constrained: matches!(constraint, Constraint::Basis { .. }), measures })
+    Ok(Relaxed {
+        positions,
+        space,
+        constrained: matches!(constraint, Constraint::Basis { .. }),
+        measures,
+        normals,
+        refused_moves,
+    })
+}
+
+/// Returns every moved photon of `moved` to its surface, or back to `before` when its surface
+/// is not found; updates `normals`. Returns the number of refused moves.
+fn back_to_surfaces(
+    scene: &crate::scene::Scene,
+    surfaces: &[u32],
+    before: &[[f32; 3]],
+    moved: &mut [[f32; 3]],
+    normals: &mut [[f32; 3]],
+) -> u64 {
+    moved
+        .par_iter_mut()
+        .zip(normals.par_iter_mut())
+        .enumerate()
+        .map(|(i, (x, n))| {
+            let (old, new) = (Vec3::from(before[i]), Vec3::from(*x));
+            let step = old.distance(new);
+            if step == 0.0 {
+                return 0;
+            }
+            match return_to_surface(scene, surfaces[i], new, Vec3::from(*n), step) {
+                Some((at, normal)) => {
+                    *x = at.into();
+                    *n = normal.into();
+                    0
+                }
+                None => {
+                    *x = before[i];
+                    1
+                }
+            }
+        })
+        .sum()
+}
+
+/// The point of surface `surface` nearest along the normal to a photon moved by `step` in its
+/// tangent plane, and the surface's normal there (oriented like `normal`): the photon's
+/// surface is searched along ±normal within 2·step plus a rounding margin (a tangent step of
+/// length s leaves a surface of radius R by s²/2R, far less for any step the step limit
+/// allows). `None` if another surface or none lies there.
+pub fn return_to_surface(
+    scene: &crate::scene::Scene,
+    surface: u32,
+    moved: Vec3,
+    normal: Vec3,
+    step: f32,
+) -> Option<(Vec3, Vec3)> {
+    let n = normal.try_normalize()?;
+    let reach = 2.0 * step + 1e-5 * (1.0 + moved.abs().max_element());
+    for dir in [-n, n] {
+        let ray = crate::scene::Ray::new(moved - dir * reach, dir);
+        if let Some(hit) = scene.intersect(&ray, 0.0, 2.0 * reach)
+            && hit.shape == surface
+        {
+            let hn = if hit.normal.dot(n) < 0.0 { -hit.normal } else { hit.normal };
+            return Some((ray.at(hit.t), hn));
+        }
+    }
+    None
 }
 
 /// Writes `map` with its positions replaced by `relaxed`, every other column carried through,
@@ -351,8 +443,11 @@ pub fn write_relaxed(
         .columns()
         .into_iter()
         .map(|(spec, bytes)| {
-            let b: &[u8] =
-                if spec.name == name::POSITION { bytemuck::cast_slice(&relaxed.positions) } else { bytes };
+            let b: &[u8] = match (spec.name.as_str(), &relaxed.normals) {
+                (name::POSITION, _) => bytemuck::cast_slice(&relaxed.positions),
+                (name::NORMAL, Some(n)) => bytemuck::cast_slice(n),
+                _ => bytes,
+            };
             (spec, b)
         })
         .collect();

@@ -142,7 +142,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let map = PhotonMap::open_path(&file(input))?;
         let bar = spinner(stage);
         let t = Instant::now();
-        let r = relax::relax_map(&map, &rp, |m| {
+        let r = relax::relax_map_on(&map, &rp, Some(&scene), |m| {
             bar.set_message(format!("{stage}: iteration {}", m.iteration + 1))
         });
         bar.finish_and_clear();

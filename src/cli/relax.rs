@@ -7,6 +7,7 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::format::{Output, PhotonMap, State};
 use photonkit::relax::{self, RelaxParams, RelaxSpace};
+use photonkit::scene::{DEFAULT_SCENE, Scene};
 
 /// Relax photons toward a blue-noise distribution (Eq. 8–9).
 ///
@@ -35,6 +36,22 @@ pub struct Args {
     /// Largest step per iteration as a fraction of the local photon spacing.
     #[arg(long, default_value_t = 0.5)]
     step_limit: f32,
+    /// The scene the photons were traced in: photons that move are returned to their surface
+    /// (the `surface` column), so photons on curved receivers stay on them. Without it,
+    /// photons move in their tangent plane, which keeps them exactly on planar receivers; a
+    /// map traced from the embedded default scene uses that scene automatically.
+    #[arg(long, value_name = "SCENE")]
+    scene: Option<std::path::PathBuf>,
+}
+
+/// The scene given, or the embedded default when the map was traced from it.
+fn scene_for(map: &PhotonMap, path: Option<&std::path::Path>) -> anyhow::Result<Option<Scene>> {
+    if let Some(p) = path {
+        return Ok(Some(Scene::load(p)?));
+    }
+    let traced = map.meta().history.iter().find(|h| h.stage == "trace");
+    let crc = format!("{:08x}", crc32fast::hash(DEFAULT_SCENE.as_bytes()));
+    Ok(traced.filter(|h| h.parameters["scene_crc32"] == crc.as_str()).map(|_| Scene::default_scene()))
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -49,7 +66,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .expect("valid template"),
     );
     let t = Instant::now();
-    let relaxed = relax::relax_map(&map, &p, |m| {
+    let scene = scene_for(&map, a.scene.as_deref())?;
+    let relaxed = relax::relax_map_on(&map, &p, scene.as_ref(), |m| {
         bar.inc(1);
         // Printed whether or not the bar is drawn (stderr may not be a terminal).
         bar.suspend(|| {
@@ -65,6 +83,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     })?;
     bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
+    if relaxed.refused_moves > 0 {
+        eprintln!(
+            "note: {} moves were refused because the photon's surface was not found where it moved",
+            relaxed.refused_moves
+        );
+    }
     if !relaxed.constrained {
         eprintln!(
             "note: {} has no constraint basis (run `photonkit detect` first): relaxed unconstrained",

@@ -140,3 +140,84 @@ fn pipeline_runs_every_stage_on_the_default_scene() {
         assert!(cv(its.len() - 1) < 0.8 * cv(0), "spread {} → {}", cv(0), cv(its.len() - 1));
     }
 }
+
+/// Photons on a curved receiver (a diffuse sphere of radius 1) stay on it when `relax` has the
+/// scene, with their normals following; without it they drift off along their tangent planes.
+#[test]
+fn photons_on_a_curved_receiver_stay_on_it_with_the_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("dome.toml");
+    std::fs::write(
+        &scene,
+        r#"
+[camera]
+projection = "pinhole"
+eye = [0.0, -4.0, 2.0]
+look_at = [0.0, 0.0, 0.5]
+fov_deg = 40
+resolution = [64, 64]
+[materials.white]
+kind = "diffuse"
+albedo = [0.8, 0.8, 0.8]
+[[emitters]]
+name = "sun"
+kind = "collimated"
+center = [0.0, 0.0, 3.0]
+size = [1.0, 1.0]
+direction = [0.0, 0.0, -1.0]
+power_w = 1.0
+colour = [1.0, 1.0, 1.0]
+[[shapes]]
+name = "dome"
+kind = "sphere"
+center = [0.0, 0.0, 0.0]
+radius = 1.0
+material = "white"
+"#,
+    )
+    .unwrap();
+    // Photons uniform on the cap z > 0.6 of the unit sphere, with radial normals.
+    let mut m = photonkit::synthetic::uniform_square(2000, 31, 1.0);
+    for (i, (p, n)) in m.position.iter_mut().zip(m.normal.iter_mut()).enumerate() {
+        let (a, b) = (m.params[2 * i], m.params[2 * i + 1]);
+        let z = 0.6 + 0.4 * a;
+        let phi = std::f32::consts::TAU * b;
+        let r = (1.0 - z * z).sqrt();
+        *p = [r * phi.cos(), r * phi.sin(), z];
+        *n = *p;
+    }
+    let surface = vec![0u32; m.len()];
+    let mut columns = m.columns();
+    columns.push((photonkit::format::ColumnSpec::of::<u32>(name::SURFACE), bytemuck::cast_slice(&surface)));
+    let input = dir.path().join("cap.phm");
+    photonkit::format::write_map(
+        photonkit::format::Output::Path(input.clone()),
+        m.info("cap", 0, SAMPLE_TIME),
+        &columns,
+    )
+    .unwrap();
+    let (free, on) = (dir.path().join("free.phm"), dir.path().join("on.phm"));
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    run_ok(&["relax", &s(&input), "-o", &s(&free), "-R", "10"]);
+    run_ok(&["relax", &s(&input), "-o", &s(&on), "-R", "10", "--scene", &s(&scene)]);
+    let off = |path: &Path| {
+        let map = PhotonMap::open_path(path).unwrap();
+        map.positions()
+            .iter()
+            .map(|p| ((p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt() - 1.0).abs())
+            .fold(0.0f32, f32::max)
+    };
+    assert!(off(&free) > 1e-4, "tangent-plane steps should leave the sphere: {}", off(&free));
+    assert!(off(&on) < 2e-6, "photons left the sphere by {}", off(&on));
+    let map = PhotonMap::open_path(&on).unwrap();
+    let before = PhotonMap::open_path(&input).unwrap();
+    let moved = map.positions().iter().zip(before.positions()).filter(|(a, b)| a != b).count();
+    assert!(moved > map.len() / 2, "only {moved} photons moved");
+    let normals = map.column::<[f32; 3]>(name::NORMAL).unwrap().unwrap();
+    for (p, n) in map.positions().iter().zip(normals) {
+        let cos = (p[0] * n[0] + p[1] * n[1] + p[2] * n[2])
+            / (p[0] * p[0] + p[1] * p[1] + p[2] * p[2]).sqrt()
+            / (n[0] * n[0] + n[1] * n[1] + n[2] * n[2]).sqrt();
+        assert!(cos > 0.99999, "normal {n:?} at {p:?} is not radial");
+    }
+}

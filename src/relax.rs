@@ -22,11 +22,15 @@ pub struct RelaxParams {
     /// Largest step, as a fraction of the mean photon spacing r_K·sqrt(π/Kf) around the photon,
     /// so no photon jumps past its neighbours.
     pub step_limit: f32,
+    /// The 2009 method's flux diffusion, per iteration: each photon's flux moves this fraction
+    /// of the way toward the mean of its Kf neighbours' ([`diffuse_flux`]); 0 (the default)
+    /// leaves every photon's flux untouched.
+    pub flux_diffusion: f32,
 }
 
 impl Default for RelaxParams {
     fn default() -> Self {
-        RelaxParams { iterations: 7, kf: 16, epsilon: 1e-3, step_limit: 0.5 }
+        RelaxParams { iterations: 7, kf: 16, epsilon: 1e-3, step_limit: 0.5, flux_diffusion: 0.0 }
     }
 }
 
@@ -222,6 +226,8 @@ pub struct Relaxed {
     pub normals: Option<Vec<[f32; 3]>>,
     /// Moves refused because the photon's surface was not found near the moved point.
     pub refused_moves: u64,
+    /// Diffused flux, when `flux_diffusion` > 0.
+    pub flux: Option<Vec<[f32; 3]>>,
 }
 
 /// [`NeighbourSearch`] over a [`crate::spatial::SpatialIndex`], excluding the query photon.
@@ -316,6 +322,7 @@ pub fn relax_map_on(
         _ => None,
     };
     let mut refused_moves = 0u64;
+    let mut flux: Option<Vec<[f32; 3]>> = (p.flux_diffusion > 0.0).then(|| map.flux().to_vec());
     let (mut step, mut nn) = (Vec::new(), Vec::new());
     let mut measures = Vec::with_capacity(p.iterations);
     let mut index: Option<SpatialIndex> = None;
@@ -343,6 +350,9 @@ pub fn relax_map_on(
         // The index borrows `positions`; `iterate` moves a copy, then the two swap.
         next.copy_from_slice(&positions);
         let m = iterate(&mut next, &search, constraint, p, it, &mut step, &mut nn);
+        if let Some(f) = flux.as_mut() {
+            diffuse_flux(f, &search, p.kf, p.flux_diffusion);
+        }
         if let (Some(scene), Some(surf), Some(ns)) = (scene, surfaces, normals.as_mut()) {
             refused_moves += back_to_surfaces(scene, surf, &positions, &mut next, ns);
         }
@@ -357,7 +367,42 @@ pub fn relax_map_on(
         measures,
         normals,
         refused_moves,
+        flux,
     })
+}
+
+/// Flux diffusion (photon relaxation, 2009): every photon's flux moves the fraction `rate` of
+/// the way toward the mean flux of its `kf` nearest neighbours, all from the same snapshot;
+/// then each channel is rescaled (in f64) so its total is what it was, because k-nearest
+/// neighbourhoods are not symmetric and the exchange alone would not conserve flux.
+pub fn diffuse_flux(flux: &mut [[f32; 3]], search: &dyn NeighbourSearch, kf: usize, rate: f32) {
+    let total = |f: &[[f32; 3]]| {
+        f.iter().fold([0f64; 3], |t, x| [t[0] + x[0] as f64, t[1] + x[1] as f64, t[2] + x[2] as f64])
+    };
+    let before = total(flux);
+    let snapshot = flux.to_vec();
+    flux.par_iter_mut().enumerate().for_each_init(Vec::new, |ids, (i, f)| {
+        search.neighbours(i, kf, ids);
+        if ids.is_empty() {
+            return;
+        }
+        let mut mean = [0f32; 3];
+        for &j in ids.iter() {
+            for c in 0..3 {
+                mean[c] += snapshot[j as usize][c];
+            }
+        }
+        for c in 0..3 {
+            f[c] += rate * (mean[c] / ids.len() as f32 - f[c]);
+        }
+    });
+    let after = total(flux);
+    for c in 0..3 {
+        if after[c] > 0.0 {
+            let k = before[c] / after[c];
+            flux.par_iter_mut().for_each(|f| f[c] = (f[c] as f64 * k) as f32);
+        }
+    }
 }
 
 /// Returns every moved photon of `moved` to its surface, or back to `before` when its surface
@@ -446,6 +491,9 @@ pub fn write_relaxed(
             let b: &[u8] = match (spec.name.as_str(), &relaxed.normals) {
                 (name::POSITION, _) => bytemuck::cast_slice(&relaxed.positions),
                 (name::NORMAL, Some(n)) => bytemuck::cast_slice(n),
+                (name::FLUX, _) if relaxed.flux.is_some() => {
+                    bytemuck::cast_slice(relaxed.flux.as_deref().unwrap_or_default())
+                }
                 _ => bytes,
             };
             (spec, b)

@@ -42,6 +42,11 @@ pub struct Args {
     /// map traced from the embedded default scene uses that scene automatically.
     #[arg(long, value_name = "SCENE")]
     scene: Option<std::path::PathBuf>,
+    /// The 2009 method's flux diffusion: per iteration each photon's flux moves this fraction
+    /// (0–1) toward its Kf neighbours' mean, totals kept per channel. 0 keeps every photon's
+    /// flux as traced.
+    #[arg(long, value_name = "RATE", default_value_t = 0.0)]
+    flux_diffusion: f32,
 }
 
 /// The scene given, or the embedded default when the map was traced from it.
@@ -56,10 +61,20 @@ fn scene_for(map: &PhotonMap, path: Option<&std::path::Path>) -> anyhow::Result<
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
-    let p = RelaxParams { iterations: a.iterations, kf: a.kf, epsilon: a.epsilon, step_limit: a.step_limit };
+    let p = RelaxParams {
+        iterations: a.iterations,
+        kf: a.kf,
+        epsilon: a.epsilon,
+        step_limit: a.step_limit,
+        flux_diffusion: a.flux_diffusion,
+    };
     anyhow::ensure!(
-        p.epsilon.is_finite() && p.epsilon >= 0.0 && p.step_limit.is_finite() && p.step_limit > 0.0,
-        "--epsilon must be ≥ 0 and --step-limit > 0"
+        p.epsilon.is_finite()
+            && p.epsilon >= 0.0
+            && p.step_limit.is_finite()
+            && p.step_limit > 0.0
+            && (0.0..=1.0).contains(&p.flux_diffusion),
+        "--epsilon must be ≥ 0, --step-limit > 0 and --flux-diffusion in [0, 1]"
     );
     let bar = ProgressBar::new(p.iterations as u64).with_style(
         ProgressStyle::with_template("relax {bar:30} {pos}/{len} iterations {elapsed} {msg}")

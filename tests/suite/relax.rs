@@ -221,3 +221,39 @@ material = "white"
         assert!(cos > 0.99999, "normal {n:?} at {p:?} is not radial");
     }
 }
+
+/// `--flux-diffusion` (the 2009 method's option) evens photon fluxes out and keeps each
+/// channel's total.
+#[test]
+fn flux_diffusion_evens_flux_and_keeps_the_total() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut m = photonkit::synthetic::uniform_square(3000, 41, 1.0);
+    // Fluxes that vary by a factor of 3 from photon to photon (a hash of the index).
+    for (i, f) in m.flux.iter_mut().enumerate() {
+        let w = 1.0 + 2.0 * (((i as u32).wrapping_mul(2_654_435_761) >> 8) as f32 / (1u32 << 24) as f32);
+        *f = [f[0] * w, f[1] * w * 0.5, f[2] * w * 2.0];
+    }
+    let input = dir.path().join("in.phm");
+    write_synthetic(&m, "varied-flux", &input);
+    let out = dir.path().join("out.phm");
+    let s = |p: &Path| p.to_str().unwrap().to_string();
+    run_ok(&["relax", &s(&input), "-o", &s(&out), "-R", "5", "--flux-diffusion", "0.5"]);
+    let (a, b) = (PhotonMap::open_path(&input).unwrap(), PhotonMap::open_path(&out).unwrap());
+    let cv = |f: &[[f32; 3]], c: usize| {
+        let v: Vec<f32> = f.iter().map(|x| x[c]).collect();
+        photonkit::relax::coefficient_of_variation(&v)
+    };
+    for c in 0..3 {
+        let total = |f: &[[f32; 3]]| f.iter().map(|x| x[c] as f64).sum::<f64>();
+        let (ta, tb) = (total(a.flux()), total(b.flux()));
+        assert!((ta - tb).abs() <= 1e-6 * ta, "channel {c}: total {ta} became {tb}");
+        assert!(
+            cv(b.flux(), c) < 0.3 * cv(a.flux(), c),
+            "channel {c}: spread {} → {}",
+            cv(a.flux(), c),
+            cv(b.flux(), c)
+        );
+    }
+    let o = photonkit(&["relax", &s(&input), "-o", &s(&out), "--flux-diffusion", "1.5"]);
+    assert!(!o.status.success() && stderr(&o).contains("--flux-diffusion"), "{}", stderr(&o));
+}

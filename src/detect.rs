@@ -434,8 +434,8 @@ pub struct Detection {
     pub basis_u: Vec<[f32; 3]>,
     pub basis_v: Vec<[f32; 3]>,
     pub lambda2: Vec<f32>,
-    /// Eq. 1's r_param per photon when the map has trajectory parameters (0 for photons of an
-    /// emitter without them, whose search ignores it).
+    /// Eq. 1's r_param per photon for method `param-pca` (0 for photons of an emitter
+    /// without parameters, whose search ignores it); `None` for the world-space methods.
     pub r_param: Option<Vec<f32>>,
     pub summary: Summary,
 }
@@ -462,8 +462,8 @@ impl Summary {
 const CHUNK: usize = 2048;
 
 /// Progress units [`detect`] reports in total for `n` photons: one per photon per pass.
-pub fn work_units(input: &DetectInput) -> u64 {
-    let passes = 1 + usize::from(input.has_params());
+pub fn work_units(input: &DetectInput, method: Method) -> u64 {
+    let passes = 1 + usize::from(input.has_params() && method == Method::ParamPca);
     (input.positions.len() * passes) as u64
 }
 
@@ -531,7 +531,9 @@ pub fn detect(
     if p.method == Method::ParamPca && !has_params {
         return Err(DetectError::NoParameters { file: "<input>".into() });
     }
-    let r_param = if has_params {
+    // Only the paper's method searches in parameter space; the world-space methods (and the
+    // 2009 baseline) leave no r_param, so `relax` runs them in world space throughout.
+    let r_param = if has_params && p.method == Method::ParamPca {
         let points = input.points(true);
         Some(param_radius(&points, p.kc, p.k_density.unwrap_or(p.kc), p.beta, progress)?)
     } else {

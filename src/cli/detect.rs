@@ -90,7 +90,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             NoiseArg::Paper => NoiseModel::Paper,
         },
     };
-    let units = detect::work_units(&detect::map_input(&map)?);
+    let units = detect::work_units(&detect::map_input(&map)?, p.method);
     let bar = ProgressBar::with_draw_target(
         Some(units),
         if std::io::stderr().is_terminal() {

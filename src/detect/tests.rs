@@ -428,8 +428,8 @@ fn progress_reports_every_photon_of_every_pass() {
         done.fetch_add(k, std::sync::atomic::Ordering::Relaxed);
     })
     .unwrap();
-    assert_eq!(done.into_inner(), work_units(&inp));
-    assert_eq!(work_units(&inp), 10_000);
+    assert_eq!(done.into_inner(), work_units(&inp, Method::ParamPca));
+    assert_eq!(work_units(&inp, Method::ParamPca), 10_000);
 }
 
 #[test]

@@ -9,3 +9,4 @@ pub mod scene;
 pub mod spatial;
 pub mod synthetic;
 pub mod trace;
+pub mod truth;

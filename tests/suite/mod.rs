@@ -5,3 +5,4 @@ mod phm_py;
 mod relax;
 mod samples;
 mod trace;
+mod truth;

@@ -729,4 +729,290 @@ mod tests {
         assert!(min > 1e-4, "stack did not separate: {min}");
         assert!(pos.iter().all(|p| p.iter().all(|x| x.is_finite())));
     }
+
+    // ---- Issue 5: basis factors 0 and 1, the paper's Fig. 3 (e–f), stability.
+
+    /// Runs `iterations` Jacobi iterations of `iterate` with the brute-force search under the
+    /// same basis for every photon, returning the positions after each.
+    fn relax_in_basis(
+        pos: &mut [[f32; 3]],
+        u: [f32; 3],
+        v: [f32; 3],
+        iterations: usize,
+    ) -> Vec<Vec<[f32; 3]>> {
+        let (bu, bv) = (vec![u; pos.len()], vec![v; pos.len()]);
+        let p = RelaxParams::default();
+        let (mut step, mut nn) = (Vec::new(), Vec::new());
+        (0..iterations)
+            .map(|it| {
+                let snapshot = pos.to_vec();
+                let index = BruteForce(&snapshot);
+                iterate(pos, &index, Constraint::Basis { u: &bu, v: &bv }, &p, it, &mut step, &mut nn);
+                pos.to_vec()
+            })
+            .collect()
+    }
+
+    /// Issue 5: Eq. 9 through `iterate`. Measured (300 uniform photons, 20 iterations): with
+    /// v_b = 0 all 300 moved in x and none in y (to the bit); with v_b = ŷ all 300 moved in both
+    /// (mean |Δy| 0.29).
+    #[test]
+    fn issue5_basis_factor_zero_never_moves_along_p2_and_factor_one_moves_along_both() {
+        let start = uniform(300, 5);
+        let mut locked = start.clone();
+        let steps = relax_in_basis(&mut locked, [1.0, 0.0, 0.0], [0.0; 3], 20);
+        let moved_x = |a: &[[f32; 3]], b: &[[f32; 3]]| a.iter().zip(b).filter(|(p, q)| p[0] != q[0]).count();
+        let moved_y = |a: &[[f32; 3]], b: &[[f32; 3]]| a.iter().zip(b).filter(|(p, q)| p[1] != q[1]).count();
+        for (it, pos) in steps.iter().enumerate() {
+            for (i, (p, q)) in pos.iter().zip(&start).enumerate() {
+                assert_eq!(p[1].to_bits(), q[1].to_bits(), "photon {i} moved along P2 in iteration {it}");
+                assert_eq!(p[2].to_bits(), q[2].to_bits(), "photon {i} left the plane in iteration {it}");
+            }
+        }
+        let mx = moved_x(&locked, &start);
+        let mut free = start.clone();
+        relax_in_basis(&mut free, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], 20);
+        let (fx, fy) = (moved_x(&free, &start), moved_y(&free, &start));
+        assert!(mx > 290, "only {mx} of 300 photons moved along u_b");
+        assert!(fx > 290 && fy > 290, "free: {fx} moved along x, {fy} along y");
+        assert!(free.iter().all(|p| p[2] == 0.0));
+    }
+
+    /// Writes `m` into `dir` as `file` and opens it.
+    fn map_in(
+        dir: &std::path::Path,
+        file: &str,
+        m: &crate::synthetic::SyntheticMap,
+    ) -> crate::format::PhotonMap {
+        let path = dir.join(file);
+        crate::format::write_map(
+            crate::format::Output::Path(path.clone()),
+            m.info("test", 0, "2026-11-23T00:00:00Z"),
+            &m.columns(),
+        )
+        .unwrap();
+        crate::format::PhotonMap::open_path(&path).unwrap()
+    }
+
+    /// Relaxes `map` and writes it to `dir/file`, returning the written map.
+    fn relax_to(
+        map: &crate::format::PhotonMap,
+        p: &RelaxParams,
+        dir: &std::path::Path,
+        file: &str,
+    ) -> crate::format::PhotonMap {
+        let r = relax_map(map, p, |_| {}).unwrap();
+        let path = dir.join(file);
+        write_relaxed(map, &r, p, 0.0, crate::format::Output::Path(path.clone())).unwrap();
+        crate::format::PhotonMap::open_path(&path).unwrap()
+    }
+
+    /// Detects (param-pca, defaults) and writes `map` to `dir/file`.
+    fn detect_to(
+        map: &crate::format::PhotonMap,
+        dir: &std::path::Path,
+        file: &str,
+    ) -> crate::format::PhotonMap {
+        let p = crate::detect::DetectParams::default();
+        let d = crate::detect::detect_map(map, &p, &|_| {}).unwrap();
+        let path = dir.join(file);
+        crate::detect::write_detected(map, &d, &p, 0.0, crate::format::Output::Path(path.clone())).unwrap();
+        crate::format::PhotonMap::open_path(&path).unwrap()
+    }
+
+    /// The paper's Fig. 3 (as in detect's tests): params (u, v) uniform; set A (u < ½) lands on
+    /// x = 1.2·u, set B on x = 0.4 + 1.2·(u − ½), y = v, overlapping in 0.4 ≤ x < 0.6.
+    fn fig3(n: usize, seed: u64) -> crate::synthetic::SyntheticMap {
+        use rand::{RngExt, SeedableRng};
+        let mut r = rand_pcg::Pcg64Mcg::seed_from_u64(seed);
+        let mut m = crate::synthetic::uniform_square(n, seed, 1.0);
+        for i in 0..n {
+            let (u, v) = (r.random::<f32>(), r.random::<f32>());
+            let x = if u < 0.5 { 1.2 * u } else { 0.4 + 1.2 * (u - 0.5) };
+            m.position[i] = [x, v, 0.0];
+            m.params[2 * i] = u;
+            m.params[2 * i + 1] = v;
+        }
+        m
+    }
+
+    /// Coefficient of variation of nearest-neighbour distances (over all photons, both sets)
+    /// of the photons inside the overlap's interior x ∈ [0.44, 0.56], y ∈ [0.1, 0.9].
+    fn overlap_cv(pos: &[[f32; 3]]) -> f64 {
+        let index = BruteForce(pos);
+        let mut ids = Vec::new();
+        let d: Vec<f32> = (0..pos.len())
+            .filter(|&i| (0.44..0.56).contains(&pos[i][0]) && (0.1..0.9).contains(&pos[i][1]))
+            .map(|i| {
+                index.neighbours(i, 1, &mut ids);
+                Vec3::from(pos[i]).distance(pos[ids[0] as usize].into())
+            })
+            .collect();
+        assert!(d.len() > 100, "{} photons in the overlap", d.len());
+        coefficient_of_variation(&d)
+    }
+
+    /// Issue 5, Fig. 3 (e–f): detect (param-pca), relax in world+params space, collapse, relax
+    /// in world space. In the params stage A and B relax each on its own, so in the overlap two
+    /// independent blue-noise sets lie on top of each other; only after the collapse do they
+    /// relax as one set.
+    ///
+    /// Measured (4000 photons, 7 + 7 iterations; NN-distance CV in x ∈ [0.44, 0.56],
+    /// y ∈ [0.1, 0.9], both sets): seed 50: input 0.523, params stage 0.290, collapse + world
+    /// 0.138. Seeds 51–54: input 0.48–0.52, params stage 0.20–0.26, final 0.10–0.13; final /
+    /// params-stage ratio 0.47–0.54, params-stage / input 0.41–0.55. Thresholds: final < 0.75 ×
+    /// params stage (a collapse that kept the parameter restriction leaves ≈ the params-stage
+    /// value), params stage < 0.75 × input, input > 0.45 (uniform random points give ≈ 0.52).
+    #[test]
+    fn issue5_fig3_collapse_and_world_relax_even_out_the_overlap_of_two_sets() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = RelaxParams::default();
+        let input = map_in(dir.path(), "in.phm", &fig3(4000, 50));
+        let detected = detect_to(&input, dir.path(), "d.phm");
+        let r1 = relax_to(&detected, &p, dir.path(), "r1.phm");
+        assert_eq!(r1.meta().history.last().unwrap().report["space"], "world_params");
+        let c_path = dir.path().join("c.phm");
+        collapse(&r1, crate::format::Output::Path(c_path.clone())).unwrap();
+        let c = crate::format::PhotonMap::open_path(&c_path).unwrap();
+        let r2 = relax_to(&c, &p, dir.path(), "r2.phm");
+        assert_eq!(r2.meta().history.last().unwrap().report["space"], "world");
+        let (cv0, cv1, cv2) =
+            (overlap_cv(input.positions()), overlap_cv(r1.positions()), overlap_cv(r2.positions()));
+        assert!(cv0 > 0.45, "input cv {cv0}");
+        assert!(cv1 < 0.75 * cv0, "params stage cv {cv1} vs input {cv0}");
+        assert!(cv2 < 0.75 * cv1, "collapse + world cv {cv2} vs params stage {cv1}");
+        assert!(all_finite(r2.positions()) && r2.positions().iter().all(|q| q[2] == 0.0));
+    }
+
+    /// `m` with every position scaled by `s`.
+    fn scaled(m: &crate::synthetic::SyntheticMap, s: f32) -> crate::synthetic::SyntheticMap {
+        let mut m = m.clone();
+        for x in m.position.iter_mut() {
+            *x = x.map(|c| c * s);
+        }
+        m
+    }
+
+    fn all_finite(pos: &[[f32; 3]]) -> bool {
+        pos.iter().flatten().all(|x| x.is_finite())
+    }
+
+    /// A cluster of 100 uniform photons in the unit square and 5 far away (at x = 1000), with
+    /// far-away parameters too.
+    fn cluster_and_strays() -> crate::synthetic::SyntheticMap {
+        let mut m = crate::synthetic::uniform_square(105, 8, 1.0);
+        for k in 0..5 {
+            let i = 100 + k;
+            m.position[i] = [1000.0 + k as f32 * 0.01, 0.5, 0.0];
+            m.params[2 * i] = 0.9 + 0.02 * k as f32;
+            m.params[2 * i + 1] = 0.99;
+        }
+        m
+    }
+
+    /// Issue 5, stability (a): photons with few or far neighbours. Measured (7 iterations):
+    /// the 5 strays at x ≈ 1000 end at x = 512 … 2375 (world) and 512 … 2375 (world+params),
+    /// their r_K being the distance to the cluster; the 3-photon map grows from the unit square
+    /// to a 5.9 × 3.1 box. Finite, but see the ignored test below for longer runs.
+    #[test]
+    fn issue5_isolated_photons_stay_finite() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = RelaxParams::default();
+        let m = cluster_and_strays();
+        let world = relax_to(&map_in(dir.path(), "a.phm", &m), &p, dir.path(), "a1.phm");
+        assert!(all_finite(world.positions()));
+        let detected = detect_to(&map_in(dir.path(), "a.phm", &m), dir.path(), "ad.phm");
+        let wp = relax_to(&detected, &p, dir.path(), "ad1.phm");
+        assert!(all_finite(wp.positions()));
+        let three = crate::synthetic::uniform_square(3, 9, 1.0);
+        let t = relax_to(&map_in(dir.path(), "t.phm", &three), &p, dir.path(), "t1.phm");
+        assert!(all_finite(t.positions()));
+        let td = detect_to(&map_in(dir.path(), "t.phm", &three), dir.path(), "td.phm");
+        let t2 = relax_to(&td, &p, dir.path(), "td1.phm");
+        assert!(all_finite(t2.positions()));
+    }
+
+    fn bbox(pos: &[[f32; 3]]) -> (f32, f32) {
+        let ext = |c: usize| {
+            let (lo, hi) = pos.iter().fold((f32::MAX, f32::MIN), |(lo, hi), p| (lo.min(p[c]), hi.max(p[c])));
+            hi - lo
+        };
+        (ext(0), ext(1))
+    }
+
+    /// Relaxes 300 uniform photons for `iterations` in world space: detected (param-pca) and
+    /// collapsed when `constrained`, else free in their tangent plane. Returns the positions,
+    /// or the error when the index refused them.
+    fn long_run(constrained: bool, iterations: usize) -> Result<Vec<[f32; 3]>, RelaxError> {
+        let dir = tempfile::tempdir().unwrap();
+        let mut map = map_in(dir.path(), "s.phm", &crate::synthetic::uniform_square(300, 12, 1.0));
+        if constrained {
+            let d = detect_to(&map, dir.path(), "d.phm");
+            let c = dir.path().join("c.phm");
+            collapse(&d, crate::format::Output::Path(c.clone())).unwrap();
+            map = crate::format::PhotonMap::open_path(&c).unwrap();
+        }
+        let p = RelaxParams { iterations, ..Default::default() };
+        let r = relax_map(&map, &p, |_| {})?;
+        assert_eq!(r.space, RelaxSpace::World);
+        Ok(r.positions)
+    }
+
+    /// Issue 5, stability (b): 1000 iterations on 300 photons in world space. Fails: the set
+    /// expands geometrically. Measured bounding box (start 1.0 × 0.99): free in the tangent
+    /// plane 2.0 after 7 iterations, 183 after 50, 4.0e4 after 100, 1.5e18 after 400; detected
+    /// and collapsed (constraint basis) 1.24, 42, 8.8e3, 3.1e17; both end in `relax_map`
+    /// refusing "photon N has a non-finite position" before iteration 1000. The 3-photon map
+    /// reaches 2.1e7 after 50 iterations and non-finite positions before 200. The bound 2
+    /// leaves room for the border drifting out a few photon spacings.
+    #[test]
+    #[ignore = "bug: Eq. 8 does not vanish for a photon whose neighbours lie on one side (the \
+                set's border, or every photon when there are ≤ Kf), and the step limit is relative \
+                to r_K, which grows as the photon leaves: the border moves out geometrically \
+                (≈ ×1.1 per iteration) until positions overflow and relax_map returns an error"]
+    fn issue5_a_thousand_iterations_stay_finite_on_the_plane_and_bounded() {
+        let start = bbox(&crate::synthetic::uniform_square(300, 12, 1.0).position);
+        for constrained in [true, false] {
+            let pos = long_run(constrained, 1000).expect("relax_map failed");
+            assert!(all_finite(&pos) && pos.iter().all(|p| p[2] == 0.0));
+            let (w, h) = bbox(&pos);
+            assert!(w < 2.0 * start.0 && h < 2.0 * start.1, "constrained {constrained}: box {w} × {h}");
+        }
+        let dir = tempfile::tempdir().unwrap();
+        let three = map_in(dir.path(), "t.phm", &crate::synthetic::uniform_square(3, 9, 1.0));
+        let r = relax_map(&three, &RelaxParams { iterations: 1000, ..Default::default() }, |_| {})
+            .expect("relax_map failed");
+        assert!(all_finite(&r.positions));
+    }
+
+    /// Issue 5, stability (c): the force and step limit are relative to r_K, so scaling the map
+    /// scales the result. Measured (300 photons, 7 iterations, positions in [0, 1], largest
+    /// move 0.58): max |x/s − x| 1.1e-6 at s = 1e-6 and 9.8e-7 at s = 1e6 (≈ 10 f32 ulps: the
+    /// scaled input is itself rounded). Tolerance 1e-5; an absolute ε or step limit would be
+    /// off by a photon spacing (≈ 0.06).
+    #[test]
+    fn issue5_relaxing_is_scale_invariant() {
+        let dir = tempfile::tempdir().unwrap();
+        let m = crate::synthetic::uniform_square(300, 12, 1.0);
+        let p = RelaxParams::default();
+        let base = relax_map(&map_in(dir.path(), "s.phm", &m), &p, |_| {}).unwrap();
+        for s in [1e-6f32, 1e6] {
+            let r = relax_map(&map_in(dir.path(), "x.phm", &scaled(&m, s)), &p, |_| {}).unwrap();
+            assert!(all_finite(&r.positions));
+            let err = r
+                .positions
+                .iter()
+                .zip(&base.positions)
+                .map(|(a, b)| (Vec3::from(*a) / s - Vec3::from(*b)).length() as f64)
+                .fold(0.0, f64::max);
+            let moved = base
+                .positions
+                .iter()
+                .zip(&m.position)
+                .map(|(a, b)| Vec3::from(*a).distance(Vec3::from(*b)) as f64)
+                .fold(0.0, f64::max);
+            assert!(err < 1e-5, "scale {s:e}: max |x/s − x| {err:e}");
+            assert!(moved > 0.1, "the unscaled run barely moved ({moved})");
+        }
+    }
 }

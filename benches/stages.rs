@@ -100,7 +100,7 @@ fn main() {
         [("relax, world+params (Kf = 16)", Space::WorldParams), ("relax, world", Space::World)]
     {
         let mut pos = ph.position.clone();
-        let (mut step, mut nn) = (Vec::new(), Vec::new());
+        let mut scratch = relax::Scratch::default();
         let (mut build_c, mut build_w) = (0.0, 0.0);
         let ((), c, w) = measure(|| {
             for it in 0..rp.iterations {
@@ -118,7 +118,7 @@ fn main() {
                     points: &pts,
                     radius: if space == Space::WorldParams { Some(&r_param) } else { None },
                 };
-                relax::iterate(&mut pos, &search, constraint, &rp, it, &mut step, &mut nn);
+                relax::iterate(&mut pos, &search, constraint, &rp, it, &mut scratch);
             }
         });
         let per = (n * rp.iterations) as f64;

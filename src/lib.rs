@@ -3,6 +3,7 @@ pub mod detect;
 pub mod format;
 pub mod inspect;
 pub mod relax;
+pub mod render;
 pub mod scene;
 pub mod spatial;
 pub mod synthetic;

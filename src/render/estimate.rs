@@ -104,7 +104,7 @@ pub struct PhotonLookup<'a> {
 /// Per-thread buffers reused across lookups.
 #[derive(Default)]
 pub struct Scratch {
-    nb: Neighbours,
+    pub(crate) nb: Neighbours,
     /// Tangent-plane offsets, flux and luminance of the gathered photons (diffusion).
     local: Vec<(Vec2, Vec3, f32)>,
 }

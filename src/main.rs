@@ -30,7 +30,7 @@ enum Command {
     /// Drop the parameter dimensions from the neighbour search.
     Collapse(cli::relax::CollapseArgs),
     /// Render radiance or irradiance from a photon map to OpenEXR and PNG.
-    Render(cli::pending::Args),
+    Render(cli::render::Args),
     /// Summarise, check, dump or subsample a photon map.
     Inspect(cli::inspect::Args),
     /// Import photons from PLY, CSV/TSV or Radiance photon maps.
@@ -45,7 +45,7 @@ fn main() -> ExitCode {
         Command::Detect(a) => cli::detect::run(a),
         Command::Relax(a) => cli::relax::run(a),
         Command::Collapse(a) => cli::relax::collapse(a),
-        Command::Render(a) => cli::pending::run("render", 6, a),
+        Command::Render(a) => cli::render::run(a),
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Import(a) => cli::pending::run("import", 8, a),
     };

@@ -4,4 +4,5 @@ pub mod inspect;
 pub mod merge;
 pub mod pending;
 pub mod relax;
+pub mod render;
 pub mod trace;

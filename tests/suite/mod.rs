@@ -3,3 +3,4 @@ mod samples;
 mod phm_py;
 mod relax;
 mod trace;
+mod render;

@@ -31,6 +31,8 @@ enum Command {
     Collapse(cli::relax::CollapseArgs),
     /// Render radiance or irradiance from a photon map to OpenEXR and PNG.
     Render(cli::render::Args),
+    /// Render a reference image by progressive photon mapping (traces its own photons).
+    Reference(cli::render::ReferenceArgs),
     /// Summarise, check, dump or subsample a photon map.
     Inspect(cli::inspect::Args),
     /// Import photons from PLY, CSV/TSV or Radiance photon maps.
@@ -46,6 +48,7 @@ fn main() -> ExitCode {
         Command::Relax(a) => cli::relax::run(a),
         Command::Collapse(a) => cli::relax::collapse(a),
         Command::Render(a) => cli::render::run(a),
+        Command::Reference(a) => cli::render::reference(a),
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Import(a) => cli::pending::run("import", 8, a),
     };

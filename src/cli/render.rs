@@ -45,6 +45,9 @@ pub struct Args {
     /// Output OpenEXR image; the PNG preview goes beside it (same name, .png) unless --png.
     #[arg(short, long, value_name = "FILE")]
     output: PathBuf,
+    /// Scene file (TOML) for geometry, materials, lights and camera.
+    #[arg(long, value_name = "FILE")]
+    scene: Option<PathBuf>,
     #[command(flatten)]
     common: Common,
     /// What to render (default: full, or irradiance with --plane).
@@ -94,9 +97,6 @@ pub struct Args {
 /// Options `render` and `reference` share.
 #[derive(clap::Args)]
 struct Common {
-    /// Scene file (TOML) for geometry, materials, lights and camera.
-    #[arg(long, value_name = "FILE")]
-    scene: Option<PathBuf>,
     /// PNG preview path (default: the EXR's name with .png).
     #[arg(long, value_name = "FILE")]
     png: Option<PathBuf>,
@@ -477,7 +477,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             (View::Plane(PlaneView::axis_aligned(axis, offset, rect)), opts, name)
         }
         None => {
-            let (scene, scene_name) = load_scene(Some(&map), a.common.scene.as_deref())?;
+            let (scene, scene_name) = load_scene(Some(&map), a.scene.as_deref())?;
             scene_store = scene;
             let camera = a.common.camera(&scene_store)?;
             let opts = a.common.options(&camera, mode, estimator);
@@ -497,7 +497,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let o = &renderer.opts;
     let what = match a.diagnostic {
         Some(_) => format!("diagnostic {}", diagnostic_name(a.diagnostic)),
-        None => describe_estimator(&o.estimator),
+        None => o.estimator.describe(),
     };
     let notes = vec![
         (
@@ -536,12 +536,177 @@ fn diagnostic_name(d: Option<DiagnosticArg>) -> &'static str {
     }
 }
 
-fn describe_estimator(e: &Estimator) -> String {
-    match *e {
-        Estimator::Knn { k, kernel, max_radius: None } => format!("k-NN, K = {k}, {} kernel", kernel.name()),
-        Estimator::Knn { k, kernel, max_radius: Some(r) } => {
-            format!("k-NN, K = {k}, {} kernel, r ≤ {r} m", kernel.name())
-        }
-        Estimator::Diffusion { k, q } => format!("diffusion, {k} neighbours, q = {q}"),
+
+/// Render a reference image by progressive photon mapping (memoryless variant): no photon
+/// map needed.
+///
+/// Each pass traces a fresh caustic photon map from the scene (seed + pass number), renders it
+/// with one global gather radius r_i, and the image is the mean of the passes; the radius
+/// shrinks as r²_{i+1} = r²_i·(i + α)/(i + 1), α = 2/3, so the mean converges to the exact
+/// caustic (bias and noise both vanish). Direct light is added by ray tracing as in `render`;
+/// units are those of `render` (W/(m²·sr), or W/m² with --mode irradiance).
+///
+/// The running mean is saved to the EXR (with the run's state in its header) every
+/// --save-every seconds and at the end; --resume continues a saved run up to --passes.
+#[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    photonkit reference samples/scenes/prism.toml --passes 100 -o ref.exr\n  \
+    photonkit reference samples/scenes/prism.toml --passes 400 -o ref.exr --resume   # 300 more")]
+pub struct ReferenceArgs {
+    /// Scene file (TOML); without it, the embedded default scene.
+    scene: Option<PathBuf>,
+    /// Output OpenEXR image (the running mean); the PNG preview goes beside it unless --png.
+    #[arg(short, long, value_name = "FILE")]
+    output: PathBuf,
+    /// Total number of passes.
+    #[arg(long, value_name = "N")]
+    passes: u64,
+    /// Photons emitted per pass.
+    #[arg(long, value_name = "N", default_value_t = 1_000_000)]
+    photons_per_pass: u64,
+    /// Initial gather radius r₁, metres (default: the median distance from a first-pass photon
+    /// to its 15th nearest neighbour).
+    #[arg(long, value_name = "M")]
+    radius: Option<f32>,
+    /// α of the radius reduction, in (0, 1).
+    #[arg(long, default_value_t = 2.0 / 3.0)]
+    alpha: f64,
+    /// Kernel of the gather.
+    #[arg(long, value_enum, default_value_t = KernelArg::Epanechnikov)]
+    kernel: KernelArg,
+    /// What to render.
+    #[arg(long, value_enum, default_value_t = ModeArg::Full)]
+    mode: ModeArg,
+    /// Continue the run saved in the output EXR.
+    #[arg(long)]
+    resume: bool,
+    /// Seconds between saves of the running mean.
+    #[arg(long, value_name = "S", default_value_t = 30.0)]
+    save_every: f64,
+    /// Base seed of the passes' photons.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    photon_seed: u64,
+    #[command(flatten)]
+    common: Common,
+}
+
+/// The EXR header attribute holding a progressive run's state (JSON).
+const STATE_NOTE: &str = "photonkit:reference_state";
+
+pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
+    use photonkit::render::reference::{Progressive, ReferenceOptions, ReferenceState};
+
+    let (scene, scene_name) = load_scene(None, a.scene.as_deref())?;
+    let text = match &a.scene {
+        Some(p) => std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        None => photonkit::scene::DEFAULT_SCENE.to_string(),
+    };
+    let camera = a.common.camera(&scene)?;
+    let mode = match a.mode {
+        ModeArg::Full => Mode::Full,
+        ModeArg::Caustic => Mode::Caustic,
+        ModeArg::Direct => Mode::Direct,
+        ModeArg::Irradiance => Mode::Irradiance,
+    };
+    let kernel = match a.kernel {
+        KernelArg::Epanechnikov => Kernel::Epanechnikov,
+        KernelArg::Disc => Kernel::Disc,
+        KernelArg::Cone => Kernel::Cone,
+    };
+    if a.radius.is_some_and(|r| !(r > 0.0 && r.is_finite())) {
+        bail!("--radius must be a positive number of metres");
     }
+    let render = a.common.options(&camera, mode, Estimator::DEFAULT);
+    let options = ReferenceOptions {
+        photons_per_pass: a.photons_per_pass,
+        alpha: a.alpha,
+        initial_radius: a.radius,
+        seed: a.photon_seed,
+        max_bounces: 64,
+    };
+    let settings = serde_json::json!({
+        "scene_crc32": format!("{:08x}", crc32fast::hash(text.as_bytes())),
+        "camera": format!("{:?}", camera),
+        "width": render.width, "height": render.height, "spp": render.spp,
+        "mode": mode.name(), "kernel": kernel.name(), "specular": format!("{:?}", render.eye.specular),
+        "max_depth": render.eye.max_depth, "seed": render.seed,
+    });
+    let (mut image, mut state) = if a.resume {
+        let (image, notes) = render::image::read_exr(&a.output)
+            .with_context(|| format!("--resume: reading the saved run {}", a.output.display()))?;
+        let saved = notes.iter().find(|(k, _)| k == STATE_NOTE).with_context(|| {
+            format!("{}: not saved by `photonkit reference` (no run state)", a.output.display())
+        })?;
+        let state: ReferenceState = serde_json::from_str(&saved.1)
+            .with_context(|| format!("{}: unreadable run state", a.output.display()))?;
+        if state.settings != settings {
+            bail!(
+                "{}: saved with other settings ({}); resume with the same scene, camera, size, mode and kernel",
+                a.output.display(),
+                state.settings
+            );
+        }
+        let same = ReferenceOptions { initial_radius: state.options.initial_radius, ..options.clone() };
+        if state.options != same {
+            bail!("{}: saved with other pass options ({:?})", a.output.display(), state.options);
+        }
+        if state.passes >= a.passes {
+            eprintln!("photonkit reference: {} already holds {} passes", a.output.display(), state.passes);
+            return Ok(ExitCode::SUCCESS);
+        }
+        (image, state)
+    } else {
+        let state = ReferenceState { passes: 0, initial_radius: 0.0, next_radius2: 0.0, options, settings };
+        (render::Image::new(render.width, render.height), state)
+    };
+    let first = state.passes;
+    let progressive = Progressive { scene: &scene, camera, render, kernel };
+    let outputs = a.common.outputs(&a.output);
+    let save = |state: &ReferenceState, image: &render::Image| -> Result<(), render::RenderError> {
+        let json = serde_json::to_string(state).expect("the state serialises");
+        let notes = vec![
+            ("photonkit:units".to_string(), mode.unit().to_string()),
+            ("photonkit:mode".to_string(), mode.name().to_string()),
+            (
+                "photonkit:estimator".to_string(),
+                format!("progressive photon mapping, {} kernel, {} passes", kernel.name(), state.passes),
+            ),
+            ("photonkit:scene".to_string(), scene_name.clone()),
+            (STATE_NOTE.to_string(), json),
+        ];
+        render::image::write(image, &outputs, &notes)
+    };
+    let bar = progress_bar(a.passes - first, "reference");
+    let t = Instant::now();
+    let mut last_save = Instant::now();
+    let mut after = |s: &ReferenceState, img: &render::Image| -> Result<bool, render::RenderError> {
+        bar.inc(1);
+        if s.passes == a.passes || last_save.elapsed().as_secs_f64() >= a.save_every {
+            save(s, img)?;
+            last_save = Instant::now();
+        }
+        Ok(true)
+    };
+    let result = match a.common.pool()? {
+        Some(pool) => pool.install(|| progressive.run(&mut image, &mut state, a.passes, &mut after)),
+        None => progressive.run(&mut image, &mut state, a.passes, &mut after),
+    };
+    bar.finish_and_clear();
+    result?;
+    let secs = t.elapsed().as_secs_f64();
+    eprintln!(
+        "photonkit reference: passes {}..{} of {} photons in {secs:.2} s ({:.3} s/pass); radius {:.4} m → {:.4} m",
+        first + 1,
+        state.passes,
+        a.photons_per_pass,
+        secs / (state.passes - first).max(1) as f64,
+        state.initial_radius,
+        (photonkit::render::reference::radius2(
+            (state.initial_radius as f64).powi(2),
+            state.options.alpha,
+            state.passes
+        ))
+        .sqrt()
+    );
+    Ok(ExitCode::SUCCESS)
 }

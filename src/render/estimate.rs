@@ -66,16 +66,32 @@ pub enum Estimator {
     /// Diffusion-based photon mapping: `k` neighbours (the paper compares with 500), and the
     /// Perona–Malik control `q` of the diffusivity c(g) = 1/(1 + (g/q)²) (the paper: 0.02).
     Diffusion { k: usize, q: f32 },
+    /// E = Σ Φ_p w(d_p) over every photon within the fixed `radius` (progressive photon
+    /// mapping); needs a lookup made by [`PhotonLookup::for_radius`].
+    Radius { radius: f32, kernel: Kernel },
 }
 
 impl Estimator {
     /// The paper's setting: K = 15 with the Epanechnikov kernel.
     pub const DEFAULT: Estimator = Estimator::Knn { k: 15, kernel: Kernel::Epanechnikov, max_radius: None };
 
+    /// A one-line description for reports and image headers.
+    pub fn describe(&self) -> String {
+        match *self {
+            Estimator::Knn { k, kernel, max_radius: None } => format!("k-NN, K = {k}, {} kernel", kernel.name()),
+            Estimator::Knn { k, kernel, max_radius: Some(r) } => {
+                format!("k-NN, K = {k}, {} kernel, r ≤ {r} m", kernel.name())
+            }
+            Estimator::Diffusion { k, q } => format!("diffusion, {k} neighbours, q = {q}"),
+            Estimator::Radius { radius, kernel } => format!("radius {radius} m, {} kernel", kernel.name()),
+        }
+    }
+
     /// Neighbours fetched per lookup.
     pub fn k(&self) -> usize {
         match *self {
             Estimator::Knn { k, .. } | Estimator::Diffusion { k, .. } => k,
+            Estimator::Radius { .. } => 1,
         }
     }
 }
@@ -95,10 +111,11 @@ pub struct PhotonData<'a> {
     pub normals: Option<&'a [[f32; 3]]>,
 }
 
-/// Photons with their k-NN index, ready for lookups.
+/// Photons with their k-NN index (or, for fixed-radius lookups, a grid), ready for lookups.
 pub struct PhotonLookup<'a> {
     pub data: PhotonData<'a>,
-    index: SpatialIndex,
+    index: Option<SpatialIndex>,
+    grid: Option<Grid>,
 }
 
 /// Per-thread buffers reused across lookups.
@@ -113,6 +130,26 @@ impl<'a> PhotonLookup<'a> {
     /// Checks the photons (at least one; finite positions, flux and normals) and builds the
     /// world-space index. `file` names the map in errors.
     pub fn new(file: &str, data: PhotonData<'a>) -> Result<Self, RenderError> {
+        Self::check(file, &data)?;
+        let index = SpatialIndex::build(&PointSet::world(data.positions), Space::World)
+            .map_err(|e| RenderError::Invalid(format!("{file}: {e}")))?;
+        Ok(PhotonLookup { data, index: Some(index), grid: None })
+    }
+
+    /// Photons for fixed-radius lookups of `radius` ([`Estimator::Radius`]) only: a uniform
+    /// grid of cells `radius` wide, cheaper to build than the k-NN tree. An empty set is
+    /// allowed (a progressive pass may store no photon).
+    pub fn for_radius(file: &str, data: PhotonData<'a>, radius: f32) -> Result<Self, RenderError> {
+        if !(radius > 0.0 && radius.is_finite()) {
+            return Err(RenderError::Invalid(format!("gather radius {radius}: must be positive")));
+        }
+        if !data.positions.is_empty() {
+            Self::check(file, &data)?;
+        }
+        Ok(PhotonLookup { grid: Some(Grid::build(data.positions, radius)), data, index: None })
+    }
+
+    fn check(file: &str, data: &PhotonData) -> Result<(), RenderError> {
         if data.positions.is_empty() {
             return Err(RenderError::EmptyMap { file: file.to_string() });
         }
@@ -131,9 +168,7 @@ impl<'a> PhotonLookup<'a> {
         if let Some(i) = data.normals.and_then(finite) {
             return Err(bad("normal", i));
         }
-        let index = SpatialIndex::build(&PointSet::world(data.positions), Space::World)
-            .map_err(|e| RenderError::Invalid(format!("{file}: {e}")))?;
-        Ok(PhotonLookup { data, index })
+        Ok(())
     }
 
     pub fn len(&self) -> usize {
@@ -144,10 +179,22 @@ impl<'a> PhotonLookup<'a> {
         self.data.positions.is_empty()
     }
 
-    /// The `k` photons nearest `x` into `out`, nearest first.
+    /// The `k` photons nearest `x` into `out`, nearest first (none for a fixed-radius lookup).
     pub fn nearest(&self, x: Vec3, k: usize, out: &mut Neighbours) {
         let q = Query { position: x.to_array(), params: &[], radius: None, emitter: 0, exclude: None };
-        self.index.knn(&q, k, out);
+        match &self.index {
+            Some(index) => index.knn(&q, k, out),
+            None => *out = Neighbours::default(),
+        }
+    }
+
+    /// Whether this lookup serves `est` (fixed-radius lookups need their grid, the others
+    /// the k-NN tree).
+    pub fn serves(&self, est: &Estimator) -> bool {
+        match est {
+            Estimator::Radius { radius, .. } => self.grid.as_ref().is_some_and(|g| g.cell >= *radius),
+            _ => self.index.is_some(),
+        }
     }
 
     #[inline]
@@ -160,7 +207,21 @@ impl<'a> PhotonLookup<'a> {
         match *est {
             Estimator::Knn { k, kernel, max_radius } => self.knn_irradiance(k, kernel, max_radius, x, n, s),
             Estimator::Diffusion { k, q } => self.diffusion_irradiance(k, q, x, n, s),
+            Estimator::Radius { radius, kernel } => self.radius_irradiance(radius, kernel, x, n),
         }
+    }
+
+    /// E(x) = Σ Φ_p w(d_p) over the photons within the fixed radius r.
+    fn radius_irradiance(&self, r: f32, kernel: Kernel, x: Vec3, n: Vec3) -> Vec3 {
+        let Some(grid) = &self.grid else { return Vec3::ZERO };
+        let r2 = r * r;
+        let mut e = Vec3::ZERO;
+        grid.within(self.data.positions, x, r2, |i, d2| {
+            if self.faces(i as usize, n) {
+                e += Vec3::from_array(self.data.flux[i as usize]) * kernel.weight(d2, r2);
+            }
+        });
+        e
     }
 
     /// E(x) = Σ Φ_p w(d_p) over the k nearest photons, r = distance to the k-th (method.md).
@@ -264,6 +325,58 @@ impl<'a> PhotonLookup<'a> {
             }
         }
         e
+    }
+}
+
+/// A uniform grid of cubic cells over the photons: the fixed-radius gather of progressive
+/// photon mapping visits the 27 cells around the query.
+struct Grid {
+    cell: f32,
+    /// Cell key → range of `order`.
+    cells: std::collections::HashMap<[i32; 3], (u32, u32)>,
+    /// Photon indices grouped by cell.
+    order: Vec<u32>,
+}
+
+impl Grid {
+    fn key(cell: f32, p: [f32; 3]) -> [i32; 3] {
+        p.map(|c| (c / cell).floor() as i32)
+    }
+
+    fn build(positions: &[[f32; 3]], cell: f32) -> Grid {
+        let mut order: Vec<u32> = (0..positions.len() as u32).collect();
+        order.sort_unstable_by_key(|&i| Self::key(cell, positions[i as usize]));
+        let mut cells = std::collections::HashMap::new();
+        let mut start = 0;
+        while start < order.len() {
+            let k = Self::key(cell, positions[order[start] as usize]);
+            let mut end = start + 1;
+            while end < order.len() && Self::key(cell, positions[order[end] as usize]) == k {
+                end += 1;
+            }
+            cells.insert(k, (start as u32, end as u32));
+            start = end;
+        }
+        Grid { cell, cells, order }
+    }
+
+    /// Calls `f(photon, d²)` for every photon within √`r2` (≤ the cell size) of `x`.
+    fn within(&self, positions: &[[f32; 3]], x: Vec3, r2: f32, mut f: impl FnMut(u32, f32)) {
+        let c = Self::key(self.cell, x.to_array());
+        for dz in -1..=1 {
+            for dy in -1..=1 {
+                for dx in -1..=1 {
+                    let k = [c[0].saturating_add(dx), c[1].saturating_add(dy), c[2].saturating_add(dz)];
+                    let Some(&(a, b)) = self.cells.get(&k) else { continue };
+                    for &i in &self.order[a as usize..b as usize] {
+                        let d2 = (Vec3::from_array(positions[i as usize]) - x).length_squared();
+                        if d2 <= r2 {
+                            f(i, d2);
+                        }
+                    }
+                }
+            }
+        }
     }
 }
 
@@ -434,6 +547,32 @@ mod tests {
         let (dark_iso, dark_dif) = (mean(&iso, 0.03, &mut s), mean(&dif, 0.03, &mut s));
         assert!((lit_dif - 1.0).abs() < (lit_iso - 1.0).abs(), "lit: iso {lit_iso}, diffusion {lit_dif}");
         assert!(dark_dif < dark_iso, "dark: iso {dark_iso}, diffusion {dark_dif}");
+    }
+
+    #[test]
+    fn fixed_radius_gather_equals_a_brute_force_sum() {
+        let (pos, flux) = uniform_square(5000, 1.0, 3.0, 4);
+        let data = PhotonData { positions: &pos, flux: &flux, normals: None };
+        let r = 0.07;
+        let l = PhotonLookup::for_radius("t", data, r).unwrap();
+        let est = Estimator::Radius { radius: r, kernel: Kernel::Epanechnikov };
+        assert!(l.serves(&est) && !l.serves(&Estimator::DEFAULT));
+        let mut rng = PhotonRng::new(8, 8);
+        for _ in 0..200 {
+            let x = Vec3::new(2.4 * rng.next_f32() - 1.2, 2.4 * rng.next_f32() - 1.2, 0.0);
+            let e = l.irradiance(&est, x, Vec3::Z, &mut Scratch::default());
+            let brute: f32 = pos
+                .iter()
+                .zip(&flux)
+                .map(|(p, f)| {
+                    f[0] * Kernel::Epanechnikov.weight((Vec3::from_array(*p) - x).length_squared(), r * r)
+                })
+                .sum();
+            assert!((e.x - brute).abs() <= 1e-4 * brute.max(1e-3), "{} vs {brute}", e.x);
+        }
+        assert!(
+            PhotonLookup::for_radius("t", PhotonData { positions: &[], flux: &[], normals: None }, r).is_ok()
+        );
     }
 
     #[test]

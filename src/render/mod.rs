@@ -11,6 +11,7 @@
 pub mod diagnostics;
 pub mod estimate;
 pub mod image;
+pub mod reference;
 pub mod shade;
 
 use std::f32::consts::FRAC_1_PI;
@@ -203,6 +204,13 @@ impl Renderer<'_> {
         let needs_photons = self.diagnostic.is_some() || o.mode.needs_photons();
         if needs_photons && self.photons.is_none() {
             return Err(RenderError::Invalid(format!("mode {} needs a photon map", o.mode.name())));
+        }
+        if let Some(p) = self.photons
+            && needs_photons
+            && self.diagnostic.is_none()
+            && !p.serves(&o.estimator)
+        {
+            return Err(RenderError::Invalid("the photon lookup was not built for this estimator".into()));
         }
         if matches!(self.view, View::Plane(_)) && self.diagnostic.is_none() && o.mode != Mode::Irradiance {
             return Err(RenderError::Invalid(

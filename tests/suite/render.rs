@@ -145,3 +145,64 @@ fn bad_input_fails_cleanly_and_leaves_no_output() {
     left.retain(|f| !f.ends_with(".phm"));
     assert!(left.is_empty(), "{left:?}");
 }
+
+#[test]
+fn reference_runs_saves_and_resumes() {
+    // A 1 m × 1 m, 6 W collimated beam through an ideal slab: 2 W/m² per channel on the floor.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("slab.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nprojection = \"orthographic\"\neye = [0, 0, 3]\nlook_at = [0, 0, 0]\nup = [0, 1, 0]\nheight = 0.6\n\
+         [materials.floor]\nkind = \"diffuse\"\n[materials.glass]\nkind = \"dielectric\"\nior = 1.5\nideal = true\n\
+         [[emitters]]\nkind = \"collimated\"\ncenter = [0, 0, 2]\nsize = [1, 1]\ndirection = [0, 0, -1]\npower_w = 6\n\
+         [[shapes]]\nkind = \"plane\"\nnormal = [0, 0, 1]\nmaterial = \"floor\"\n[[shapes]]\nkind = \"extrusion\"\n\
+         outline = [[-2, -2], [2, -2], [2, 2], [-2, 2]]\nz_range = [0.5, 0.7]\nmaterial = \"glass\"\n",
+    )
+    .unwrap();
+    let out = dir.path().join("ref.exr");
+    let args = |passes: &str| {
+        vec![
+            "reference".to_string(),
+            scene.to_str().unwrap().to_string(),
+            "-o".into(),
+            out.to_str().unwrap().to_string(),
+            "--passes".into(),
+            passes.into(),
+            "--photons-per-pass".into(),
+            "5000".into(),
+            "--mode".into(),
+            "irradiance".into(),
+            "--width".into(),
+            "12".into(),
+            "--height".into(),
+            "12".into(),
+            "--spp".into(),
+            "1".into(),
+        ]
+    };
+    let run = |v: Vec<String>| photonkit(&v.iter().map(String::as_str).collect::<Vec<_>>());
+    let o = run(args("3"));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (_, notes) = read_exr(&out).unwrap();
+    let state = |notes: &[(String, String)]| -> serde_json::Value {
+        serde_json::from_str(&notes.iter().find(|(k, _)| k == "photonkit:reference_state").unwrap().1)
+            .unwrap()
+    };
+    assert_eq!(state(&notes)["passes"], 3);
+    let mut more = args("5");
+    more.push("--resume".into());
+    let o = run(more.clone());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("passes 4..5"), "{}", stderr(&o));
+    let (img, notes) = read_exr(&out).unwrap();
+    assert_eq!(state(&notes)["passes"], 5);
+    assert!((img.mean().x - 2.0).abs() < 0.05, "{}", img.mean());
+    // Resuming with other settings is refused and leaves the saved run alone.
+    let mut other = more;
+    other[15] = "2".into(); // --spp
+    other[5] = "9".into(); // --passes
+    let o = run(other);
+    assert!(!o.status.success() && stderr(&o).contains("other settings"), "{}", stderr(&o));
+    assert_eq!(read_exr(&out).unwrap().0, img);
+}

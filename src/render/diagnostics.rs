@@ -129,7 +129,7 @@ impl Diagnostics {
     pub fn colour(&self, photons: &PhotonLookup, p: Vec3, s: &mut Scratch) -> Vec3 {
         let k = if self.dot_radius.is_some() { 1 } else { SPACING_K };
         let nb = &mut s.nb;
-        photons.nearest(p, k, nb);
+        photons.nearest(p, k, f32::INFINITY, nb);
         let (Some(first), Some(last)) = (nb.as_slice().first(), nb.last()) else { return Vec3::ZERO };
         let r2 = match self.dot_radius {
             Some(r) => r * r,

@@ -20,7 +20,7 @@ use std::f32::consts::PI;
 use glam::{Vec2, Vec3};
 
 use super::RenderError;
-use crate::spatial::{Neighbours, PointSet, Query, Space, SpatialIndex};
+use crate::spatial::{BoxTree, Neighbours};
 
 /// A radially symmetric kernel of radius r, normalised so ∫ w dA = 1 over the disc.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -78,7 +78,9 @@ impl Estimator {
     /// A one-line description for reports and image headers.
     pub fn describe(&self) -> String {
         match *self {
-            Estimator::Knn { k, kernel, max_radius: None } => format!("k-NN, K = {k}, {} kernel", kernel.name()),
+            Estimator::Knn { k, kernel, max_radius: None } => {
+                format!("k-NN, K = {k}, {} kernel", kernel.name())
+            }
             Estimator::Knn { k, kernel, max_radius: Some(r) } => {
                 format!("k-NN, K = {k}, {} kernel, r ≤ {r} m", kernel.name())
             }
@@ -114,7 +116,7 @@ pub struct PhotonData<'a> {
 /// Photons with their k-NN index (or, for fixed-radius lookups, a grid), ready for lookups.
 pub struct PhotonLookup<'a> {
     pub data: PhotonData<'a>,
-    index: Option<SpatialIndex>,
+    index: Option<BoxTree>,
     grid: Option<Grid>,
 }
 
@@ -131,8 +133,7 @@ impl<'a> PhotonLookup<'a> {
     /// world-space index. `file` names the map in errors.
     pub fn new(file: &str, data: PhotonData<'a>) -> Result<Self, RenderError> {
         Self::check(file, &data)?;
-        let index = SpatialIndex::build(&PointSet::world(data.positions), Space::World)
-            .map_err(|e| RenderError::Invalid(format!("{file}: {e}")))?;
+        let index = BoxTree::build(data.positions);
         Ok(PhotonLookup { data, index: Some(index), grid: None })
     }
 
@@ -179,11 +180,11 @@ impl<'a> PhotonLookup<'a> {
         self.data.positions.is_empty()
     }
 
-    /// The `k` photons nearest `x` into `out`, nearest first (none for a fixed-radius lookup).
-    pub fn nearest(&self, x: Vec3, k: usize, out: &mut Neighbours) {
-        let q = Query { position: x.to_array(), params: &[], radius: None, emitter: 0, exclude: None };
+    /// The `k` photons nearest `x` within distance² `max_dist2` (∞ for no limit) into `out`,
+    /// nearest first (none for a fixed-radius lookup).
+    pub fn nearest(&self, x: Vec3, k: usize, max_dist2: f32, out: &mut Neighbours) {
         match &self.index {
-            Some(index) => index.knn(&q, k, out),
+            Some(index) => index.knn(x.to_array(), k, max_dist2, out),
             None => *out = Neighbours::default(),
         }
     }
@@ -234,12 +235,11 @@ impl<'a> PhotonLookup<'a> {
         n: Vec3,
         s: &mut Scratch,
     ) -> Vec3 {
-        self.nearest(x, k, &mut s.nb);
+        let max2 = max_r.map_or(f32::INFINITY, |m| m * m);
+        self.nearest(x, k, max2, &mut s.nb);
         let Some(last) = s.nb.last() else { return Vec3::ZERO };
-        let r2 = match max_r {
-            Some(m) => last.dist2.min(m * m),
-            None => last.dist2,
-        };
+        // Fewer than k within the limit: the kernel spans the whole limit.
+        let r2 = if s.nb.len() < k { max2 } else { last.dist2 };
         if r2 <= 0.0 {
             return Vec3::ZERO;
         }
@@ -263,7 +263,7 @@ impl<'a> PhotonLookup<'a> {
     /// estimate is the Epanechnikov kernel on that ellipse, normalised by its area:
     /// E = Σ Φ_p · 2/(π a₁ a₂) · (1 − ρ²), ρ² = Σ_i ((x_p − x)·e_i / a_i)².
     fn diffusion_irradiance(&self, k: usize, q: f32, x: Vec3, n: Vec3, s: &mut Scratch) -> Vec3 {
-        self.nearest(x, k, &mut s.nb);
+        self.nearest(x, k, f32::INFINITY, &mut s.nb);
         let Some(last) = s.nb.last() else { return Vec3::ZERO };
         let r2 = last.dist2;
         if r2 <= 0.0 {

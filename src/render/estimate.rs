@@ -126,6 +126,8 @@ pub struct Scratch {
     pub(crate) nb: Neighbours,
     /// Tangent-plane offsets, flux and luminance of the gathered photons (diffusion).
     local: Vec<(Vec2, Vec3, f32)>,
+    /// The previous k-NN query: its point, k and the distance to its k-th photon.
+    last: Option<(Vec3, usize, f32)>,
 }
 
 impl<'a> PhotonLookup<'a> {
@@ -236,7 +238,25 @@ impl<'a> PhotonLookup<'a> {
         s: &mut Scratch,
     ) -> Vec3 {
         let max2 = max_r.map_or(f32::INFINITY, |m| m * m);
-        self.nearest(x, k, max2, &mut s.nb);
+        // Successive queries are close (samples of one pixel, pixels of one tile): the previous
+        // query's k photons lie within r_prev + |x − x_prev| of x (triangle inequality), so the
+        // search may start with that bound, slightly widened for rounding. The result is the
+        // same as without it whenever k photons lie within it, which they do.
+        let hint = match s.last {
+            Some((p, pk, r)) if pk == k => {
+                let b = (r + (x - p).length()) * (1.0 + 1e-5) + 1e-30;
+                b * b
+            }
+            _ => f32::INFINITY,
+        };
+        self.nearest(x, k, max2.min(hint), &mut s.nb);
+        if s.nb.len() < k && hint < max2 {
+            self.nearest(x, k, max2, &mut s.nb);
+        }
+        s.last = match s.nb.last() {
+            Some(l) if s.nb.len() == k => Some((x, k, l.dist2.sqrt())),
+            _ => None,
+        };
         let Some(last) = s.nb.last() else { return Vec3::ZERO };
         // Fewer than k within the limit: the kernel spans the whole limit.
         let r2 = if s.nb.len() < k { max2 } else { last.dist2 };
@@ -511,6 +531,30 @@ mod tests {
         assert!((e.x - 3.0 / (PI * r2)).abs() < 1e-3 * e.x, "{e}");
         let e = l.irradiance(&est, Vec3::ZERO, -Vec3::Z, &mut Scratch::default());
         assert!((e.x - 1.0 / (PI * r2)).abs() < 1e-3 * e.x, "{e}");
+    }
+
+    #[test]
+    fn bounded_searches_from_the_previous_query_change_nothing() {
+        // The same lookups with a fresh scratch each time (no hint) and with one scratch
+        // carried along a path of nearby and distant points.
+        let (pos, flux) = uniform_square(20_000, 1.0, 3.0, 11);
+        let l = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
+        let mut carried = Scratch::default();
+        let mut rng = PhotonRng::new(4, 4);
+        for j in 0..2000 {
+            let x = if j % 50 == 0 {
+                Vec3::new(5.0 * rng.next_f32(), -3.0, 0.5)
+            } else {
+                Vec3::new(0.01 * (j % 97) as f32 - 0.5 + 0.001 * rng.next_f32(), 0.003 * (j / 97) as f32, 0.0)
+            };
+            for est in
+                [Estimator::DEFAULT, Estimator::Knn { k: 4, kernel: Kernel::Disc, max_radius: Some(0.02) }]
+            {
+                let a = l.irradiance(&est, x, Vec3::Z, &mut carried);
+                let b = l.irradiance(&est, x, Vec3::Z, &mut Scratch::default());
+                assert_eq!(a, b, "{x}");
+            }
+        }
     }
 
     #[test]

@@ -129,8 +129,16 @@ pub fn write(img: &Image, out: &Outputs, notes: &Notes) -> Result<(), RenderErro
         Some(p) => Some((p, png_temp(p, img, out.exposure)?)),
         None => None,
     };
+    let mut done: Vec<&PathBuf> = Vec::new();
     for (p, tmp) in exr.into_iter().chain(png) {
-        tmp.persist(p).map_err(|e| RenderError::Io { file: p.display().to_string(), source: e.error })?;
+        if let Err(e) = tmp.persist(p) {
+            // Leave no half-written set: remove what this call already put in place.
+            for d in done {
+                let _ = std::fs::remove_file(d);
+            }
+            return Err(RenderError::Io { file: p.display().to_string(), source: e.error });
+        }
+        done.push(p);
     }
     Ok(())
 }

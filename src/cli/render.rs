@@ -300,7 +300,17 @@ fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Sc
     let record = map.and_then(|m| m.meta().history.iter().rev().find(|r| r.stage == "trace"));
     let named = record.and_then(|r| r.parameters.get("scene")).and_then(|v| v.as_str());
     match named {
-        None | Some(DEFAULT_SCENE_NAME) => Ok((Scene::default_scene(), DEFAULT_SCENE_NAME.to_string())),
+        None => {
+            if let Some(m) = map {
+                eprintln!(
+                    "photonkit render: note: {} does not name the scene it was traced from: using the embedded \
+                     default scene (pass --scene FILE, or --plane for a scene-less view)",
+                    m.file_name()
+                );
+            }
+            Ok((Scene::default_scene(), DEFAULT_SCENE_NAME.to_string()))
+        }
+        Some(DEFAULT_SCENE_NAME) => Ok((Scene::default_scene(), DEFAULT_SCENE_NAME.to_string())),
         Some(path) => {
             let map = map.expect("a record comes from a map");
             let beside = Path::new(map.file_name()).parent().map(|d| d.join(path));
@@ -535,7 +545,6 @@ fn diagnostic_name(d: Option<DiagnosticArg>) -> &'static str {
         None => "none",
     }
 }
-
 
 /// Render a reference image by progressive photon mapping (memoryless variant): no photon
 /// map needed.

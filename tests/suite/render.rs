@@ -206,3 +206,45 @@ fn reference_runs_saves_and_resumes() {
     assert!(!o.status.success() && stderr(&o).contains("other settings"), "{}", stderr(&o));
     assert_eq!(read_exr(&out).unwrap().0, img);
 }
+
+#[test]
+fn the_scene_comes_from_the_maps_history() {
+    // A map traced from a scene file is rendered with that file; without it, the user is told
+    // to pass --scene.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("spot.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nprojection = \"pinhole\"\neye = [0, -3, 2]\nlook_at = [0, 0, 0]\n[materials.floor]\nkind = \"diffuse\"\n\
+         [materials.metal]\nkind = \"mirror\"\n[[emitters]]\nkind = \"point\"\nposition = [0, 0, 1]\npower_w = 5\n\
+         [[shapes]]\nkind = \"plane\"\nnormal = [0, 0, 1]\nmaterial = \"floor\"\n[[shapes]]\nkind = \"sphere\"\n\
+         center = [0, 0, 2]\nradius = 0.5\nmaterial = \"metal\"\n",
+    )
+    .unwrap();
+    let map = dir.path().join("m.phm");
+    let out = dir.path().join("m.exr");
+    let o = photonkit(&["trace", scene.to_str().unwrap(), "--photons", "20000", "-o", map.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let render = || {
+        photonkit(&[
+            "render",
+            map.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--width",
+            "8",
+            "--spp",
+            "1",
+        ])
+    };
+    let o = render();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (img, notes) = read_exr(&out).unwrap();
+    assert!(notes.iter().any(|(k, v)| k == "photonkit:scene" && v.ends_with("spot.toml")), "{notes:?}");
+    assert_eq!((img.width, img.height), (8, 8)); // the scene's camera is 600×600: the aspect is kept
+    std::fs::remove_file(&scene).unwrap();
+    std::fs::remove_file(&out).unwrap();
+    let o = render();
+    assert!(!o.status.success() && stderr(&o).contains("--scene"), "{}", stderr(&o));
+    assert!(!out.exists());
+}

@@ -33,12 +33,16 @@ use photonkit::scene::{Camera, DEFAULT_SCENE_NAME, Projection, Scene};
 /// axis-aligned plane are viewed orthographically and the image holds irradiance (for photon
 /// maps imported from another tracer).
 #[derive(clap::Args)]
-#[command(after_help = "Examples:\n  \
+#[command(
+    after_help = "Units: pixels hold radiance in W/(m²·sr) per RGB channel, or irradiance in W/m² with \
+    --mode irradiance or --plane; photon flux is in W. The EXR header says which.\n\n\
+    Examples:\n  \
     photonkit render map.phm -o map.exr                     # map.exr and map.png, the scene's camera\n  \
     photonkit render map.phm -o top.exr --mode irradiance --eye 0,0,3 --look-at 0,0,0 --up 0,1,0 --ortho 2\n  \
     photonkit render map.phm -o d.exr --estimator diffusion --diffusion-k 500 --diffusion-q 0.02\n  \
     photonkit render map.phm -o c.exr --diagnostic constrained\n  \
-    photonkit render imported.phm --plane z=0 --rect -1,-1,1,1 -o floor.exr")]
+    photonkit render imported.phm --plane z=0 --rect -1,-1,1,1 -o floor.exr"
+)]
 pub struct Args {
     /// Input photon map (`-` for standard input).
     input: String,
@@ -87,7 +91,7 @@ pub struct Args {
     plane: Option<(usize, f32)>,
     /// The rectangle of the --plane shown: u0,v0,u1,v1 in the plane's two other coordinates
     /// (y,z for x=; z,x for y=; x,y for z=). Default: the photons' bounding box.
-    #[arg(long, value_name = "U0,V0,U1,V1", value_parser = parse_rect, requires = "plane")]
+    #[arg(long, value_name = "U0,V0,U1,V1", value_parser = parse_rect, requires = "plane", allow_hyphen_values = true)]
     rect: Option<[f32; 4]>,
     /// Photons farther than this from the --plane are left out, metres.
     #[arg(long, value_name = "M", default_value_t = 1e-3, requires = "plane")]
@@ -558,7 +562,10 @@ fn diagnostic_name(d: Option<DiagnosticArg>) -> &'static str {
 /// The running mean is saved to the EXR (with the run's state in its header) every
 /// --save-every seconds and at the end; --resume continues a saved run up to --passes.
 #[derive(clap::Args)]
-#[command(after_help = "Examples:\n  \
+#[command(after_help = "Each pass traces a fresh photon map and gathers with one global radius, \
+    r²(i+1) = r²(i)·(i + α)/(i + 1); the image is the mean of the passes, saved with the run's state in the EXR \
+    header. Units as for render: W/(m²·sr) per RGB channel, or W/m² with --mode irradiance.\n\n\
+    Examples:\n  \
     photonkit reference samples/scenes/prism.toml --passes 100 -o ref.exr\n  \
     photonkit reference samples/scenes/prism.toml --passes 400 -o ref.exr --resume   # 300 more")]
 pub struct ReferenceArgs {

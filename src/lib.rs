@@ -5,6 +5,7 @@ pub mod format;
 pub mod import;
 pub mod inspect;
 pub mod relax;
+pub mod render;
 pub mod scene;
 pub mod spatial;
 pub mod synthetic;

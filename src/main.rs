@@ -32,7 +32,9 @@ enum Command {
     /// Drop the parameter dimensions from the neighbour search.
     Collapse(cli::relax::CollapseArgs),
     /// Render radiance or irradiance from a photon map to OpenEXR and PNG.
-    Render(cli::pending::Args),
+    Render(cli::render::Args),
+    /// Render a reference image by progressive photon mapping (traces its own photons).
+    Reference(cli::render::ReferenceArgs),
     /// Summarise, check, dump or subsample a photon map.
     Inspect(cli::inspect::Args),
     /// Import photons from PLY, CSV/TSV or Radiance photon maps.
@@ -50,7 +52,8 @@ fn main() -> ExitCode {
         Command::Detect(a) => cli::detect::run(a),
         Command::Relax(a) => cli::relax::run(a),
         Command::Collapse(a) => cli::relax::collapse(a),
-        Command::Render(a) => cli::pending::run("render", 6, a),
+        Command::Render(a) => cli::render::run(a),
+        Command::Reference(a) => cli::render::reference(a),
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Import(a) => cli::import::run(a),
         Command::Export(a) => cli::export::run(a),

@@ -4,7 +4,7 @@ pub mod export;
 pub mod import;
 pub mod inspect;
 pub mod merge;
-pub mod pending;
 pub mod pipeline;
 pub mod relax;
+pub mod render;
 pub mod trace;

@@ -6,6 +6,7 @@ use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
+use clap::Parser;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use photonkit::detect::{self, DetectParams};
 use photonkit::format::{Output, PhotonMap};
@@ -13,11 +14,12 @@ use photonkit::relax::{self, RelaxParams};
 use photonkit::scene::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, Scene};
 use photonkit::trace::{self, Budget, TraceOptions};
 
-/// Run every stage on a scene: trace → detect → relax → collapse → relax.
+/// Run every stage on a scene: trace → detect → relax → collapse → relax → render.
 ///
 /// Uses the paper's defaults (Kc = 50, β = 3, Kf = 16, 7 + 7 iterations) and writes each
 /// stage's photon map into the output folder (traced.phm, detected.phm, relaxed-params.phm,
-/// collapsed.phm, relaxed.phm), printing each stage's time and photon count. Every stage
+/// collapsed.phm, relaxed.phm) and the image (render.exr, render.png), printing each stage's
+/// time and photon count. Every stage
 /// also runs alone (`photonkit trace`, `detect`, …) and through pipes.
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
@@ -48,6 +50,16 @@ pub struct Args {
     /// Kf: neighbours in the repulsion force.
     #[arg(long, default_value_t = 16)]
     kf: usize,
+    /// Options passed on to `photonkit render` (after `--`), e.g. `-- --width 300 --height 300`.
+    #[arg(last = true, value_name = "RENDER OPTIONS")]
+    render: Vec<String>,
+}
+
+/// `photonkit render`'s arguments, parsed from the pipeline's command line for it.
+#[derive(clap::Parser)]
+struct RenderCommand {
+    #[command(flatten)]
+    args: super::render::Args,
 }
 
 fn parse_count(s: &str) -> Result<u64, String> {
@@ -171,7 +183,24 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     drop(map);
     relax_stage("collapsed.phm", "relaxed.phm", "relax (world)")?;
 
+    // Render, with the render subcommand's defaults (the scene's camera, 600×600, 4 samples
+    // per pixel, K = 15 Epanechnikov).
+    let mut argv: Vec<std::ffi::OsString> =
+        vec!["render".into(), file("relaxed.phm").into(), "-o".into(), file("render.exr").into()];
+    if let Some(p) = &a.scene {
+        argv.extend(["--scene".into(), p.into()]);
+    }
+    argv.extend(a.render.iter().map(Into::into));
+    let t = Instant::now();
+    super::render::run(RenderCommand::try_parse_from(argv)?.args)?;
+    let map = PhotonMap::open_path(&file("relaxed.phm"))?;
+    report("render", t.elapsed().as_secs_f64(), map.len(), &file("render.exr"), "  (and render.png)");
+
     eprintln!("{:<16} {:>8.2} s", "total", total.elapsed().as_secs_f64());
-    eprintln!("next: photonkit inspect {}", file("relaxed.phm").display());
+    eprintln!(
+        "look at {} (or the EXR), and at the photons with `photonkit inspect {}`",
+        file("render.png").display(),
+        file("relaxed.phm").display()
+    );
     Ok(ExitCode::SUCCESS)
 }

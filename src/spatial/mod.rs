@@ -37,9 +37,11 @@
 //! assert_eq!(out.indices().collect::<Vec<_>>(), [0, 2]);
 //! ```
 
+pub mod boxtree;
 mod brute;
 mod kdtree;
 
+pub use boxtree::BoxTree;
 pub use brute::brute_force_knn;
 
 use kdtree::{KdTree, Rec};

@@ -117,11 +117,35 @@ fn stages_pipe_through_standard_streams() {
 fn pipeline_runs_every_stage_on_the_default_scene() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("run");
-    let o = photonkit(&["pipeline", "--photons", "30000", "--out-dir", out.to_str().unwrap()]);
+    let o = photonkit(&[
+        "pipeline",
+        "--photons",
+        "30000",
+        "--out-dir",
+        out.to_str().unwrap(),
+        "--",
+        "--width",
+        "48",
+        "--height",
+        "40",
+        "--spp",
+        "1",
+    ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    for stage in ["trace", "detect", "relax (params)", "collapse", "relax (world)", "total"] {
+    for stage in ["trace", "detect", "relax (params)", "collapse", "relax (world)", "render", "total"] {
         assert!(stderr(&o).lines().any(|l| l.starts_with(stage)), "no '{stage}' line in {}", stderr(&o));
     }
+    let png = std::fs::read(out.join("render.png")).unwrap();
+    assert_eq!(&png[..8], b"\x89PNG\r\n\x1a\n");
+    // PNG IHDR: width and height, big-endian, at bytes 16..24.
+    assert_eq!(
+        (
+            u32::from_be_bytes(png[16..20].try_into().unwrap()),
+            u32::from_be_bytes(png[20..24].try_into().unwrap())
+        ),
+        (48, 40)
+    );
+    assert!(std::fs::metadata(out.join("render.exr")).unwrap().len() > 0);
     let traced = PhotonMap::open_path(&out.join("traced.phm")).unwrap();
     let last = PhotonMap::open_path(&out.join("relaxed.phm")).unwrap();
     assert!(traced.len() > 1000);

@@ -1,0 +1,188 @@
+//! Diagnostic views (the paper's Fig. 6 e–g): photons drawn as dots on the surfaces they lie
+//! on, coloured by their trajectory parameters, by path length, or red where constrained.
+//!
+//! Each pixel sample looks (through the camera and any specular surfaces) at a diffuse point
+//! and takes the colour of the nearest photon if it lies within the dot radius: a fixed
+//! radius, or by default 0.4 × the local photon spacing sqrt(π r₈² / 8) (r₈ the distance to
+//! the 8th nearest photon), so dots keep their relative size at any density. Elsewhere the
+//! image is black.
+
+use glam::Vec3;
+
+use super::{PhotonLookup, RenderError, Scratch};
+use crate::format::{DType, PhotonMap, name};
+
+/// Which property colours the photons.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Diagnostic {
+    /// Trajectory parameters: (u, v) → (u, v, 1 − (u + v)/2), a direction ω → (ω + 1)/2,
+    /// each component first normalised to [0, 1] over the map (Fig. 6e).
+    Params,
+    /// Path length from the emitter, min to max over the map on a blue–green–yellow–red ramp
+    /// (Fig. 6f).
+    PathLength,
+    /// Red where the constraint factor |basis_v| is below the threshold, grey elsewhere
+    /// (Fig. 6g).
+    Constrained,
+    /// Every photon white: where the photons are.
+    Splat,
+}
+
+impl Diagnostic {
+    pub fn name(self) -> &'static str {
+        match self {
+            Diagnostic::Params => "params",
+            Diagnostic::PathLength => "path-length",
+            Diagnostic::Constrained => "constrained",
+            Diagnostic::Splat => "splat",
+        }
+    }
+}
+
+/// Neighbours used to measure the local photon spacing.
+const SPACING_K: usize = 8;
+/// Dot radius in units of the local photon spacing.
+const DOT: f32 = 0.4;
+
+/// A colour per photon and the dot size.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Diagnostics {
+    /// Colour of photon i (linear RGB).
+    pub colours: Vec<Vec3>,
+    /// Dot radius, metres; `None` for 0.4 × the local spacing.
+    pub dot_radius: Option<f32>,
+}
+
+impl Diagnostics {
+    /// Colours the photons of `map` by `which`; `threshold` is the constraint factor below
+    /// which a photon counts as constrained.
+    pub fn from_map(
+        map: &PhotonMap,
+        which: Diagnostic,
+        threshold: f32,
+        dot_radius: Option<f32>,
+    ) -> Result<Diagnostics, RenderError> {
+        let file = map.file_name();
+        let missing = |column: &str, hint: &str| {
+            RenderError::Invalid(format!(
+                "{file}: the map has no '{column}' column, which --diagnostic {} needs{hint}",
+                which.name()
+            ))
+        };
+        let n = map.len();
+        let colours = match which {
+            Diagnostic::Splat => vec![Vec3::ONE; n],
+            Diagnostic::PathLength => {
+                let len =
+                    map.column::<f32>(name::PATH_LENGTH)?.ok_or_else(|| missing(name::PATH_LENGTH, ""))?;
+                let (lo, hi) = range(len.iter().copied());
+                len.iter().map(|&l| ramp((l - lo) / (hi - lo).max(f32::MIN_POSITIVE))).collect()
+            }
+            Diagnostic::Constrained => {
+                let v = map
+                    .column::<[f32; 3]>(name::BASIS_V)?
+                    .ok_or_else(|| missing(name::BASIS_V, " (run `photonkit detect` first)"))?;
+                v.iter()
+                    .map(
+                        |b| {
+                            if Vec3::from_array(*b).length() < threshold { Vec3::X } else { Vec3::splat(0.6) }
+                        },
+                    )
+                    .collect()
+            }
+            Diagnostic::Params => {
+                let entry = map
+                    .meta()
+                    .column(name::PARAMS)
+                    .ok_or_else(|| missing(name::PARAMS, " (trajectory parameters)"))?;
+                let stride = entry.components as usize;
+                if entry.dtype != DType::F32 || stride == 0 {
+                    return Err(RenderError::Invalid(format!("{file}: the params column is not f32")));
+                }
+                let bytes = map.column_bytes(name::PARAMS).expect("listed column");
+                let values: &[f32] = bytemuck::try_cast_slice(bytes)
+                    .map_err(|e| RenderError::Invalid(format!("{file}: params column: {e}")))?;
+                let dims = stride.min(3);
+                let ranges: Vec<(f32, f32)> =
+                    (0..dims).map(|c| range(values.chunks_exact(stride).map(|p| p[c]))).collect();
+                values
+                    .chunks_exact(stride)
+                    .map(|p| {
+                        let c: Vec<f32> = (0..dims)
+                            .map(|d| {
+                                (p[d] - ranges[d].0) / (ranges[d].1 - ranges[d].0).max(f32::MIN_POSITIVE)
+                            })
+                            .collect();
+                        match dims {
+                            1 => ramp(c[0]),
+                            2 => Vec3::new(c[0], c[1], 1.0 - 0.5 * (c[0] + c[1])),
+                            _ => Vec3::new(c[0], c[1], c[2]),
+                        }
+                    })
+                    .collect()
+            }
+        };
+        Ok(Diagnostics { colours, dot_radius })
+    }
+
+    /// The colour at `p`: the nearest photon's if it lies within the dot radius, else black.
+    pub fn colour(&self, photons: &PhotonLookup, p: Vec3, s: &mut Scratch) -> Vec3 {
+        let k = if self.dot_radius.is_some() { 1 } else { SPACING_K };
+        let nb = &mut s.nb;
+        photons.nearest(p, k, f32::INFINITY, nb);
+        let (Some(first), Some(last)) = (nb.as_slice().first(), nb.last()) else { return Vec3::ZERO };
+        let r2 = match self.dot_radius {
+            Some(r) => r * r,
+            // Spacing² = π r_k² / k; the dot radius is DOT times the spacing.
+            None => DOT * DOT * std::f32::consts::PI * last.dist2 / nb.len() as f32,
+        };
+        if first.dist2 <= r2 { self.colours[first.index as usize] } else { Vec3::ZERO }
+    }
+}
+
+/// (min, max) of the finite values, (0, 1) if there are none.
+fn range(values: impl Iterator<Item = f32>) -> (f32, f32) {
+    let (lo, hi) = values
+        .filter(|v| v.is_finite())
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), v| (a.min(v), b.max(v)));
+    if lo <= hi { (lo, hi) } else { (0.0, 1.0) }
+}
+
+/// t ∈ [0, 1] on a dark-blue, blue, green, yellow, red ramp.
+pub fn ramp(t: f32) -> Vec3 {
+    const STOPS: [[f32; 3]; 5] =
+        [[0.05, 0.05, 0.4], [0.1, 0.4, 1.0], [0.2, 0.9, 0.3], [1.0, 0.9, 0.1], [0.9, 0.1, 0.05]];
+    let t = if t.is_nan() { 0.0 } else { t.clamp(0.0, 1.0) } * (STOPS.len() - 1) as f32;
+    let i = (t as usize).min(STOPS.len() - 2);
+    let f = t - i as f32;
+    Vec3::from_array(STOPS[i]).lerp(Vec3::from_array(STOPS[i + 1]), f)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::render::PhotonData;
+
+    #[test]
+    fn ramp_end_points_and_monotone_red() {
+        assert_eq!(ramp(0.0), Vec3::new(0.05, 0.05, 0.4));
+        assert_eq!(ramp(1.0), Vec3::new(0.9, 0.1, 0.05));
+        assert_eq!(ramp(2.0), ramp(1.0));
+        assert_eq!(ramp(f32::NAN), ramp(0.0));
+    }
+
+    #[test]
+    fn dots_take_the_nearest_photons_colour_within_their_radius() {
+        // A 10 × 10 grid of photons 0.1 m apart: the spacing is 0.1 and dots have radius ≈ 0.04.
+        let pos: Vec<[f32; 3]> =
+            (0..100).map(|i| [(i % 10) as f32 * 0.1, (i / 10) as f32 * 0.1, 0.0]).collect();
+        let flux = vec![[1.0; 3]; 100];
+        let l = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
+        let d = Diagnostics { colours: (0..100).map(|i| Vec3::splat(i as f32)).collect(), dot_radius: None };
+        let mut s = Scratch::default();
+        assert_eq!(d.colour(&l, Vec3::new(0.51, 0.3, 0.0), &mut s), Vec3::splat(35.0));
+        assert_eq!(d.colour(&l, Vec3::new(0.55, 0.35, 0.0), &mut s), Vec3::ZERO);
+        let fixed = Diagnostics { dot_radius: Some(0.08), ..d };
+        assert_eq!(fixed.colour(&l, Vec3::new(0.55, 0.35, 0.0), &mut s), Vec3::splat(35.0));
+    }
+}

@@ -1,0 +1,228 @@
+//! Images and their files: linear float RGB to OpenEXR (ZIP compression), an sRGB PNG
+//! preview, and reading an EXR back (the reference renderer resumes from one).
+//!
+//! Files are written to a temporary file beside the target and renamed into place only when
+//! complete, so a failed run never leaves a damaged or partial image.
+
+use std::path::{Path, PathBuf};
+
+use exr::prelude::traits::*;
+use exr::prelude::{AttributeValue, Encoding, Layer, LayerAttributes, SpecificChannels, Text, Vec2};
+use glam::Vec3;
+
+use super::RenderError;
+// exr's image type, renamed: `Image` here is ours.
+use exr::image::Image as Image_;
+
+/// Largest image side accepted, pixels.
+pub const MAX_SIDE: u32 = 1 << 15;
+
+/// A linear RGB image, rows from the top.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Image {
+    pub width: u32,
+    pub height: u32,
+    pub pixels: Vec<Vec3>,
+}
+
+impl Image {
+    pub fn new(width: u32, height: u32) -> Image {
+        Image { width, height, pixels: vec![Vec3::ZERO; width as usize * height as usize] }
+    }
+
+    pub fn get(&self, x: u32, y: u32) -> Vec3 {
+        self.pixels[y as usize * self.width as usize + x as usize]
+    }
+
+    /// Mean of every pixel.
+    pub fn mean(&self) -> Vec3 {
+        let s: glam::DVec3 = self.pixels.iter().map(|p| p.as_dvec3()).sum();
+        (s / self.pixels.len().max(1) as f64).as_vec3()
+    }
+}
+
+/// Text attributes stored in the EXR header (units, estimator, …), as (name, value).
+pub type Notes = Vec<(String, String)>;
+
+fn image_err(path: &Path, message: impl std::fmt::Display) -> RenderError {
+    RenderError::Image { file: path.display().to_string(), message: message.to_string() }
+}
+
+/// A temporary file beside `path` (same directory, so the final rename stays on one disk).
+fn temp_beside(path: &Path) -> Result<tempfile::NamedTempFile, RenderError> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".photonkit-").suffix(".tmp");
+    // Mode 0666 before the umask, as for any file a command creates (tempfile's default is 0600).
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    builder.tempfile_in(dir).map_err(|source| RenderError::Io { file: path.display().to_string(), source })
+}
+
+/// The EXR bytes of `img` in a temporary file beside `path`, not yet renamed.
+fn exr_temp(path: &Path, img: &Image, notes: &Notes) -> Result<tempfile::NamedTempFile, RenderError> {
+    let mut tmp = temp_beside(path)?;
+    let w = img.width as usize;
+    let channels = SpecificChannels::rgb(|Vec2(x, y): Vec2<usize>| {
+        let p = img.pixels[y * w + x];
+        (p.x, p.y, p.z)
+    });
+    let mut attrs = LayerAttributes { software_name: Some(Text::from("photonkit")), ..Default::default() };
+    for (k, v) in notes {
+        attrs.other.insert(Text::from(k.as_str()), AttributeValue::Text(Text::from(v.as_str())));
+    }
+    let layer = Layer::new((w, img.height as usize), attrs, Encoding::SMALL_LOSSLESS, channels);
+    let file = tmp.as_file_mut();
+    Image_::from_layer(layer)
+        .write()
+        .non_parallel()
+        .to_buffered(std::io::BufWriter::new(file))
+        .map_err(|e| image_err(path, e))?;
+    Ok(tmp)
+}
+
+/// An 8-bit sRGB PNG preview of `img` scaled by 2^`exposure`, in a temporary file.
+fn png_temp(path: &Path, img: &Image, exposure: f32) -> Result<tempfile::NamedTempFile, RenderError> {
+    let tmp = temp_beside(path)?;
+    let scale = exposure.exp2();
+    let data: Vec<u8> = img.pixels.iter().flat_map(|p| (*p * scale).to_array().map(srgb8)).collect();
+    let mut enc = png::Encoder::new(std::io::BufWriter::new(tmp.as_file()), img.width, img.height);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    enc.set_source_srgb(png::SrgbRenderingIntent::Perceptual);
+    let mut w = enc.write_header().map_err(|e| image_err(path, e))?;
+    w.write_image_data(&data).map_err(|e| image_err(path, e))?;
+    w.finish().map_err(|e| image_err(path, e))?;
+    Ok(tmp)
+}
+
+/// Linear value to an 8-bit sRGB code (IEC 61966-2-1 transfer curve), clamped to [0, 1].
+pub fn srgb8(v: f32) -> u8 {
+    let v = if v.is_nan() { 0.0 } else { v.clamp(0.0, 1.0) };
+    let s = if v <= 0.003_130_8 { 12.92 * v } else { 1.055 * v.powf(1.0 / 2.4) - 0.055 };
+    (s * 255.0 + 0.5) as u8
+}
+
+/// Where the outputs go: an EXR and/or a PNG preview.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Outputs {
+    pub exr: Option<PathBuf>,
+    pub png: Option<PathBuf>,
+    /// The preview's exposure: pixel values are multiplied by 2^exposure before the sRGB curve.
+    pub exposure: f32,
+}
+
+impl Outputs {
+    /// `out.exr` with its preview `out.png` beside it.
+    pub fn beside(exr: &Path) -> Outputs {
+        Outputs { exr: Some(exr.to_path_buf()), png: Some(exr.with_extension("png")), exposure: 0.0 }
+    }
+}
+
+/// Writes every requested file; none is renamed into place unless all were written.
+pub fn write(img: &Image, out: &Outputs, notes: &Notes) -> Result<(), RenderError> {
+    let exr = match &out.exr {
+        Some(p) => Some((p, exr_temp(p, img, notes)?)),
+        None => None,
+    };
+    let png = match &out.png {
+        Some(p) => Some((p, png_temp(p, img, out.exposure)?)),
+        None => None,
+    };
+    let mut done: Vec<&PathBuf> = Vec::new();
+    for (p, tmp) in exr.into_iter().chain(png) {
+        if let Err(e) = tmp.persist(p) {
+            // Leave no half-written set: remove what this call already put in place.
+            for d in done {
+                let _ = std::fs::remove_file(d);
+            }
+            return Err(RenderError::Io { file: p.display().to_string(), source: e.error });
+        }
+        done.push(p);
+    }
+    Ok(())
+}
+
+/// Reads the first RGB(A) layer of an EXR file as linear RGB, with its text attributes.
+pub fn read_exr(path: &Path) -> Result<(Image, Notes), RenderError> {
+    let img = read()
+        .no_deep_data()
+        .largest_resolution_level()
+        .rgb_channels(
+            |size, _| Image::new(size.0 as u32, size.1 as u32),
+            |img: &mut Image, pos, (r, g, b): (f32, f32, f32)| {
+                let w = img.width as usize;
+                img.pixels[pos.1 * w + pos.0] = Vec3::new(r, g, b);
+            },
+        )
+        .first_valid_layer()
+        .all_attributes()
+        .from_file(path)
+        .map_err(|e| image_err(path, e))?;
+    let notes = img
+        .layer_data
+        .attributes
+        .other
+        .iter()
+        .filter_map(|(k, v)| match v {
+            AttributeValue::Text(t) => Some((k.to_string(), t.to_string())),
+            _ => None,
+        })
+        .collect();
+    Ok((img.layer_data.channel_data.pixels, notes))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn exr_reads_back_bit_for_bit_with_its_notes() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = Image::new(37, 21);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = Vec3::new(i as f32 * 0.001, 1e-7 * i as f32, 123.456 + i as f32);
+        }
+        img.pixels[5] = Vec3::new(1e30, 0.0, f32::MIN_POSITIVE);
+        let out = Outputs::beside(&dir.path().join("a.exr"));
+        let notes = vec![("photonkit:units".to_string(), "W/(m^2 sr)".to_string())];
+        write(&img, &out, &notes).unwrap();
+        let (back, back_notes) = read_exr(&dir.path().join("a.exr")).unwrap();
+        assert_eq!(back, img);
+        assert!(back_notes.contains(&notes[0]), "{back_notes:?}");
+        // The preview is a valid PNG of the same size, and nothing else is left behind.
+        let dec = png::Decoder::new(std::io::BufReader::new(
+            std::fs::File::open(dir.path().join("a.png")).unwrap(),
+        ));
+        let r = dec.read_info().unwrap();
+        assert_eq!((r.info().width, r.info().height), (37, 21));
+        let mut names: Vec<_> =
+            std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+        names.sort();
+        assert_eq!(names, ["a.exr", "a.png"]);
+    }
+
+    #[test]
+    fn srgb_curve_end_points() {
+        assert_eq!(srgb8(0.0), 0);
+        assert_eq!(srgb8(1.0), 255);
+        assert_eq!(srgb8(7.0), 255);
+        assert_eq!(srgb8(f32::NAN), 0);
+        // Linear 0.2159 is sRGB 128/255; 0.0031308 is where the curve turns from linear.
+        assert_eq!(srgb8(0.2159), 128);
+        assert_eq!(srgb8(0.003_130_8), 10);
+    }
+
+    #[test]
+    fn a_failed_write_leaves_nothing() {
+        let dir = tempfile::tempdir().unwrap();
+        let img = Image::new(4, 4);
+        let out = Outputs {
+            exr: Some(dir.path().join("ok.exr")),
+            png: Some(dir.path().join("missing-dir").join("x.png")),
+            exposure: 0.0,
+        };
+        assert!(write(&img, &out, &Vec::new()).is_err());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);
+    }
+}

@@ -1,0 +1,225 @@
+//! World-space k-NN with a tight bounding box on every node, for rendering lookups.
+//!
+//! The renderer asks for the K nearest photons at every diffuse point the camera sees, and
+//! most of those points lie far from any photon (a caustic covers a small part of the floor).
+//! A kd-tree that prunes by split planes alone visits many unbounded boundary cells for such
+//! a query; pruning by the distance to each node's box of actual points keeps a far query as
+//! cheap as a near one. Results are exact and equal [`super::brute_force_knn`] in
+//! [`super::Space::World`]: the k smallest by (distance², photon index).
+
+use rayon::prelude::*;
+
+use super::{Neighbour, Neighbours};
+
+/// Points per leaf.
+const LEAF: usize = 8;
+/// Subtrees larger than this are built in parallel.
+const PARALLEL_BUILD: usize = 1 << 14;
+
+#[derive(Clone, Copy, Debug, Default)]
+struct Node {
+    lo: [f32; 3],
+    hi: [f32; 3],
+    /// Index of the right child (the left child follows the node); 0 for a leaf.
+    right: u32,
+    /// The node's points: `start..end` of the leaf-ordered arrays.
+    start: u32,
+    end: u32,
+}
+
+/// A k-NN index over 3-D points with per-node bounding boxes.
+#[derive(Clone, Debug, Default)]
+pub struct BoxTree {
+    nodes: Vec<Node>,
+    /// Points in leaf order, and the caller's index of each.
+    points: Vec<[f32; 3]>,
+    index: Vec<u32>,
+}
+
+fn bounds(p: &[([f32; 3], u32)]) -> ([f32; 3], [f32; 3]) {
+    let (lo, hi) = p.iter().fold((glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY), |(lo, hi), (q, _)| {
+        let q = glam::Vec3::from_array(*q);
+        (lo.min(q), hi.max(q))
+    });
+    (lo.to_array(), hi.to_array())
+}
+
+fn count_nodes(m: usize) -> usize {
+    if m <= LEAF { 1 } else { 1 + count_nodes(m / 2) + count_nodes(m - m / 2) }
+}
+
+fn build(recs: &mut [([f32; 3], u32)], nodes: &mut [Node], base: usize, start: usize) {
+    let (lo, hi) = bounds(recs);
+    let m = recs.len();
+    let (head, rest) = nodes.split_first_mut().expect("every subtree has a node");
+    *head = Node { lo, hi, right: 0, start: start as u32, end: (start + m) as u32 };
+    if m <= LEAF {
+        return;
+    }
+    let axis = (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0);
+    let mid = m / 2;
+    recs.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
+    let left_nodes = count_nodes(mid);
+    head.right = (base + 1 + left_nodes) as u32;
+    let (lrecs, rrecs) = recs.split_at_mut(mid);
+    let (lnodes, rnodes) = rest.split_at_mut(left_nodes);
+    if m >= PARALLEL_BUILD {
+        rayon::join(
+            || build(lrecs, lnodes, base + 1, start),
+            || build(rrecs, rnodes, base + 1 + left_nodes, start + mid),
+        );
+    } else {
+        build(lrecs, lnodes, base + 1, start);
+        build(rrecs, rnodes, base + 1 + left_nodes, start + mid);
+    }
+}
+
+/// Squared distance from `q` to the box, summed in axis order: never more than the distance
+/// to any point inside (subtraction and squaring are monotone in floating point).
+#[inline(always)]
+fn box_dist2(n: &Node, q: &[f32; 3]) -> f32 {
+    let mut s = 0.0f32;
+    for ((lo, hi), x) in n.lo.iter().zip(&n.hi).zip(q) {
+        let d = (lo - x).max(x - hi).max(0.0);
+        s += d * d;
+    }
+    s
+}
+
+#[inline(always)]
+fn dist2(a: &[f32; 3], b: &[f32; 3]) -> f32 {
+    let mut s = 0.0f32;
+    for i in 0..3 {
+        let d = a[i] - b[i];
+        s += d * d;
+    }
+    s
+}
+
+impl BoxTree {
+    /// Builds the tree over `points` (point i has index i in the results). Non-finite
+    /// coordinates are the caller's to refuse: they would sort arbitrarily.
+    pub fn build(points: &[[f32; 3]]) -> BoxTree {
+        let mut recs: Vec<([f32; 3], u32)> =
+            points.par_iter().enumerate().map(|(i, p)| (*p, i as u32)).collect();
+        if recs.is_empty() {
+            return BoxTree::default();
+        }
+        let mut nodes = vec![Node::default(); count_nodes(recs.len())];
+        build(&mut recs, &mut nodes, 0, 0);
+        let (points, index) = recs.into_iter().unzip();
+        BoxTree { nodes, points, index }
+    }
+
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The `k` points nearest `q` within distance² `max_dist2` (inclusive; ∞ for no limit),
+    /// nearest first, ties by index.
+    pub fn knn(&self, q: [f32; 3], k: usize, max_dist2: f32, out: &mut Neighbours) {
+        out.items.clear();
+        if k == 0 || self.nodes.is_empty() || max_dist2.is_nan() {
+            return;
+        }
+        let mut s = Search {
+            tree: self,
+            q,
+            k,
+            heap: &mut out.items,
+            worst: Neighbour { dist2: max_dist2, index: u32::MAX },
+        };
+        if box_dist2(&self.nodes[0], &q) <= max_dist2 {
+            s.visit(0);
+        }
+    }
+}
+
+struct Search<'a> {
+    tree: &'a BoxTree,
+    q: [f32; 3],
+    k: usize,
+    heap: &'a mut Vec<Neighbour>,
+    /// The k-th best so far, or the distance limit while fewer than k are held.
+    worst: Neighbour,
+}
+
+impl Search<'_> {
+    fn visit(&mut self, node: usize) {
+        let n = &self.tree.nodes[node];
+        if n.right == 0 {
+            for i in n.start as usize..n.end as usize {
+                let d = dist2(&self.tree.points[i], &self.q);
+                let idx = self.tree.index[i];
+                if d < self.worst.dist2 || (d == self.worst.dist2 && idx < self.worst.index) {
+                    self.push(Neighbour { dist2: d, index: idx });
+                }
+            }
+            return;
+        }
+        let (l, r) = (node + 1, n.right as usize);
+        let (dl, dr) = (box_dist2(&self.tree.nodes[l], &self.q), box_dist2(&self.tree.nodes[r], &self.q));
+        let ((a, da), (b, db)) = if dl <= dr { ((l, dl), (r, dr)) } else { ((r, dr), (l, dl)) };
+        if da <= self.worst.dist2 {
+            self.visit(a);
+        }
+        if db <= self.worst.dist2 {
+            self.visit(b);
+        }
+    }
+
+    #[inline(always)]
+    fn push(&mut self, c: Neighbour) {
+        let h = &mut *self.heap;
+        if h.len() == self.k {
+            h.pop();
+        }
+        let at = h.partition_point(|x| x.before(&c));
+        h.insert(at, c);
+        if h.len() == self.k {
+            self.worst = h[self.k - 1];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::spatial::{PointSet, Query, Space, brute_force_knn};
+    use crate::trace::halton::PhotonRng;
+
+    #[test]
+    fn equals_brute_force_near_far_and_with_ties() {
+        // A dense filament, a sparse cloud and exact duplicates; queries inside, near and far
+        // away (where the box pruning matters).
+        let mut rng = PhotonRng::new(1, 2);
+        let mut pts: Vec<[f32; 3]> =
+            (0..3000).map(|_| [rng.next_f32() * 0.1, rng.next_f32() * 2.0, 0.0]).collect();
+        pts.extend((0..1000).map(|_| [rng.next_f32() * 5.0, rng.next_f32() * 5.0, rng.next_f32() * 0.01]));
+        pts.extend(std::iter::repeat_n([0.05, 1.0, 0.0], 20));
+        let tree = BoxTree::build(&pts);
+        let set = PointSet::world(&pts);
+        let mut out = Neighbours::default();
+        for j in 0..300 {
+            let s = [1.0, 1.0, 30.0][j % 3];
+            let q = [rng.next_f32() * s - 0.2 * s, rng.next_f32() * s, (j % 7) as f32 * 0.1];
+            let q = if j % 10 == 0 { [0.05, 1.0, 0.0] } else { q };
+            for k in [1, 15, 40] {
+                let query = Query { position: q, params: &[], radius: None, emitter: 0, exclude: None };
+                let want = brute_force_knn(&set, Space::World, &query, k);
+                tree.knn(q, k, f32::INFINITY, &mut out);
+                assert_eq!(out.as_slice(), &want[..], "query {q:?} k {k}");
+                // With a distance limit: the prefix of the unlimited result within it.
+                let lim = want.get(k / 2).map_or(1.0, |n| n.dist2);
+                tree.knn(q, k, lim, &mut out);
+                let within: Vec<_> = want.iter().copied().filter(|n| n.dist2 <= lim).collect();
+                assert_eq!(out.as_slice(), &within[..]);
+            }
+        }
+        assert!(BoxTree::build(&[]).is_empty());
+    }
+}

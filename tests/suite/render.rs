@@ -1,0 +1,250 @@
+//! `photonkit render` and `photonkit reference` from the command line.
+
+use std::path::Path;
+
+use photonkit::format::{PhotonMap, name};
+use photonkit::render::image::read_exr;
+
+use super::common::{photonkit, stderr, write_synthetic};
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> =
+        std::fs::read_dir(dir).unwrap().map(|e| e.unwrap().file_name().into_string().unwrap()).collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn renders_a_traced_map_to_exr_and_png() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = dir.path().join("m.phm");
+    let out = dir.path().join("img.exr");
+    let o = photonkit(&["trace", "--photons", "20000", "-o", map.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = photonkit(&[
+        "render",
+        map.to_str().unwrap(),
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "24",
+        "--height",
+        "16",
+        "--spp",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("24×16"), "{}", stderr(&o));
+    let (img, notes) = read_exr(&out).unwrap();
+    assert_eq!((img.width, img.height), (24, 16));
+    assert!(img.pixels.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
+    assert!(img.mean().x > 0.0);
+    assert!(notes.iter().any(|(k, v)| k == "photonkit:units" && v.contains("W/(m^2 sr)")), "{notes:?}");
+    assert!(notes.iter().any(|(k, v)| k == "photonkit:scene" && v.contains("default scene")), "{notes:?}");
+    assert_eq!(files_in(dir.path()), ["img.exr", "img.png", "m.phm"]);
+
+    // Diagnostics: the splat view works on any map; `constrained` needs `detect` first.
+    let diag = dir.path().join("splat.exr");
+    let o = photonkit(&[
+        "render",
+        map.to_str().unwrap(),
+        "-o",
+        diag.to_str().unwrap(),
+        "--width",
+        "16",
+        "--spp",
+        "1",
+        "--diagnostic",
+        "splat",
+        "--no-png",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let o = photonkit(&["render", map.to_str().unwrap(), "-o", "c.exr", "--diagnostic", "constrained"]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("basis_v") && stderr(&o).contains("detect"), "{}", stderr(&o));
+}
+
+#[test]
+fn plane_view_measures_the_irradiance_of_a_uniform_map() {
+    // 3 W uniformly over the unit square of z = 0: E = 1 W/m² per channel.
+    let dir = tempfile::tempdir().unwrap();
+    let map = dir.path().join("u.phm");
+    write_synthetic(&photonkit::synthetic::uniform_square(40_000, 3, 3.0), "uniform", &map);
+    let out = dir.path().join("e.exr");
+    let o = photonkit(&[
+        "render",
+        map.to_str().unwrap(),
+        "--plane",
+        "z=0",
+        "--rect",
+        "0.2,0.2,0.8,0.8",
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "20",
+        "--spp",
+        "4",
+        "-k",
+        "50",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (img, notes) = read_exr(&out).unwrap();
+    assert_eq!((img.width, img.height), (20, 20));
+    let m = img.mean();
+    // Random photons, K = 50: each estimate has ≈ 14 % noise; the mean over 1600 lookups, ≈ 1 %.
+    assert!((m.x - 1.0).abs() < 0.05 && (m.y - 1.0).abs() < 0.05, "{m}");
+    assert!(notes.iter().any(|(k, v)| k == "photonkit:units" && v.starts_with("W/m^2")), "{notes:?}");
+    // A plane view is irradiance only.
+    let o = photonkit(&["render", map.to_str().unwrap(), "--plane", "z=0", "--mode", "full", "-o", "x.exr"]);
+    assert!(!o.status.success());
+    // No photons near the plane.
+    let o = photonkit(&["render", map.to_str().unwrap(), "--plane", "z=5", "-o", out.to_str().unwrap()]);
+    assert!(!o.status.success() && stderr(&o).contains("no photon"), "{}", stderr(&o));
+}
+
+#[test]
+fn bad_input_fails_cleanly_and_leaves_no_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.exr");
+    let run = |map: &Path| {
+        photonkit(&[
+            "render",
+            map.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--width",
+            "8",
+            "--spp",
+            "1",
+        ])
+    };
+
+    let o = run(&dir.path().join("missing.phm"));
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("missing.phm"), "{}", stderr(&o));
+
+    let empty = dir.path().join("empty.phm");
+    write_synthetic(&photonkit::synthetic::uniform_square(0, 1, 1.0), "empty", &empty);
+    let o = run(&empty);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("no photons"), "{}", stderr(&o));
+
+    // A NaN flux written into the column bytes (the writer itself refuses NaN).
+    let nan = dir.path().join("nan.phm");
+    write_synthetic(&photonkit::synthetic::uniform_square(100, 1, 1.0), "nan", &nan);
+    let offset = PhotonMap::open_path(&nan).unwrap().meta().column(name::FLUX).unwrap().offset as usize;
+    let mut bytes = std::fs::read(&nan).unwrap();
+    bytes[offset + 12 * 7 + 4..offset + 12 * 7 + 8].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&nan, bytes).unwrap();
+    let o = run(&nan);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("photon 7") && stderr(&o).contains("flux"), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("panicked"));
+
+    let mut left = files_in(dir.path());
+    left.retain(|f| !f.ends_with(".phm"));
+    assert!(left.is_empty(), "{left:?}");
+}
+
+#[test]
+fn reference_runs_saves_and_resumes() {
+    // A 1 m × 1 m, 6 W collimated beam through an ideal slab: 2 W/m² per channel on the floor.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("slab.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nprojection = \"orthographic\"\neye = [0, 0, 3]\nlook_at = [0, 0, 0]\nup = [0, 1, 0]\nheight = 0.6\n\
+         [materials.floor]\nkind = \"diffuse\"\n[materials.glass]\nkind = \"dielectric\"\nior = 1.5\nideal = true\n\
+         [[emitters]]\nkind = \"collimated\"\ncenter = [0, 0, 2]\nsize = [1, 1]\ndirection = [0, 0, -1]\npower_w = 6\n\
+         [[shapes]]\nkind = \"plane\"\nnormal = [0, 0, 1]\nmaterial = \"floor\"\n[[shapes]]\nkind = \"extrusion\"\n\
+         outline = [[-2, -2], [2, -2], [2, 2], [-2, 2]]\nz_range = [0.5, 0.7]\nmaterial = \"glass\"\n",
+    )
+    .unwrap();
+    let out = dir.path().join("ref.exr");
+    let args = |passes: &str| {
+        vec![
+            "reference".to_string(),
+            scene.to_str().unwrap().to_string(),
+            "-o".into(),
+            out.to_str().unwrap().to_string(),
+            "--passes".into(),
+            passes.into(),
+            "--photons-per-pass".into(),
+            "5000".into(),
+            "--mode".into(),
+            "irradiance".into(),
+            "--width".into(),
+            "12".into(),
+            "--height".into(),
+            "12".into(),
+            "--spp".into(),
+            "1".into(),
+        ]
+    };
+    let run = |v: Vec<String>| photonkit(&v.iter().map(String::as_str).collect::<Vec<_>>());
+    let o = run(args("3"));
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (_, notes) = read_exr(&out).unwrap();
+    let state = |notes: &[(String, String)]| -> serde_json::Value {
+        serde_json::from_str(&notes.iter().find(|(k, _)| k == "photonkit:reference_state").unwrap().1)
+            .unwrap()
+    };
+    assert_eq!(state(&notes)["passes"], 3);
+    let mut more = args("5");
+    more.push("--resume".into());
+    let o = run(more.clone());
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("passes 4..5"), "{}", stderr(&o));
+    let (img, notes) = read_exr(&out).unwrap();
+    assert_eq!(state(&notes)["passes"], 5);
+    assert!((img.mean().x - 2.0).abs() < 0.05, "{}", img.mean());
+    // Resuming with other settings is refused and leaves the saved run alone.
+    let mut other = more;
+    other[15] = "2".into(); // --spp
+    other[5] = "9".into(); // --passes
+    let o = run(other);
+    assert!(!o.status.success() && stderr(&o).contains("other settings"), "{}", stderr(&o));
+    assert_eq!(read_exr(&out).unwrap().0, img);
+}
+
+#[test]
+fn the_scene_comes_from_the_maps_history() {
+    // A map traced from a scene file is rendered with that file; without it, the user is told
+    // to pass --scene.
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("spot.toml");
+    std::fs::write(
+        &scene,
+        "[camera]\nprojection = \"pinhole\"\neye = [0, -3, 2]\nlook_at = [0, 0, 0]\n[materials.floor]\nkind = \"diffuse\"\n\
+         [materials.metal]\nkind = \"mirror\"\n[[emitters]]\nkind = \"point\"\nposition = [0, 0, 1]\npower_w = 5\n\
+         [[shapes]]\nkind = \"plane\"\nnormal = [0, 0, 1]\nmaterial = \"floor\"\n[[shapes]]\nkind = \"sphere\"\n\
+         center = [0, 0, 2]\nradius = 0.5\nmaterial = \"metal\"\n",
+    )
+    .unwrap();
+    let map = dir.path().join("m.phm");
+    let out = dir.path().join("m.exr");
+    let o = photonkit(&["trace", scene.to_str().unwrap(), "--photons", "20000", "-o", map.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let render = || {
+        photonkit(&[
+            "render",
+            map.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+            "--width",
+            "8",
+            "--spp",
+            "1",
+        ])
+    };
+    let o = render();
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (img, notes) = read_exr(&out).unwrap();
+    assert!(notes.iter().any(|(k, v)| k == "photonkit:scene" && v.ends_with("spot.toml")), "{notes:?}");
+    assert_eq!((img.width, img.height), (8, 8)); // the scene's camera is 600×600: the aspect is kept
+    std::fs::remove_file(&scene).unwrap();
+    std::fs::remove_file(&out).unwrap();
+    let o = render();
+    assert!(!o.status.success() && stderr(&o).contains("--scene"), "{}", stderr(&o));
+    assert!(!out.exists());
+}

@@ -191,6 +191,29 @@ impl<'a> PhotonLookup<'a> {
         }
     }
 
+    /// [`Self::nearest`] into `s.nb`, starting from a bound given by the previous query.
+    /// Successive queries are close (samples of one pixel, pixels of one tile): the previous
+    /// query's k photons lie within r_prev + |x − x_prev| of x (triangle inequality), so the
+    /// search may start with that bound, slightly widened for rounding. The result is the same
+    /// as without it whenever k photons lie within it, which they do.
+    fn nearest_from_last(&self, x: Vec3, k: usize, max2: f32, s: &mut Scratch) {
+        let hint = match s.last {
+            Some((p, pk, r)) if pk == k => {
+                let b = (r + (x - p).length()) * (1.0 + 1e-5) + 1e-30;
+                b * b
+            }
+            _ => f32::INFINITY,
+        };
+        self.nearest(x, k, max2.min(hint), &mut s.nb);
+        if s.nb.len() < k && hint < max2 {
+            self.nearest(x, k, max2, &mut s.nb);
+        }
+        s.last = match s.nb.last() {
+            Some(l) if s.nb.len() == k => Some((x, k, l.dist2.sqrt())),
+            _ => None,
+        };
+    }
+
     /// Whether this lookup serves `est` (fixed-radius lookups need their grid, the others
     /// the k-NN tree).
     pub fn serves(&self, est: &Estimator) -> bool {
@@ -238,25 +261,7 @@ impl<'a> PhotonLookup<'a> {
         s: &mut Scratch,
     ) -> Vec3 {
         let max2 = max_r.map_or(f32::INFINITY, |m| m * m);
-        // Successive queries are close (samples of one pixel, pixels of one tile): the previous
-        // query's k photons lie within r_prev + |x − x_prev| of x (triangle inequality), so the
-        // search may start with that bound, slightly widened for rounding. The result is the
-        // same as without it whenever k photons lie within it, which they do.
-        let hint = match s.last {
-            Some((p, pk, r)) if pk == k => {
-                let b = (r + (x - p).length()) * (1.0 + 1e-5) + 1e-30;
-                b * b
-            }
-            _ => f32::INFINITY,
-        };
-        self.nearest(x, k, max2.min(hint), &mut s.nb);
-        if s.nb.len() < k && hint < max2 {
-            self.nearest(x, k, max2, &mut s.nb);
-        }
-        s.last = match s.nb.last() {
-            Some(l) if s.nb.len() == k => Some((x, k, l.dist2.sqrt())),
-            _ => None,
-        };
+        self.nearest_from_last(x, k, max2, s);
         let Some(last) = s.nb.last() else { return Vec3::ZERO };
         // Fewer than k within the limit: the kernel spans the whole limit.
         let r2 = if s.nb.len() < k { max2 } else { last.dist2 };
@@ -283,7 +288,7 @@ impl<'a> PhotonLookup<'a> {
     /// estimate is the Epanechnikov kernel on that ellipse, normalised by its area:
     /// E = Σ Φ_p · 2/(π a₁ a₂) · (1 − ρ²), ρ² = Σ_i ((x_p − x)·e_i / a_i)².
     fn diffusion_irradiance(&self, k: usize, q: f32, x: Vec3, n: Vec3, s: &mut Scratch) -> Vec3 {
-        self.nearest(x, k, f32::INFINITY, &mut s.nb);
+        self.nearest_from_last(x, k, f32::INFINITY, s);
         let Some(last) = s.nb.last() else { return Vec3::ZERO };
         let r2 = last.dist2;
         if r2 <= 0.0 {

@@ -24,12 +24,10 @@ pub use estimate::{Estimator, Kernel, PhotonData, PhotonLookup, Scratch};
 pub use image::{Image, Outputs};
 pub use shade::{DiffuseHit, EyeOptions, Lights, Specular};
 
-use crate::scene::{Camera, Scene};
-use crate::trace::halton::PhotonRng;
-
 use crate::format::FormatError;
-use crate::scene::SceneError;
+use crate::scene::{Camera, Scene, SceneError};
 use crate::trace::TraceError;
+use crate::trace::halton::PhotonRng;
 
 /// Everything that can go wrong while rendering.
 #[derive(Debug, thiserror::Error)]
@@ -187,12 +185,19 @@ impl Renderer<'_> {
     /// Renders the image, tile by tile in parallel; `progress(1)` after each tile.
     pub fn render(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<(Image, RenderStats), RenderError> {
         let o = &self.opts;
-        if o.width == 0 || o.height == 0 || o.width > image::MAX_SIDE || o.height > image::MAX_SIDE {
+        let pixels = o.width as u64 * o.height as u64;
+        if o.width == 0
+            || o.height == 0
+            || o.width > image::MAX_SIDE
+            || o.height > image::MAX_SIDE
+            || pixels > image::MAX_PIXELS
+        {
             return Err(RenderError::Invalid(format!(
-                "image size {}×{}: each side must be 1 to {}",
+                "image size {}×{}: each side must be 1 to {} pixels, and the image at most {} pixels",
                 o.width,
                 o.height,
-                image::MAX_SIDE
+                image::MAX_SIDE,
+                image::MAX_PIXELS
             )));
         }
         if o.spp == 0 || o.spp > 4096 {

@@ -481,6 +481,35 @@ mod tests {
     }
 
     #[test]
+    fn images_do_not_depend_on_the_thread_count() {
+        // Jitter comes from each pixel's own stream, and lookups are exact whatever the
+        // order of queries on a thread.
+        let (pos, flux) = grid_photons(60, 12.0);
+        let photons =
+            PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
+        let scene = floor_scene();
+        let camera = Camera::look_at(
+            Projection::Pinhole { fov_y_rad: 0.8 },
+            Vec3::new(0.3, -2.0, 1.5),
+            Vec3::ZERO,
+            Vec3::Z,
+            [1, 1],
+        )
+        .unwrap();
+        let r = Renderer {
+            view: View::Scene { scene: &scene, camera },
+            photons: Some(&photons),
+            diagnostic: None,
+            opts: RenderOptions { width: 40, height: 30, spp: 3, ..opts(Mode::Full) },
+        };
+        let pool = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        let a = pool(1).install(|| r.render(&|_| {})).unwrap();
+        let b = pool(2).install(|| r.render(&|_| {})).unwrap();
+        assert_eq!(a, b);
+        assert!(a.0.mean().x > 0.0);
+    }
+
+    #[test]
     fn bad_requests_are_refused() {
         let scene = floor_scene();
         let r = Renderer {

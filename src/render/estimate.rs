@@ -10,10 +10,15 @@
 //! never created. The radiance a Lambertian surface of albedo ρ sends towards the eye is then
 //! L = (ρ/π)·E (method.md, "Rendering": L = Σ f_r Φ_p w(d_p)).
 //!
-//! Two estimators: the classical k-nearest-neighbour estimate (r = distance to the K-th photon)
-//! with an Epanechnikov, disc or cone kernel, and diffusion-based photon mapping (Schjøth,
+//! Three estimators: the classical k-nearest-neighbour estimate (r = distance to the K-th
+//! photon) with an Epanechnikov, disc or cone kernel; diffusion-based photon mapping (Schjøth,
 //! Olsen, Sporring 2008), whose kernel is an ellipse shaped by the structure tensor of the
-//! density estimate so it smooths along a caustic's edges and not across them.
+//! density estimate so it smooths along a caustic's edges and not across them; and a fixed
+//! radius, for progressive photon mapping ([`super::reference`]).
+//!
+//! Neighbours come from a [`BoxTree`]; each search starts from a bound given by the previous
+//! query of the same thread (exact, see [`PhotonLookup::irradiance`]), which makes the
+//! coherent queries of an image tile cheap.
 
 use std::f32::consts::PI;
 
@@ -228,7 +233,8 @@ impl<'a> PhotonLookup<'a> {
         self.data.normals.is_none_or(|ns| Vec3::from_array(ns[i]).dot(n) > 0.0)
     }
 
-    /// Irradiance at `x` on a surface with unit normal `n`, W/m² per channel.
+    /// Irradiance at `x` on a surface with unit normal `n`, W/m² per channel. `s` carries the
+    /// previous query's bound between calls; the result does not depend on it.
     pub fn irradiance(&self, est: &Estimator, x: Vec3, n: Vec3, s: &mut Scratch) -> Vec3 {
         match *est {
             Estimator::Knn { k, kernel, max_radius } => self.knn_irradiance(k, kernel, max_radius, x, n, s),

@@ -186,3 +186,44 @@ mod tests {
         assert_eq!(fixed.colour(&l, Vec3::new(0.55, 0.35, 0.0), &mut s), Vec3::splat(35.0));
     }
 }
+
+#[cfg(test)]
+mod map_tests {
+    use super::*;
+    use crate::format::{ColumnSpec, Output, State, write_map};
+
+    /// A map of `uniform_square` photons with a basis_v column whose length is i/n for photon i.
+    fn map_with_basis(n: usize) -> (tempfile::TempDir, PhotonMap, crate::synthetic::SyntheticMap) {
+        let m = crate::synthetic::uniform_square(n, 5, 1.0);
+        let basis: Vec<[f32; 3]> = (0..n).map(|i| [0.0, i as f32 / n as f32, 0.0]).collect();
+        let mut cols = m.columns();
+        cols.push((ColumnSpec::of::<[f32; 3]>(name::BASIS_V), bytemuck::cast_slice(&basis)));
+        let mut info = m.info("test", 0, "2026-01-01T00:00:00Z");
+        info.state = State::Detected;
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("m.phm");
+        write_map(Output::Path(path.clone()), info, &cols).unwrap();
+        let map = PhotonMap::open_path(&path).unwrap();
+        (dir, map, m)
+    }
+
+    #[test]
+    fn photons_are_coloured_by_their_columns() {
+        let (_dir, map, m) = map_with_basis(1000);
+        // Constrained: red below the threshold (|basis_v| = i/n < 0.3), grey above.
+        let d = Diagnostics::from_map(&map, Diagnostic::Constrained, 0.3, None).unwrap();
+        for (i, c) in d.colours.iter().enumerate() {
+            assert_eq!(*c == Vec3::X, (i as f32 / 1000.0) < 0.3, "photon {i}: {c}");
+        }
+        // Params: (u, v) normalised over the map to (u', v', 1 − (u' + v')/2).
+        let d = Diagnostics::from_map(&map, Diagnostic::Params, 0.5, None).unwrap();
+        let (lo, hi) = range(m.params.chunks(2).map(|p| p[0]));
+        for (c, p) in d.colours.iter().zip(m.params.chunks(2)) {
+            let u = (p[0] - lo) / (hi - lo);
+            assert!((c.x - u).abs() < 1e-5 && (c.z - (1.0 - 0.5 * (c.x + c.y))).abs() < 1e-6);
+        }
+        // Path length: constant here, so every photon takes the ramp's first colour.
+        let d = Diagnostics::from_map(&map, Diagnostic::PathLength, 0.5, None).unwrap();
+        assert!(d.colours.iter().all(|c| *c == ramp(0.0)));
+    }
+}

@@ -10,10 +10,15 @@
 //! never created. The radiance a Lambertian surface of albedo ρ sends towards the eye is then
 //! L = (ρ/π)·E (method.md, "Rendering": L = Σ f_r Φ_p w(d_p)).
 //!
-//! Two estimators: the classical k-nearest-neighbour estimate (r = distance to the K-th photon)
-//! with an Epanechnikov, disc or cone kernel, and diffusion-based photon mapping (Schjøth,
+//! Three estimators: the classical k-nearest-neighbour estimate (r = distance to the K-th
+//! photon) with an Epanechnikov, disc or cone kernel; diffusion-based photon mapping (Schjøth,
 //! Olsen, Sporring 2008), whose kernel is an ellipse shaped by the structure tensor of the
-//! density estimate so it smooths along a caustic's edges and not across them.
+//! density estimate so it smooths along a caustic's edges and not across them; and a fixed
+//! radius, for progressive photon mapping ([`super::reference`]).
+//!
+//! Neighbours come from a [`BoxTree`]; each search starts from a bound given by the previous
+//! query of the same thread (exact, see [`PhotonLookup::irradiance`]), which makes the
+//! coherent queries of an image tile cheap.
 
 use std::f32::consts::PI;
 
@@ -191,6 +196,29 @@ impl<'a> PhotonLookup<'a> {
         }
     }
 
+    /// [`Self::nearest`] into `s.nb`, starting from a bound given by the previous query.
+    /// Successive queries are close (samples of one pixel, pixels of one tile): the previous
+    /// query's k photons lie within r_prev + |x − x_prev| of x (triangle inequality), so the
+    /// search may start with that bound, slightly widened for rounding. The result is the same
+    /// as without it whenever k photons lie within it, which they do.
+    fn nearest_from_last(&self, x: Vec3, k: usize, max2: f32, s: &mut Scratch) {
+        let hint = match s.last {
+            Some((p, pk, r)) if pk == k => {
+                let b = (r + (x - p).length()) * (1.0 + 1e-5) + 1e-30;
+                b * b
+            }
+            _ => f32::INFINITY,
+        };
+        self.nearest(x, k, max2.min(hint), &mut s.nb);
+        if s.nb.len() < k && hint < max2 {
+            self.nearest(x, k, max2, &mut s.nb);
+        }
+        s.last = match s.nb.last() {
+            Some(l) if s.nb.len() == k => Some((x, k, l.dist2.sqrt())),
+            _ => None,
+        };
+    }
+
     /// Whether this lookup serves `est` (fixed-radius lookups need their grid, the others
     /// the k-NN tree).
     pub fn serves(&self, est: &Estimator) -> bool {
@@ -205,7 +233,8 @@ impl<'a> PhotonLookup<'a> {
         self.data.normals.is_none_or(|ns| Vec3::from_array(ns[i]).dot(n) > 0.0)
     }
 
-    /// Irradiance at `x` on a surface with unit normal `n`, W/m² per channel.
+    /// Irradiance at `x` on a surface with unit normal `n`, W/m² per channel. `s` carries the
+    /// previous query's bound between calls; the result does not depend on it.
     pub fn irradiance(&self, est: &Estimator, x: Vec3, n: Vec3, s: &mut Scratch) -> Vec3 {
         match *est {
             Estimator::Knn { k, kernel, max_radius } => self.knn_irradiance(k, kernel, max_radius, x, n, s),
@@ -238,25 +267,7 @@ impl<'a> PhotonLookup<'a> {
         s: &mut Scratch,
     ) -> Vec3 {
         let max2 = max_r.map_or(f32::INFINITY, |m| m * m);
-        // Successive queries are close (samples of one pixel, pixels of one tile): the previous
-        // query's k photons lie within r_prev + |x − x_prev| of x (triangle inequality), so the
-        // search may start with that bound, slightly widened for rounding. The result is the
-        // same as without it whenever k photons lie within it, which they do.
-        let hint = match s.last {
-            Some((p, pk, r)) if pk == k => {
-                let b = (r + (x - p).length()) * (1.0 + 1e-5) + 1e-30;
-                b * b
-            }
-            _ => f32::INFINITY,
-        };
-        self.nearest(x, k, max2.min(hint), &mut s.nb);
-        if s.nb.len() < k && hint < max2 {
-            self.nearest(x, k, max2, &mut s.nb);
-        }
-        s.last = match s.nb.last() {
-            Some(l) if s.nb.len() == k => Some((x, k, l.dist2.sqrt())),
-            _ => None,
-        };
+        self.nearest_from_last(x, k, max2, s);
         let Some(last) = s.nb.last() else { return Vec3::ZERO };
         // Fewer than k within the limit: the kernel spans the whole limit.
         let r2 = if s.nb.len() < k { max2 } else { last.dist2 };
@@ -283,7 +294,7 @@ impl<'a> PhotonLookup<'a> {
     /// estimate is the Epanechnikov kernel on that ellipse, normalised by its area:
     /// E = Σ Φ_p · 2/(π a₁ a₂) · (1 − ρ²), ρ² = Σ_i ((x_p − x)·e_i / a_i)².
     fn diffusion_irradiance(&self, k: usize, q: f32, x: Vec3, n: Vec3, s: &mut Scratch) -> Vec3 {
-        self.nearest(x, k, f32::INFINITY, &mut s.nb);
+        self.nearest_from_last(x, k, f32::INFINITY, s);
         let Some(last) = s.nb.last() else { return Vec3::ZERO };
         let r2 = last.dist2;
         if r2 <= 0.0 {

@@ -16,6 +16,8 @@ use exr::image::Image as Image_;
 
 /// Largest image side accepted, pixels.
 pub const MAX_SIDE: u32 = 1 << 15;
+/// Largest image accepted, pixels (768 MiB of linear RGB).
+pub const MAX_PIXELS: u64 = 1 << 26;
 
 /// A linear RGB image, rows from the top.
 #[derive(Clone, Debug, PartialEq)]
@@ -145,6 +147,14 @@ pub fn write(img: &Image, out: &Outputs, notes: &Notes) -> Result<(), RenderErro
 
 /// Reads the first RGB(A) layer of an EXR file as linear RGB, with its text attributes.
 pub fn read_exr(path: &Path) -> Result<(Image, Notes), RenderError> {
+    // The header first: refuse sizes beyond the caps before anything is allocated for them.
+    let meta = exr::meta::MetaData::read_from_file(path, false).map_err(|e| image_err(path, e))?;
+    for h in &meta.headers {
+        let (w, hh) = (h.layer_size.0 as u64, h.layer_size.1 as u64);
+        if w > MAX_SIDE as u64 || hh > MAX_SIDE as u64 || w * hh > MAX_PIXELS {
+            return Err(image_err(path, format!("a {w}×{hh} layer exceeds the size limits")));
+        }
+    }
     let img = read()
         .no_deep_data()
         .largest_resolution_level()

@@ -24,12 +24,10 @@ pub use estimate::{Estimator, Kernel, PhotonData, PhotonLookup, Scratch};
 pub use image::{Image, Outputs};
 pub use shade::{DiffuseHit, EyeOptions, Lights, Specular};
 
-use crate::scene::{Camera, Scene};
-use crate::trace::halton::PhotonRng;
-
 use crate::format::FormatError;
-use crate::scene::SceneError;
+use crate::scene::{Camera, Scene, SceneError};
 use crate::trace::TraceError;
+use crate::trace::halton::PhotonRng;
 
 /// Everything that can go wrong while rendering.
 #[derive(Debug, thiserror::Error)]
@@ -187,12 +185,19 @@ impl Renderer<'_> {
     /// Renders the image, tile by tile in parallel; `progress(1)` after each tile.
     pub fn render(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<(Image, RenderStats), RenderError> {
         let o = &self.opts;
-        if o.width == 0 || o.height == 0 || o.width > image::MAX_SIDE || o.height > image::MAX_SIDE {
+        let pixels = o.width as u64 * o.height as u64;
+        if o.width == 0
+            || o.height == 0
+            || o.width > image::MAX_SIDE
+            || o.height > image::MAX_SIDE
+            || pixels > image::MAX_PIXELS
+        {
             return Err(RenderError::Invalid(format!(
-                "image size {}×{}: each side must be 1 to {}",
+                "image size {}×{}: each side must be 1 to {} pixels, and the image at most {} pixels",
                 o.width,
                 o.height,
-                image::MAX_SIDE
+                image::MAX_SIDE,
+                image::MAX_PIXELS
             )));
         }
         if o.spp == 0 || o.spp > 4096 {
@@ -473,6 +478,35 @@ mod tests {
             let v = img.get(x, y).x;
             assert!(v >= lo * 0.9999 && v <= hi * 1.0001, "pixel ({x}, {y}): {v} not in [{lo}, {hi}]");
         }
+    }
+
+    #[test]
+    fn images_do_not_depend_on_the_thread_count() {
+        // Jitter comes from each pixel's own stream, and lookups are exact whatever the
+        // order of queries on a thread.
+        let (pos, flux) = grid_photons(60, 12.0);
+        let photons =
+            PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
+        let scene = floor_scene();
+        let camera = Camera::look_at(
+            Projection::Pinhole { fov_y_rad: 0.8 },
+            Vec3::new(0.3, -2.0, 1.5),
+            Vec3::ZERO,
+            Vec3::Z,
+            [1, 1],
+        )
+        .unwrap();
+        let r = Renderer {
+            view: View::Scene { scene: &scene, camera },
+            photons: Some(&photons),
+            diagnostic: None,
+            opts: RenderOptions { width: 40, height: 30, spp: 3, ..opts(Mode::Full) },
+        };
+        let pool = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
+        let a = pool(1).install(|| r.render(&|_| {})).unwrap();
+        let b = pool(2).install(|| r.render(&|_| {})).unwrap();
+        assert_eq!(a, b);
+        assert!(a.0.mean().x > 0.0);
     }
 
     #[test]

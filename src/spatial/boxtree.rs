@@ -13,6 +13,9 @@ use super::{Neighbour, Neighbours};
 
 /// Points per leaf.
 const LEAF: usize = 8;
+/// Up to this k the candidates are kept in a sorted list (cheapest for photon-map k); above
+/// it, in a binary max-heap sorted at the end (the diffusion estimator asks for 500).
+const SORTED_MAX: usize = 32;
 /// Subtrees larger than this are built in parallel.
 const PARALLEL_BUILD: usize = 1 << 14;
 
@@ -136,6 +139,9 @@ impl BoxTree {
         if box_dist2(&self.nodes[0], &q) <= max_dist2 {
             s.visit(0);
         }
+        if k > SORTED_MAX {
+            out.items.sort_unstable_by(|a, b| a.dist2.total_cmp(&b.dist2).then(a.index.cmp(&b.index)));
+        }
     }
 }
 
@@ -175,14 +181,54 @@ impl Search<'_> {
     #[inline(always)]
     fn push(&mut self, c: Neighbour) {
         let h = &mut *self.heap;
-        if h.len() == self.k {
-            h.pop();
+        if self.k > SORTED_MAX {
+            heap_push(h, self.k, c);
+        } else {
+            if h.len() == self.k {
+                h.pop();
+            }
+            let at = h.partition_point(|x| x.before(&c));
+            h.insert(at, c);
         }
-        let at = h.partition_point(|x| x.before(&c));
-        h.insert(at, c);
         if h.len() == self.k {
-            self.worst = h[self.k - 1];
+            self.worst = if self.k > SORTED_MAX { h[0] } else { h[self.k - 1] };
         }
+    }
+}
+
+/// Adds `c` to the max-heap `h` (the root is the last in (dist², index) order) of at most `k`,
+/// replacing the root when full (`c` is known to come before it).
+fn heap_push(h: &mut Vec<Neighbour>, k: usize, c: Neighbour) {
+    if h.len() < k {
+        h.push(c);
+        let mut i = h.len() - 1;
+        while i > 0 {
+            let parent = (i - 1) / 2;
+            if h[parent].before(&h[i]) {
+                h.swap(parent, i);
+                i = parent;
+            } else {
+                break;
+            }
+        }
+        return;
+    }
+    h[0] = c;
+    let mut i = 0;
+    loop {
+        let (l, r) = (2 * i + 1, 2 * i + 2);
+        let mut top = i;
+        if l < h.len() && h[top].before(&h[l]) {
+            top = l;
+        }
+        if r < h.len() && h[top].before(&h[r]) {
+            top = r;
+        }
+        if top == i {
+            break;
+        }
+        h.swap(i, top);
+        i = top;
     }
 }
 
@@ -208,7 +254,7 @@ mod tests {
             let s = [1.0, 1.0, 30.0][j % 3];
             let q = [rng.next_f32() * s - 0.2 * s, rng.next_f32() * s, (j % 7) as f32 * 0.1];
             let q = if j % 10 == 0 { [0.05, 1.0, 0.0] } else { q };
-            for k in [1, 15, 40] {
+            for k in [1, 15, 40, 300] {
                 let query = Query { position: q, params: &[], radius: None, emitter: 0, exclude: None };
                 let want = brute_force_knn(&set, Space::World, &query, k);
                 tree.knn(q, k, f32::INFINITY, &mut out);

@@ -1,0 +1,246 @@
+//! The BVH decision (issue 3): photonkit's SAH BVH (`scene::bvh`) against the `bvh` crate
+//! (0.13) on the triangle meshes of the sample scenes and on a random-triangle soup.
+//!
+//! `cargo bench --bench bvh` (PHOTONKIT_BENCH_RAYS=N rays per mesh, default 200 000, a tenth
+//! of that for the soup; PHOTONKIT_BENCH_SOUP=N soup triangles, default 1 M).
+//!
+//! Both hierarchies are built over the same triangles and shoot the same rays (origins on a
+//! sphere around the mesh's bounding box, aimed at points inside it), on one thread; times are this
+//! thread's CPU time (user + system, /proc/thread-self/stat). Every ray's nearest hit is the
+//! same Möller–Trumbore test (two-sided, as the tracer uses) over the candidates each
+//! hierarchy hands out, so the hits must agree exactly: the bench checks triangle and
+//! distance for every ray.
+//!
+//! The crate offers two ways to a nearest hit: `traverse_iterator` (every triangle whose box
+//! the ray meets, unordered: test them all) and `nearest_traverse_iterator` (boxes in order of
+//! entry distance, from a binary heap: stop once a box starts beyond the best hit).
+
+use std::path::Path;
+
+use bvh::aabb::{Aabb, Bounded};
+use bvh::bounding_hierarchy::BHShape;
+use glam::Vec3;
+use nalgebra::{Point3, Vector3};
+use photonkit::scene::bvh::{Bvh, TriHit};
+use photonkit::scene::{Ray, Scene, SurfaceGeometry};
+use rand::{RngExt, SeedableRng};
+use rand_pcg::Pcg64Mcg;
+
+/// CPU seconds this thread has run (user + system; 10 ms resolution).
+fn cpu() -> f64 {
+    let s = std::fs::read_to_string("/proc/thread-self/stat").unwrap_or_default();
+    let f: Vec<&str> = s.rsplit_once(')').map_or("", |x| x.1).split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
+/// (result, thread CPU seconds) of `f`, repeated until it has run for at least 0.3 s (the
+/// clock ticks every 10 ms); the seconds are per run.
+fn timed<T>(mut f: impl FnMut() -> T) -> (T, f64) {
+    let c0 = cpu();
+    let mut runs = 1;
+    let mut out = f();
+    while cpu() - c0 < 0.3 {
+        out = f();
+        runs += 1;
+    }
+    (out, (cpu() - c0) / runs as f64)
+}
+
+fn env_count(name: &str, default: usize) -> usize {
+    std::env::var(name).ok().and_then(|s| s.parse::<f64>().ok()).map_or(default, |x| x as usize)
+}
+
+/// A triangle as the `bvh` crate wants it.
+struct CrateTri {
+    v: [Vec3; 3],
+    /// Place in the input list.
+    index: u32,
+    node: usize,
+}
+
+fn p3(v: Vec3) -> Point3<f32> {
+    Point3::new(v.x, v.y, v.z)
+}
+
+impl Bounded<f32, 3> for CrateTri {
+    fn aabb(&self) -> Aabb<f32, 3> {
+        let [a, b, c] = self.v;
+        Aabb::with_bounds(p3(a.min(b).min(c)), p3(a.max(b).max(c)))
+    }
+}
+
+impl BHShape<f32, 3> for CrateTri {
+    fn set_bh_node_index(&mut self, index: usize) {
+        self.node = index;
+    }
+    fn bh_node_index(&self) -> usize {
+        self.node
+    }
+}
+
+/// The tracer's Möller–Trumbore test (two-sided): (t, b1, b2) with t in (t_min, t_max).
+#[inline(always)]
+fn tri_intersect(v: &[Vec3; 3], ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
+    let (e1, e2) = (v[1] - v[0], v[2] - v[0]);
+    let p = ray.dir.cross(e2);
+    let det = e1.dot(p);
+    if det == 0.0 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = ray.origin - v[0];
+    let b1 = s.dot(p) * inv;
+    if !(0.0..=1.0).contains(&b1) {
+        return None;
+    }
+    let q = s.cross(e1);
+    let b2 = ray.dir.dot(q) * inv;
+    if b2 < 0.0 || b1 + b2 > 1.0 {
+        return None;
+    }
+    let t = e2.dot(q) * inv;
+    (t > t_min && t < t_max).then_some((t, b1, b2))
+}
+
+/// The nearest hit among `candidates`: (input index, distance).
+fn nearest<'a>(ray: &Ray, candidates: impl Iterator<Item = &'a CrateTri>) -> Option<(u32, f32)> {
+    let mut best: Option<(u32, f32)> = None;
+    let mut t_best = f32::INFINITY;
+    for c in candidates {
+        if let Some((t, _, _)) = tri_intersect(&c.v, ray, 1e-4, t_best) {
+            t_best = t;
+            best = Some((c.index, t));
+        }
+    }
+    best
+}
+
+/// Rays from a sphere around the box of `tris` towards points inside it.
+fn rays(tris: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
+    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
+    for t in tris {
+        for &p in t {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        }
+    }
+    let (c, e) = ((lo + hi) / 2.0, hi - lo);
+    let r = e.length();
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let mut u = || Vec3::new(rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>()) - 0.5;
+    (0..n)
+        .map(|_| {
+            // An origin on the sphere of radius |diagonal| about the centre, so a flat mesh
+            // (the height field) is seen from every side, not only edge-on.
+            let o = loop {
+                let d = u();
+                if (0.01..=0.25).contains(&d.length_squared()) {
+                    break c + d.normalize() * r;
+                }
+            };
+            let target = c + u() * e;
+            Ray::new(o, (target - o).normalize())
+        })
+        .collect()
+}
+
+fn row(label: &str, tris: &[[Vec3; 3]], n_rays: usize) {
+    let rays = rays(tris, n_rays, 11);
+    let (ours, ours_build) = timed(|| Bvh::build(tris));
+    let mut shapes: Vec<CrateTri> =
+        tris.iter().enumerate().map(|(i, &v)| CrateTri { v, index: i as u32, node: 0 }).collect();
+    let (theirs, theirs_build) = timed(|| bvh::bvh::Bvh::build(&mut shapes));
+    let crate_rays: Vec<bvh::ray::Ray<f32, 3>> = rays
+        .iter()
+        .map(|r| bvh::ray::Ray::new(p3(r.origin), Vector3::new(r.dir.x, r.dir.y, r.dir.z)))
+        .collect();
+
+    let (a, ours_s) = timed(|| {
+        rays.iter().map(|r| ours.intersect(r, 1e-4, f32::INFINITY)).collect::<Vec<Option<TriHit>>>()
+    });
+    let (b, all_s) = timed(|| {
+        rays.iter()
+            .zip(&crate_rays)
+            .map(|(r, cr)| nearest(r, theirs.traverse_iterator(cr, &shapes)))
+            .collect::<Vec<_>>()
+    });
+    let (c, ordered_s) = timed(|| {
+        rays.iter()
+            .zip(&crate_rays)
+            .map(|(r, cr)| {
+                let mut t_best = f32::INFINITY;
+                let mut best = None;
+                // Boxes come nearest first: stop at the first one entered beyond the best hit.
+                for s in theirs.nearest_traverse_iterator(cr, &shapes) {
+                    match cr.intersection_slice_for_aabb(&s.aabb()) {
+                        Some((t0, _)) if t0 <= t_best => {}
+                        _ => break,
+                    }
+                    if let Some((t, _, _)) = tri_intersect(&s.v, r, 1e-4, t_best) {
+                        t_best = t;
+                        best = Some((s.index, t));
+                    }
+                }
+                best
+            })
+            .collect::<Vec<_>>()
+    });
+    let ours_hits: Vec<Option<(u32, f32)>> = a.iter().map(|h| h.map(|h| (h.index, h.t))).collect();
+    let mismatch_all = ours_hits.iter().zip(&b).filter(|(x, y)| x != y).count();
+    let mismatch_ordered = ours_hits.iter().zip(&c).filter(|(x, y)| x != y).count();
+    let hits = ours_hits.iter().flatten().count();
+    let mrays = |s: f64| n_rays as f64 / s / 1e6;
+    println!(
+        "| {label} | {} | {hits}/{n_rays} | {:.2} | {:.2} | **{:.2}** | {:.3} ({:.1}× slower) | {:.3} ({:.1}× slower) | {mismatch_all} / {mismatch_ordered} |",
+        tris.len(),
+        ours_build * 1e3,
+        theirs_build * 1e3,
+        mrays(ours_s),
+        mrays(all_s),
+        all_s / ours_s,
+        mrays(ordered_s),
+        ordered_s / ours_s,
+    );
+}
+
+fn scene_triangles(file: &str) -> Vec<[Vec3; 3]> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes").join(file);
+    let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
+    let mut out = Vec::new();
+    for s in &scene.surfaces {
+        if let SurfaceGeometry::Mesh(m) = &s.geometry {
+            out.extend((0..m.indices.len()).map(|i| m.triangle(i)));
+        }
+    }
+    out
+}
+
+fn main() {
+    let n_rays = env_count("PHOTONKIT_BENCH_RAYS", 200_000);
+    let n_soup = env_count("PHOTONKIT_BENCH_SOUP", 1_000_000);
+    println!("closest hit, one thread, thread CPU time; {n_rays} rays per mesh\n");
+    println!(
+        "| triangles of | count | rays hitting | ours build ms | bvh build ms | ours M rays/s | bvh 0.13 all candidates M rays/s | bvh 0.13 nearest-first M rays/s | hits differing (all / nearest-first) |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    for (label, file) in [
+        ("water.toml (height field)", "water.toml"),
+        ("reflector.toml (paraboloid + shield)", "reflector.toml"),
+        ("point-glass.toml (revolution)", "point-glass.toml"),
+        ("prism.toml (extrusion)", "prism.toml"),
+    ] {
+        row(label, &scene_triangles(file), n_rays);
+    }
+    let mut rng = Pcg64Mcg::seed_from_u64(5);
+    let mut u = || Vec3::new(rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>()) - 0.5;
+    // Triangles about 0.1 across, centres uniform in a 10 m cube.
+    let soup: Vec<[Vec3; 3]> = (0..n_soup)
+        .map(|_| {
+            let c = u() * 10.0;
+            [c + u() * 0.2, c + u() * 0.2, c + u() * 0.2]
+        })
+        .collect();
+    // A tenth of the rays: the crate's all-candidates query tests every box along the ray.
+    row("random soup", &soup, n_rays / 10);
+}

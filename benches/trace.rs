@@ -1,0 +1,75 @@
+//! Tracer throughput (issue 3): emitted photons per second per core on the sample scenes.
+//!
+//! `cargo bench --bench trace` — the prism (`samples/scenes/prism.toml`, the paper's Fig. 6)
+//! with 20 M emitted photons (PHOTONKIT_BENCH_PHOTONS=N changes it), then every other sample
+//! scene with 2 M each (PHOTONKIT_BENCH_OTHERS=N), through `photonkit::trace::trace` with the
+//! default options (seed 1, caustic photons, 64 bounces) on rayon's pool.
+//!
+//! Rates are photons per CPU second of the whole process (user + system, /proc/self/stat),
+//! i.e. per core: other jobs sharing the machine inflate wall-clock time but not this. The
+//! paper traced 20 M photons of its prism scene in 12.3 s on 7 cores (≈ 0.23 M/s per core);
+//! the goal is ≥ 4 M/s per core.
+
+use std::path::Path;
+use std::time::Instant;
+
+use photonkit::scene::Scene;
+use photonkit::trace::{self, Budget, TraceOptions};
+
+/// CPU seconds used by this process so far (user + system; 10 ms resolution).
+fn cpu() -> f64 {
+    let s = std::fs::read_to_string("/proc/self/stat").unwrap_or_default();
+    let f: Vec<&str> = s.rsplit_once(')').map_or("", |x| x.1).split_whitespace().collect();
+    let tick = |i: usize| f.get(i).and_then(|v| v.parse::<f64>().ok()).unwrap_or(0.0);
+    (tick(11) + tick(12)) / 100.0
+}
+
+fn env_count(name: &str, default: u64) -> u64 {
+    std::env::var(name).ok().and_then(|s| s.parse::<f64>().ok()).map_or(default, |x| x as u64)
+}
+
+/// Paper: 20 M photons in 12.3 s on 7 cores.
+const PAPER_M_PER_S_PER_CORE: f64 = 20.0 / (12.3 * 7.0);
+const GOAL_M_PER_S_PER_CORE: f64 = 4.0;
+
+fn main() {
+    let prism_n = env_count("PHOTONKIT_BENCH_PHOTONS", 20_000_000);
+    let other_n = env_count("PHOTONKIT_BENCH_OTHERS", 2_000_000);
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes");
+    let mut files: Vec<_> = std::fs::read_dir(&dir)
+        .expect("samples/scenes")
+        .filter_map(|e| e.ok().map(|e| e.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    files.sort();
+    // The prism first: it is the headline figure.
+    files.sort_by_key(|p| p.file_stem().is_none_or(|s| s != "prism"));
+
+    println!("tracer throughput: {} rayon threads", rayon::current_num_threads());
+    println!(
+        "paper: {PAPER_M_PER_S_PER_CORE:.2} M emitted/s per core (20 M in 12.3 s on 7 cores); \
+         goal ≥ {GOAL_M_PER_S_PER_CORE} M/s per core\n"
+    );
+    println!(
+        "| scene | triangles | emitted | stored | CPU s | wall s | M emitted/s per core | × paper | share of goal |"
+    );
+    println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
+    for path in files {
+        let name = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
+        let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
+        let n = if name == "prism" { prism_n } else { other_n };
+        let opts = TraceOptions { budget: Budget::Emitted(n), ..TraceOptions::default() };
+        let (c0, t0) = (cpu(), Instant::now());
+        let traced = trace::trace(&scene, &opts, &|_, _| {}).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let (c, w) = (cpu() - c0, t0.elapsed().as_secs_f64());
+        let rate = n as f64 / c.max(0.01) / 1e6;
+        println!(
+            "| {name} | {} | {n} | {} | {c:.2} | {w:.2} | **{rate:.2}** | {:.1}× | {:.0} % |",
+            scene.triangle_count(),
+            traced.stored,
+            rate / PAPER_M_PER_S_PER_CORE,
+            100.0 * rate / GOAL_M_PER_S_PER_CORE
+        );
+        drop(traced);
+    }
+}

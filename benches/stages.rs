@@ -12,9 +12,9 @@
 use std::time::Instant;
 
 use photonkit::detect::{self, DetectInput, DetectParams};
-use photonkit::relax::{self, Constraint, NeighbourSearch, RelaxParams};
+use photonkit::relax::{self, Constraint, RelaxParams};
 use photonkit::scene::Scene;
-use photonkit::spatial::{Neighbours, ParamColumn, PointSet, Space, SpatialIndex};
+use photonkit::spatial::{ParamColumn, PointSet, Space, SpatialIndex};
 use photonkit::trace::{self, Budget, TraceOptions};
 
 /// CPU seconds used by this process so far (10 ms resolution).
@@ -30,27 +30,6 @@ fn measure<T>(f: impl FnOnce() -> T) -> (T, f64, f64) {
     let (c, t) = (cpu(), Instant::now());
     let out = f();
     (out, cpu() - c, t.elapsed().as_secs_f64())
-}
-
-struct Search<'a> {
-    index: &'a SpatialIndex,
-    points: &'a PointSet<'a>,
-    radius: Option<&'a [f32]>,
-}
-
-impl NeighbourSearch for Search<'_> {
-    fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
-        let mut q = self.points.query(i, self.radius.map(|r| r[i]));
-        q.exclude = Some(i as u32);
-        let mut found = Neighbours::with_capacity(k);
-        self.index.knn(&q, k, &mut found);
-        out.clear();
-        out.extend(found.indices());
-    }
-
-    fn order(&self) -> Option<Vec<u32>> {
-        Some(self.index.order())
-    }
 }
 
 fn main() {
@@ -113,7 +92,7 @@ fn main() {
                 let (index, bc, bw) = measure(|| SpatialIndex::build(&pts, space).unwrap());
                 build_c += bc;
                 build_w += bw;
-                let search = Search {
+                let search = relax::IndexSearch {
                     index: &index,
                     points: &pts,
                     radius: if space == Space::WorldParams { Some(&r_param) } else { None },

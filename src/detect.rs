@@ -313,21 +313,33 @@ fn normalised_pca(pts: &[DVec2], r2: f64) -> Option<Eigen2> {
     (e.lambda1 > 1e-12 && e.lambda1.is_finite()).then_some(e)
 }
 
-/// Eq. 2–7: the PCA constraint of a photon from its neighbourhood.
-pub fn pca_constraint(nb: &Neighbourhood, noise: NoiseModel, scratch: &mut Vec<DVec2>) -> PhotonConstraint {
+/// The tangent basis (t1, t2) and the normalised PCA of the neighbourhood projected into it
+/// (left in `scratch`), or the free constraint of a degenerate neighbourhood (module docs).
+fn tangent_pca(
+    nb: &Neighbourhood,
+    scratch: &mut Vec<DVec2>,
+) -> Result<(DVec3, DVec3, Eigen2), PhotonConstraint> {
     let (_, t1, t2) = nb.frame();
-    let m = nb.offsets.len();
-    if m < 3 {
-        return PhotonConstraint::free(t1, t2, Outcome::TooFew);
+    if nb.offsets.len() < 3 {
+        return Err(PhotonConstraint::free(t1, t2, Outcome::TooFew));
     }
     if !(nb.r2 > 0.0 && nb.r2.is_finite()) {
-        return PhotonConstraint::free(t1, t2, Outcome::Coincident);
+        return Err(PhotonConstraint::free(t1, t2, Outcome::Coincident));
     }
     nb.project(t1, t2, scratch);
-    let Some(e) = normalised_pca(scratch, nb.r2) else {
-        return PhotonConstraint::free(t1, t2, Outcome::Coincident);
+    match normalised_pca(scratch, nb.r2) {
+        Some(e) => Ok((t1, t2, e)),
+        None => Err(PhotonConstraint::free(t1, t2, Outcome::Coincident)),
+    }
+}
+
+/// Eq. 2–7: the PCA constraint of a photon from its neighbourhood.
+pub fn pca_constraint(nb: &Neighbourhood, noise: NoiseModel, scratch: &mut Vec<DVec2>) -> PhotonConstraint {
+    let (t1, t2, e) = match tangent_pca(nb, scratch) {
+        Ok(x) => x,
+        Err(free) => return free,
     };
-    let (mu, sigma) = noise.mu_sigma(m);
+    let (mu, sigma) = noise.mu_sigma(nb.offsets.len());
     let factor = v_factor(e.lambda2, mu, sigma);
     let u = t1 * e.p1[0] + t2 * e.p1[1];
     let v = (t1 * e.p2[0] + t2 * e.p2[1]) * factor;
@@ -355,17 +367,9 @@ pub fn gradient_constraint(
     gain: f64,
     scratch: &mut Vec<DVec2>,
 ) -> PhotonConstraint {
-    let (_, t1, t2) = nb.frame();
-    let m = nb.offsets.len();
-    if m < 3 {
-        return PhotonConstraint::free(t1, t2, Outcome::TooFew);
-    }
-    if !(nb.r2 > 0.0 && nb.r2.is_finite()) {
-        return PhotonConstraint::free(t1, t2, Outcome::Coincident);
-    }
-    nb.project(t1, t2, scratch);
-    let Some(e) = normalised_pca(scratch, nb.r2) else {
-        return PhotonConstraint::free(t1, t2, Outcome::Coincident);
+    let (t1, t2, e) = match tangent_pca(nb, scratch) {
+        Ok(x) => x,
+        Err(free) => return free,
     };
     let r = nb.r2.sqrt();
     let (mut grad, mut density) = (DVec2::ZERO, 0.0);

@@ -276,11 +276,13 @@ pub struct Relaxed {
     pub flux: Option<Vec<[f32; 3]>>,
 }
 
-/// [`NeighbourSearch`] over a [`crate::spatial::SpatialIndex`], excluding the query photon.
-struct IndexSearch<'a> {
-    index: &'a crate::spatial::SpatialIndex,
-    points: &'a crate::spatial::PointSet<'a>,
-    radius: Option<&'a [f32]>,
+/// [`NeighbourSearch`] over a [`crate::spatial::SpatialIndex`] built over `points`, excluding
+/// the query photon; `radius` holds each photon's parameter-space radius (r_param) when the
+/// index searches world + parameter space.
+pub struct IndexSearch<'a> {
+    pub index: &'a crate::spatial::SpatialIndex,
+    pub points: &'a crate::spatial::PointSet<'a>,
+    pub radius: Option<&'a [f32]>,
 }
 
 thread_local! {

@@ -11,7 +11,6 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use photonkit::detect::{self, DetectParams};
 use photonkit::format::{Output, PhotonMap};
 use photonkit::relax::{self, RelaxParams};
-use photonkit::scene::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, Scene};
 use photonkit::trace::{self, Budget, TraceOptions};
 
 /// Run every stage on a scene: trace → detect → relax → collapse → relax → render.
@@ -33,7 +32,7 @@ pub struct Args {
     #[arg(long, value_name = "DIR", default_value = "photonkit-out")]
     out_dir: PathBuf,
     /// Photons to emit (e.g. 1000000 or 1e6).
-    #[arg(long, value_name = "N", value_parser = parse_count, default_value = "1000000")]
+    #[arg(long, value_name = "N", value_parser = super::trace::parse_count, default_value = "1000000")]
     photons: u64,
     /// Seed of the emission sequence.
     #[arg(long, default_value_t = 1)]
@@ -62,13 +61,6 @@ struct RenderCommand {
     args: super::render::Args,
 }
 
-fn parse_count(s: &str) -> Result<u64, String> {
-    match s.parse::<f64>() {
-        Ok(x) if x >= 1.0 && x.fract() == 0.0 && x < 1.8e19 => Ok(x as u64),
-        _ => Err(format!("'{s}' is not a whole number of photons (at least 1)")),
-    }
-}
-
 /// A spinner on a terminal, nothing otherwise.
 fn spinner(what: &str) -> ProgressBar {
     let target = if std::io::stderr().is_terminal() {
@@ -89,14 +81,8 @@ fn report(stage: &str, seconds: f64, photons: usize, file: &Path, note: &str) {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let (scene, label, text) = match &a.scene {
-        Some(p) => {
-            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-            (Scene::parse(&text, &p.display().to_string(), dir)?, p.display().to_string(), text)
-        }
-        None => (Scene::default_scene(), DEFAULT_SCENE_NAME.to_string(), DEFAULT_SCENE.to_string()),
-    };
+    let (scene, label, text) = super::trace::load_scene(a.scene.as_deref())?;
+    anyhow::ensure!(a.photons >= 1, "--photons needs at least 1");
     let dp = DetectParams { kc: a.kc, beta: a.beta, ..DetectParams::default() };
     let rp = RelaxParams { iterations: a.iterations, kf: a.kf, ..RelaxParams::default() };
     std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;

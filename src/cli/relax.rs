@@ -55,7 +55,7 @@ fn scene_for(map: &PhotonMap, path: Option<&std::path::Path>) -> anyhow::Result<
         return Ok(Some(Scene::load(p)?));
     }
     let traced = map.meta().history.iter().find(|h| h.stage == "trace");
-    let crc = format!("{:08x}", crc32fast::hash(DEFAULT_SCENE.as_bytes()));
+    let crc = photonkit::trace::scene_crc32(DEFAULT_SCENE);
     Ok(traced.filter(|h| h.parameters["scene_crc32"] == crc.as_str()).map(|_| Scene::default_scene()))
 }
 

@@ -327,7 +327,7 @@ fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Sc
             };
             let text =
                 std::fs::read_to_string(&found).with_context(|| format!("reading {}", found.display()))?;
-            let crc = format!("{:08x}", crc32fast::hash(text.as_bytes()));
+            let crc = photonkit::trace::scene_crc32(&text);
             if let Some(recorded) =
                 record.and_then(|r| r.parameters.get("scene_crc32")).and_then(|v| v.as_str())
                 && recorded != crc
@@ -641,7 +641,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         max_bounces: 64,
     };
     let settings = serde_json::json!({
-        "scene_crc32": format!("{:08x}", crc32fast::hash(text.as_bytes())),
+        "scene_crc32": photonkit::trace::scene_crc32(&text),
         "camera": format!("{:?}", camera),
         "width": render.width, "height": render.height, "spp": render.spp,
         "mode": mode.name(), "kernel": kernel.name(), "specular": format!("{:?}", render.eye.specular),

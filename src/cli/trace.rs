@@ -64,7 +64,7 @@ pub struct Args {
 }
 
 /// A count written as an integer or in scientific notation (`20000000`, `2e7`).
-fn parse_count(s: &str) -> Result<u64, String> {
+pub(crate) fn parse_count(s: &str) -> Result<u64, String> {
     if let Ok(n) = s.parse::<u64>() {
         return Ok(n);
     }
@@ -83,15 +83,20 @@ fn parse_shard(s: &str) -> Result<Shard, String> {
     }
 }
 
-pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let (scene, label, text) = match &a.scene {
+/// The scene at `path` (its name for records and its text), or the embedded default.
+pub(crate) fn load_scene(path: Option<&std::path::Path>) -> anyhow::Result<(Scene, String, String)> {
+    Ok(match path {
         Some(p) => {
             let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
             let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
             (Scene::parse(&text, &p.display().to_string(), dir)?, p.display().to_string(), text)
         }
         None => (Scene::default_scene(), DEFAULT_SCENE_NAME.to_string(), DEFAULT_SCENE.to_string()),
-    };
+    })
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    let (scene, label, text) = load_scene(a.scene.as_deref())?;
     let budget = match (a.photons, a.stored) {
         (_, Some(0)) | (Some(0), _) => bail!("--photons and --stored need at least 1"),
         (_, Some(n)) => Budget::Stored(n),

@@ -249,6 +249,12 @@ impl Traced {
 /// The metadata of a traced map: the scene's emitters and the `trace` stage record.
 /// `scene_label` names the scene file; `scene_text` is hashed so shards of different scenes
 /// are not merged.
+/// The CRC-32 of a scene file's text as the trace record's `scene_crc32` holds it (8 hex
+/// digits): how later stages tell whether a scene file is the one the map was traced from.
+pub fn scene_crc32(scene_text: &str) -> String {
+    format!("{:08x}", crc32fast::hash(scene_text.as_bytes()))
+}
+
 pub fn map_info(
     scene: &Scene,
     opts: &TraceOptions,
@@ -260,7 +266,7 @@ pub fn map_info(
     let mut info = MapInfo::new(emitters, State::Traced);
     let mut params = json!({
         "scene": scene_label,
-        "scene_crc32": format!("{:08x}", crc32fast::hash(scene_text.as_bytes())),
+        "scene_crc32": scene_crc32(scene_text),
         "seed": opts.seed,
         "store": match opts.store { StorePolicy::Caustic => "caustic", StorePolicy::Direct => "direct" },
         "max_bounces": opts.max_bounces,

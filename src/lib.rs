@@ -1,5 +1,6 @@
 //! photonkit: caustic photon maps with parameter-space relaxation constraints.
 pub mod detect;
+pub mod eval;
 pub mod export;
 pub mod format;
 pub mod import;
@@ -10,4 +11,4 @@ pub mod scene;
 pub mod spatial;
 pub mod synthetic;
 pub mod trace;
-pub mod truth;
+

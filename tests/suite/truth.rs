@@ -1,7 +1,7 @@
-//! The tracer against ground truth computed from the optics alone (`photonkit::truth`).
+//! The tracer against ground truth computed from the optics alone (`photonkit::eval::truth`).
 
 use photonkit::format::{PhotonMap, name};
-use photonkit::truth::SphereCaustic;
+use photonkit::eval::truth::SphereCaustic;
 
 use super::common::*;
 

@@ -1,0 +1,4 @@
+//! Evaluation: ground truth computed from the optics alone, error metrics, and the
+//! speed–accuracy comparison of every method (issue 7).
+
+pub mod truth;

@@ -676,7 +676,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         (render::Image::new(render.width, render.height), state)
     };
     let first = state.passes;
-    let progressive = Progressive { scene: &scene, camera, render, kernel };
+    let progressive = Progressive { scene: &scene, camera, render, kernel, bounces: None };
     let outputs = a.common.outputs(&a.output);
     let save = |state: &ReferenceState, image: &render::Image| -> Result<(), render::RenderError> {
         let json = serde_json::to_string(state).expect("the state serialises");

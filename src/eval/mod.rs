@@ -1,4 +1,5 @@
 //! Evaluation: ground truth computed from the optics alone, error metrics, and the
 //! speed–accuracy comparison of every method (issue 7).
 
+pub mod metrics;
 pub mod truth;

@@ -113,6 +113,9 @@ pub struct Progressive<'a> {
     /// advanced per pass so the sub-pixel jitter differs.
     pub render: RenderOptions,
     pub kernel: Kernel,
+    /// Keep only the photons with these specular bounce counts (`None`: every caustic
+    /// photon), as [`crate::trace::Traced::retain_bounces`].
+    pub bounces: Option<&'a [u8]>,
 }
 
 impl Progressive<'_> {
@@ -148,7 +151,11 @@ impl Progressive<'_> {
                 shard: None,
                 max_bounces: o.max_bounces,
             };
-            let photons = trace::trace(self.scene, &topts, &|_, _| {})?.photons();
+            let mut traced = trace::trace(self.scene, &topts, &|_, _| {})?;
+            if let Some(keep) = self.bounces {
+                traced.retain_bounces(keep);
+            }
+            let photons = traced.photons();
             if state.initial_radius <= 0.0 {
                 let r1 = match o.initial_radius {
                     Some(r) => r,
@@ -277,7 +284,7 @@ material = "glass"
             eye: EyeOptions::default(),
             seed: 0,
         };
-        let p = Progressive { scene: &scene, camera, render, kernel: Kernel::Epanechnikov };
+        let p = Progressive { scene: &scene, camera, render, kernel: Kernel::Epanechnikov, bounces: None };
         let r1 = 0.015f64;
         let rho = 1000.0;
         let options = ReferenceOptions {

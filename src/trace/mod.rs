@@ -191,6 +191,38 @@ impl Traced {
         all
     }
 
+    /// Keeps only the photons whose specular bounce count is in `keep` (each photon's flux is
+    /// unchanged, so the kept photons estimate the irradiance of those paths alone): how the
+    /// comparison matches a ground truth that accounts for some path families only.
+    pub fn retain_bounces(&mut self, keep: &[u8]) {
+        let dims = self.param_dims as usize;
+        for c in &mut self.chunks {
+            let mask: Vec<bool> = c.bounces.iter().map(|b| keep.contains(b)).collect();
+            fn filter<T: Copy>(v: &mut Vec<T>, mask: &[bool], per: usize) {
+                let mut i = 0;
+                v.retain(|_| {
+                    let k = mask[i / per];
+                    i += 1;
+                    k
+                });
+            }
+            filter(&mut c.position, &mask, 1);
+            filter(&mut c.normal, &mask, 1);
+            filter(&mut c.flux, &mask, 1);
+            filter(&mut c.incident, &mask, 1);
+            filter(&mut c.emitter, &mask, 1);
+            if dims > 0 {
+                filter(&mut c.params, &mask, dims);
+            }
+            filter(&mut c.path_length, &mask, 1);
+            filter(&mut c.bounces, &mask, 1);
+            filter(&mut c.emission_index, &mask, 1);
+            filter(&mut c.surface, &mask, 1);
+        }
+        self.chunks.retain(|c| !c.is_empty());
+        self.stored = self.chunks.iter().map(|c| c.len() as u64).sum();
+    }
+
     fn flux_scale(&self) -> f64 {
         self.power_w / self.emitted.max(1) as f64
     }
@@ -564,6 +596,28 @@ mod tests {
 
     fn run(s: &Scene, opts: &TraceOptions) -> Traced {
         trace(s, opts, &|_, _| {}).unwrap()
+    }
+
+    #[test]
+    fn retain_bounces_keeps_exactly_the_photons_of_those_paths_with_their_columns() {
+        let s = Scene::default_scene();
+        let opts = TraceOptions { budget: Budget::Emitted(20_000), ..TraceOptions::default() };
+        let all = run(&s, &opts).photons();
+        let mut kept = run(&s, &opts);
+        kept.retain_bounces(&[2]);
+        let k = kept.photons();
+        let want: Vec<usize> = (0..all.len()).filter(|&i| all.bounces[i] == 2).collect();
+        assert!(!want.is_empty() && want.len() < all.len(), "the default scene has other paths too");
+        assert_eq!(kept.stored as usize, want.len());
+        assert_eq!(k.len(), want.len());
+        let d = s.param_dims() as usize;
+        for (j, &i) in want.iter().enumerate() {
+            assert_eq!(k.emission_index[j], all.emission_index[i]);
+            assert_eq!(k.position[j], all.position[i]);
+            assert_eq!(k.flux[j], all.flux[i], "flux is not renormalised");
+            assert_eq!(k.params[j * d..(j + 1) * d], all.params[i * d..(i + 1) * d]);
+            assert_eq!(k.surface[j], all.surface[i]);
+        }
     }
 
     /// A glass slab (0.2 m thick) between a collimated beam and the floor, in a closed world.

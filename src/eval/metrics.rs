@@ -1,0 +1,303 @@
+//! Error of an image against the truth: RMSE, relative MSE, SSIM, and the RMSE inside two
+//! masks where blur and noise hurt most (a band around the true caustic edges, and where
+//! filaments overlap).
+//!
+//! Images here are row-major `[f64; 3]` per pixel (W/m² or W/(m²·sr) per RGB channel). Every
+//! error is taken over all three channels unless it says luminance.
+
+/// Luminance weights (Rec. 709) for the scalar measures (SSIM, edge detection).
+pub const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// Luminance of a pixel.
+pub fn luminance(p: [f64; 3]) -> f64 {
+    LUMA[0] * p[0] + LUMA[1] * p[1] + LUMA[2] * p[2]
+}
+
+/// The measures of one image against the truth.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Errors {
+    /// Root-mean-square error over every pixel and channel, in the image's unit.
+    pub rmse: f64,
+    /// `rmse` divided by the truth's mean over pixels and channels: comparable across scenes.
+    pub nrmse: f64,
+    /// Relative MSE: the mean of (x − t)² / (t² + ε²) over pixels and channels, ε = 1 % of the
+    /// truth's mean (so dark pixels do not dominate).
+    pub rel_mse: f64,
+    /// Mean structural similarity ([`ssim`]) of the luminance as displayed: divided by the
+    /// truth's 99th percentile and clamped to [0, 1]; 1 for a perfect image.
+    pub ssim: f64,
+    /// RMSE inside the band around the truth's caustic edges, over the truth's mean; NaN if
+    /// the band is empty.
+    pub edge_nrmse: f64,
+    /// RMSE where filaments overlap, over the truth's mean; NaN where the truth marks none.
+    pub overlap_nrmse: f64,
+}
+
+/// RMSE over the pixels where `mask` holds (every pixel with `None`), all channels; NaN if none.
+pub fn rmse(image: &[[f64; 3]], truth: &[[f64; 3]], mask: Option<&[bool]>) -> f64 {
+    assert_eq!(image.len(), truth.len(), "image and truth differ in size");
+    let (mut sum, mut n) = (0.0, 0usize);
+    for (i, (a, t)) in image.iter().zip(truth).enumerate() {
+        if mask.is_some_and(|m| !m[i]) {
+            continue;
+        }
+        for c in 0..3 {
+            sum += (a[c] - t[c]).powi(2);
+        }
+        n += 3;
+    }
+    if n == 0 { f64::NAN } else { (sum / n as f64).sqrt() }
+}
+
+/// Mean over pixels and channels.
+pub fn mean(image: &[[f64; 3]]) -> f64 {
+    image.iter().map(|p| p[0] + p[1] + p[2]).sum::<f64>() / (3 * image.len().max(1)) as f64
+}
+
+/// Relative MSE, mean of (x − t)²/(t² + ε²) over pixels and channels.
+pub fn rel_mse(image: &[[f64; 3]], truth: &[[f64; 3]], epsilon: f64) -> f64 {
+    assert_eq!(image.len(), truth.len(), "image and truth differ in size");
+    let e2 = epsilon * epsilon;
+    let sum: f64 =
+        image.iter().zip(truth).map(|(a, t)| (0..3).map(|c| (a[c] - t[c]).powi(2) / (t[c] * t[c] + e2)).sum::<f64>()).sum();
+    sum / (3 * image.len().max(1)) as f64
+}
+
+/// The SSIM window: a normalised Gaussian of σ = 1.5 pixels, 11 × 11 (Wang et al. 2004).
+fn gaussian_window() -> [f64; 11] {
+    let mut w = [0.0; 11];
+    for (i, x) in w.iter_mut().enumerate() {
+        let d = i as f64 - 5.0;
+        *x = (-d * d / (2.0 * 1.5 * 1.5)).exp();
+    }
+    let s: f64 = w.iter().sum();
+    w.map(|x| x / s)
+}
+
+/// Mean structural similarity (Wang, Bovik, Sheikh & Simoncelli 2004) of two scalar images of
+/// `width` × `height`: per window, SSIM = (2μxμy + C1)(2σxy + C2) / ((μx² + μy² + C1)(σx² +
+/// σy² + C2)), C1 = (0.01 L)², C2 = (0.03 L)², with the 11 × 11 Gaussian window (σ = 1.5) at
+/// every position where it fits, averaged. `range` is L, the dynamic range (for irradiance:
+/// the truth's largest value). An image smaller than the window is one window, unweighted.
+pub fn ssim(x: &[f64], y: &[f64], width: usize, height: usize, range: f64) -> f64 {
+    assert_eq!(x.len(), width * height);
+    assert_eq!(y.len(), width * height);
+    let c1 = (0.01 * range).powi(2);
+    let c2 = (0.03 * range).powi(2);
+    let index = |mx: f64, my: f64, vx: f64, vy: f64, cxy: f64| {
+        ((2.0 * mx * my + c1) * (2.0 * cxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2))
+    };
+    if width < 11 || height < 11 {
+        let n = x.len().max(1) as f64;
+        let (mx, my) = (x.iter().sum::<f64>() / n, y.iter().sum::<f64>() / n);
+        let vx = x.iter().map(|a| (a - mx).powi(2)).sum::<f64>() / n;
+        let vy = y.iter().map(|b| (b - my).powi(2)).sum::<f64>() / n;
+        let cxy = x.iter().zip(y).map(|(a, b)| (a - mx) * (b - my)).sum::<f64>() / n;
+        return index(mx, my, vx, vy, cxy);
+    }
+    // Separable Gaussian filtering of x, y, x², y², xy: first along rows, then columns.
+    let w = gaussian_window();
+    let (ow, oh) = (width - 10, height - 10);
+    let fields: [Box<dyn Fn(usize) -> f64>; 5] = [
+        Box::new(|i| x[i]),
+        Box::new(|i| y[i]),
+        Box::new(|i| x[i] * x[i]),
+        Box::new(|i| y[i] * y[i]),
+        Box::new(|i| x[i] * y[i]),
+    ];
+    let filtered: Vec<Vec<f64>> = fields
+        .iter()
+        .map(|f| {
+            let mut rows = vec![0.0; ow * height];
+            for r in 0..height {
+                for c in 0..ow {
+                    rows[r * ow + c] = (0..11).map(|k| w[k] * f(r * width + c + k)).sum();
+                }
+            }
+            let mut out = vec![0.0; ow * oh];
+            for r in 0..oh {
+                for c in 0..ow {
+                    out[r * ow + c] = (0..11).map(|k| w[k] * rows[(r + k) * ow + c]).sum();
+                }
+            }
+            out
+        })
+        .collect();
+    let mut sum = 0.0;
+    for i in 0..ow * oh {
+        let (mx, my) = (filtered[0][i], filtered[1][i]);
+        let vx = filtered[2][i] - mx * mx;
+        let vy = filtered[3][i] - my * my;
+        let cxy = filtered[4][i] - mx * my;
+        sum += index(mx, my, vx, vy, cxy);
+    }
+    sum / (ow * oh) as f64
+}
+
+/// The band around the truth's caustic edges: a pixel is on an edge where its luminance and a
+/// 4-neighbour's differ by more than half the larger of the two, the larger being at least
+/// 2 % of the truth's brightest pixel (a sharp rise, not noise in the dark); the band is every
+/// pixel within `band` pixels (Chebyshev distance) of an edge pixel.
+pub fn edge_band(truth: &[[f64; 3]], width: usize, height: usize, band: usize) -> Vec<bool> {
+    let lum: Vec<f64> = truth.iter().map(|&p| luminance(p)).collect();
+    let floor = 0.02 * lum.iter().cloned().fold(0.0, f64::max);
+    let mut edge = vec![false; lum.len()];
+    let mut mark = |a: usize, b: usize| {
+        let hi = lum[a].max(lum[b]);
+        if hi > floor && (lum[a] - lum[b]).abs() > 0.5 * hi {
+            edge[a] = true;
+            edge[b] = true;
+        }
+    };
+    for r in 0..height {
+        for c in 0..width {
+            let i = r * width + c;
+            if c + 1 < width {
+                mark(i, i + 1);
+            }
+            if r + 1 < height {
+                mark(i, i + width);
+            }
+        }
+    }
+    let mut out = vec![false; lum.len()];
+    for r in 0..height {
+        for c in 0..width {
+            if !edge[r * width + c] {
+                continue;
+            }
+            for rr in r.saturating_sub(band)..(r + band + 1).min(height) {
+                for cc in c.saturating_sub(band)..(c + band + 1).min(width) {
+                    out[rr * width + cc] = true;
+                }
+            }
+        }
+    }
+    out
+}
+
+/// The `q`-quantile (0–1) of the luminance of `image`.
+pub fn percentile_luminance(image: &[[f64; 3]], q: f64) -> f64 {
+    let mut l: Vec<f64> = image.iter().map(|&p| luminance(p)).collect();
+    if l.is_empty() {
+        return 0.0;
+    }
+    let i = ((l.len() as f64 * q) as usize).min(l.len() - 1);
+    *l.select_nth_unstable_by(i, f64::total_cmp).1
+}
+
+/// Every measure of `image` against `truth` (`width` × `height`), with the edge band and the
+/// truth's overlap mask (`None` if it has none).
+pub fn measure(
+    image: &[[f64; 3]],
+    truth: &[[f64; 3]],
+    width: usize,
+    height: usize,
+    edges: &[bool],
+    overlap: Option<&[bool]>,
+) -> Errors {
+    let m = mean(truth);
+    let norm = if m > 0.0 { m } else { 1.0 };
+    // SSIM of the image as displayed: luminance over the truth's 99th percentile, clamped to
+    // [0, 1], so a caustic's focal spike (orders of magnitude above the rest) neither sets
+    // the dynamic range nor hides every other difference.
+    let white = percentile_luminance(truth, 0.99).max(f64::MIN_POSITIVE);
+    let lum = |img: &[[f64; 3]]| img.iter().map(|&p| (luminance(p) / white).clamp(0.0, 1.0)).collect::<Vec<_>>();
+    let (li, lt) = (lum(image), lum(truth));
+    let r = rmse(image, truth, None);
+    Errors {
+        rmse: r,
+        nrmse: r / norm,
+        rel_mse: rel_mse(image, truth, 0.01 * norm),
+        ssim: ssim(&li, &lt, width, height, 1.0),
+        edge_nrmse: rmse(image, truth, Some(edges)) / norm,
+        overlap_nrmse: overlap.map_or(f64::NAN, |o| rmse(image, truth, Some(o)) / norm),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn grey(v: &[f64]) -> Vec<[f64; 3]> {
+        v.iter().map(|&x| [x; 3]).collect()
+    }
+
+    #[test]
+    fn rmse_and_rel_mse_match_hand_computed_values() {
+        let t = grey(&[1.0, 2.0, 3.0, 4.0]);
+        let a = grey(&[1.0, 2.0, 3.0, 6.0]);
+        // One pixel off by 2 in all channels: MSE = 4/4.
+        assert!((rmse(&a, &t, None) - 1.0).abs() < 1e-12);
+        assert!((rmse(&a, &t, Some(&[false, false, false, true])) - 2.0).abs() < 1e-12);
+        assert!(rmse(&a, &t, Some(&[false; 4])).is_nan());
+        // (2²/(16 + 0)) / 4 pixels.
+        assert!((rel_mse(&a, &t, 0.0) - 0.25 / 4.0).abs() < 1e-12);
+        assert_eq!(mean(&t), 2.5);
+    }
+
+    #[test]
+    fn ssim_is_one_for_equal_images_and_follows_the_closed_form() {
+        let w = 24;
+        let x: Vec<f64> = (0..w * w).map(|i| ((i * 7919) % 101) as f64 / 100.0).collect();
+        assert!((ssim(&x, &x, w, w, 1.0) - 1.0).abs() < 1e-12);
+        // Constant images m and m + c: σ terms are 0 so SSIM = (2m(m+c) + C1)/(m² + (m+c)² + C1).
+        let (m, c, l) = (0.4, 0.1, 1.0);
+        let a = vec![m; w * w];
+        let b = vec![m + c; w * w];
+        let c1 = (0.01 * l as f64).powi(2);
+        let want = (2.0 * m * (m + c) + c1) / (m * m + (m + c) * (m + c) + c1);
+        assert!((ssim(&a, &b, w, w, l) - want).abs() < 1e-12);
+        // A small image is one window: y = 2m − x (same mean, anticorrelated) gives the
+        // structure term (−2σ² + C2)/(2σ² + C2).
+        let x: Vec<f64> = vec![0.2, 0.6, 0.4, 0.8, 0.0, 0.4];
+        let mx = x.iter().sum::<f64>() / 6.0;
+        let y: Vec<f64> = x.iter().map(|v| 2.0 * mx - v).collect();
+        let var = x.iter().map(|v| (v - mx).powi(2)).sum::<f64>() / 6.0;
+        let c2 = (0.03f64).powi(2);
+        let want = (-2.0 * var + c2) / (2.0 * var + c2);
+        assert!((ssim(&x, &y, 3, 2, 1.0) - want).abs() < 1e-12);
+        // Noise lowers it.
+        let noisy: Vec<f64> = x.iter().enumerate().map(|(i, v)| v + if i % 2 == 0 { 0.1 } else { -0.1 }).collect();
+        assert!(ssim(&x, &noisy, 3, 2, 1.0) < 1.0);
+    }
+
+    #[test]
+    fn the_edge_band_of_a_step_is_two_band_widths_plus_the_step() {
+        let (w, h) = (20, 6);
+        let truth: Vec<[f64; 3]> = (0..w * h).map(|i| if i % w < 10 { [0.0; 3] } else { [5.0; 3] }).collect();
+        for band in 0..3 {
+            let m = edge_band(&truth, w, h, band);
+            for r in 0..h {
+                let cols: Vec<usize> = (0..w).filter(|&c| m[r * w + c]).collect();
+                let want: Vec<usize> = (9 - band..11 + band).collect();
+                assert_eq!(cols, want, "band {band}, row {r}");
+            }
+        }
+        // A gentle ramp has no edge; neither has noise far below 2 % of the peak.
+        let ramp: Vec<[f64; 3]> = (0..w * h).map(|i| [1.0 + (i % w) as f64 * 0.1; 3]).collect();
+        assert!(edge_band(&ramp, w, h, 2).iter().all(|&b| !b));
+        let mut dark = ramp.clone();
+        dark[0] = [1000.0; 3];
+        dark[1] = [0.0; 3];
+        let m = edge_band(&dark, w, h, 0);
+        assert_eq!(m.iter().filter(|&&b| b).count(), 3, "only the spike and its two neighbours");
+    }
+
+    #[test]
+    fn measure_is_zero_error_on_the_truth_itself() {
+        let (w, h) = (16, 16);
+        let t: Vec<[f64; 3]> = (0..w * h).map(|i| [(i % 7) as f64, 1.0, 2.0]).collect();
+        let band = edge_band(&t, w, h, 1);
+        let e = measure(&t, &t, w, h, &band, Some(&vec![true; w * h]));
+        assert_eq!((e.rmse, e.rel_mse, e.edge_nrmse, e.overlap_nrmse), (0.0, 0.0, 0.0, 0.0));
+        assert!((e.ssim - 1.0).abs() < 1e-12);
+        let doubled: Vec<[f64; 3]> = t.iter().map(|p| p.map(|c| 2.0 * c)).collect();
+        let e = measure(&doubled, &t, w, h, &band, None);
+        // Doubling: RMSE = RMS of the truth, normalised by its mean.
+        let rms = (t.iter().map(|p| p.iter().map(|c| c * c).sum::<f64>()).sum::<f64>() / (3 * w * h) as f64).sqrt();
+        assert!((e.nrmse - rms / mean(&t)).abs() < 1e-12);
+        assert!(e.overlap_nrmse.is_nan());
+        assert!(e.ssim < 1.0);
+    }
+}

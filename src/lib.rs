@@ -1,4 +1,19 @@
-//! photonkit: caustic photon maps with parameter-space relaxation constraints.
+//! photonkit: caustic photon maps with parameter-space relaxation constraints (Spencer &
+//! Jones, "Photon Parameterisation for Robust Relaxation Constraints").
+//!
+//! The pipeline, one module per stage, every stage reading and writing PHM files ([`format`](mod@format)):
+//!
+//! 1. [`trace`]: photons from the emitters of a [`scene`] through mirrors and glass to diffuse
+//!    surfaces, each keeping its primal trajectory parameters ((u, v) on a collimated
+//!    emitter, the emission direction for a point emitter).
+//! 2. [`detect`]: parameter-space density (Eq. 1), the Kc nearest neighbours restricted in
+//!    parameter space ([`spatial`]), tangent-plane PCA and the constraint basis (Eq. 2–7).
+//! 3. [`relax`]: repulsion over Kf neighbours projected on each basis (Eq. 8–9); collapse
+//!    drops the parameter dimensions; relax again in world space.
+//! 4. [`render`]: eye rays to diffuse hits, k-NN density estimation, OpenEXR and PNG.
+//!
+//! Around it: [`import`] and [`export`] (PLY, CSV, Radiance), [`inspect`], and [`eval`]
+//! (ground truth, error metrics and the comparison of every method).
 pub mod detect;
 pub mod eval;
 pub mod export;
@@ -11,4 +26,3 @@ pub mod scene;
 pub mod spatial;
 pub mod synthetic;
 pub mod trace;
-

@@ -60,7 +60,7 @@ pub enum EmitterKind {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Parameterisation {
-    /// (u, v) ∈ [0,1]² across the emitter rectangle: 2 dimensions.
+    /// (u, v) ∈ \[0,1\]² across the emitter rectangle: 2 dimensions.
     RectUv,
     /// The unit emission direction: 3 dimensions, on the unit sphere.
     Direction,

@@ -4,7 +4,7 @@
 //! names and types of format-spec/phm-v1.md §4.1, plus the emitters they belong to, written
 //! as one PHM file by [`Imported::write`]. Text and PLY sources name their fields with the
 //! text names of §7 (`x y z`, `flux_r flux_g flux_b`, …; the whole mapping is in
-//! format-spec/import.md); [`Layout`] turns a list of field names into columns, so PLY and CSV
+//! format-spec/import.md); `Layout` turns a list of field names into columns, so PLY and CSV
 //! share one mapping.
 //!
 //! Input is distrusted: a count read from a file never sizes an allocation before the bytes

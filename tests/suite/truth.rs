@@ -1,7 +1,7 @@
 //! The tracer against ground truth computed from the optics alone (`photonkit::eval::truth`).
 
 use glam::Vec3;
-use photonkit::eval::truth::{FloorTruth, Quality, SphereCaustic, default_grid, floor_truth};
+use photonkit::eval::truth::{FloorGrid, FloorTruth, Quality, SphereCaustic, TruthError, default_grid, floor_truth};
 use photonkit::format::{PhotonMap, name};
 use photonkit::render::{Mode, PhotonData, PhotonLookup, RenderOptions, Renderer, View};
 use photonkit::scene::{Camera, Projection, Scene};
@@ -126,7 +126,7 @@ fn compare_binned(t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f32; 3]]) -> usize 
 /// The renderer's irradiance mode (K = 15 Epanechnikov k-NN, the paper's setting) through an
 /// orthographic top-down camera over the grid, `px` pixels per cell side, averaged per cell;
 /// returns (relative error, truth) for the cells where the truth is smooth: no overlap, at least
-/// 10 % of the brightest cell, and every neighbour within 10 % of it (away from folds and edges).
+/// a fifth of the mean over lit cells, and every neighbour within 25 % of it (away from folds and edges).
 fn compare_rendered(scene: &Scene, t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f32; 3]], px: u32) -> Vec<(f64, f64)> {
     let g = &t.grid;
     let [cw, ch] = [g.cells[0] as u32, g.cells[1] as u32];
@@ -145,7 +145,8 @@ fn compare_rendered(scene: &Scene, t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f3
     let r = Renderer { view: View::Scene { scene, camera }, photons: Some(&lookup), diagnostic: None, opts };
     let (img, _) = r.render(&|_| {}).unwrap();
     let tsum = |k: usize| t.irradiance[k].iter().sum::<f64>();
-    let max = (0..t.irradiance.len()).map(tsum).fold(0.0, f64::max);
+    let lit: Vec<f64> = (0..t.irradiance.len()).map(tsum).filter(|&v| v > 0.0).collect();
+    let mean = lit.iter().sum::<f64>() / lit.len().max(1) as f64;
     let mut out = Vec::new();
     for row in 1..g.cells[1] - 1 {
         for col in 1..g.cells[0] - 1 {
@@ -153,9 +154,9 @@ fn compare_rendered(scene: &Scene, t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f3
             let v = tsum(k);
             let smooth = (0..9).all(|d| {
                 let kk = (row + d / 3 - 1) * g.cells[0] + col + d % 3 - 1;
-                !t.overlap[kk] && (tsum(kk) - v).abs() <= 0.1 * v
+                !t.overlap[kk] && (tsum(kk) - v).abs() <= 0.25 * v
             });
-            if v < 0.1 * max || !smooth {
+            if v < 0.2 * mean || !smooth {
                 continue;
             }
             let mut e = 0.0;
@@ -171,28 +172,94 @@ fn compare_rendered(scene: &Scene, t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f3
     out
 }
 
-fn check_sample(file: &str, photons: u64, cells: usize) -> (FloorTruth, usize, Vec<(f64, f64)>) {
+fn check_sample(file: &str, photons: u64, cells: usize, fine: Option<FloorGrid>) -> (FloorTruth, usize, Vec<(f64, f64)>) {
     let (scene, p) = trace_sample(file, photons);
     let grid = default_grid(&scene, cells).unwrap();
     let t = floor_truth(&scene, &grid, Quality::Test).unwrap();
     let (pos, flux) = kept(&t, &p);
     let checked = compare_binned(&t, &pos, &flux);
-    let rel = compare_rendered(&scene, &t, &pos, &flux, 4);
+    let fine = fine.unwrap_or_else(|| default_grid(&scene, 64).unwrap());
+    let fine = floor_truth(&scene, &fine, Quality::Test).unwrap();
+    let rel = compare_rendered(&scene, &fine, &pos, &flux, 4);
     let med = {
         let mut a: Vec<f64> = rel.iter().map(|x| x.0.abs()).collect();
         a.sort_by(f64::total_cmp);
         a.get(a.len() / 2).copied().unwrap_or(f64::NAN)
     };
     let worst = rel.iter().map(|x| x.0.abs()).fold(0.0, f64::max);
-    eprintln!("{file}: {checked} cells checked binned; rendered: {} smooth cells, median |rel| {med:.4}, worst {worst:.4}", rel.len());
+    let p90 = {
+        let mut a: Vec<f64> = rel.iter().map(|x| x.0.abs()).collect();
+        a.sort_by(f64::total_cmp);
+        a.get(a.len() * 9 / 10).copied().unwrap_or(f64::NAN)
+    };
+    let mean_rel = rel.iter().map(|x| x.0).sum::<f64>() / rel.len() as f64;
+    println!("{file}: {checked} cells checked binned; rendered: {} smooth cells, median |rel| {med:.4}, 90 % {p90:.4}, worst {worst:.4}, mean signed {mean_rel:.4}", rel.len());
     (t, checked, rel)
 }
 
+/// The rendered comparison's stated tolerance, on the smooth cells: median |relative error|
+/// ≤ 8 %, 90 % of cells within 20 %, and mean signed error within ±3 % (no bias). With K = 15
+/// photons per estimate averaged over 16 pixels per cell, noise alone is about 6 %.
+fn assert_rendered(file: &str, rel: &[(f64, f64)], min_cells: usize) {
+    assert!(rel.len() >= min_cells, "{file}: only {} smooth cells", rel.len());
+    let mut a: Vec<f64> = rel.iter().map(|x| x.0.abs()).collect();
+    a.sort_by(f64::total_cmp);
+    let (med, p90) = (a[a.len() / 2], a[a.len() * 9 / 10]);
+    let mean = rel.iter().map(|x| x.0).sum::<f64>() / rel.len() as f64;
+    assert!(med <= 0.08 && p90 <= 0.2 && mean.abs() <= 0.03, "{file}: median {med}, 90 % {p90}, mean {mean}");
+}
+
+/// Glass sphere: the photons refracted in and out (BOUNCES 2) binned on the default 24-cell
+/// grid agree with the 2-D truth; the rendered irradiance agrees on a fine grid over the
+/// caustic away from its bright centre.
 #[test]
-fn explore_all() {
-    for f in ["glass-sphere.toml", "water.toml", "prism.toml", "ring.toml"] {
-        let t0 = std::time::Instant::now();
-        check_sample(f, 300_000, 24);
-        eprintln!("  {:?}", t0.elapsed());
+fn glass_sphere_photons_and_render_match_the_floor_truth() {
+    let fine = FloorGrid { min: [-0.4, -0.4], max: [0.4, 0.4], cells: [64, 64], z: 0.0 };
+    let (t, checked, rel) = check_sample("glass-sphere.toml", 300_000, 24, Some(fine));
+    assert_eq!(t.bounces, vec![2]);
+    assert!(checked >= 60, "{checked}");
+    assert_rendered("glass-sphere", &rel, 500);
+}
+
+/// Wavy water (refracted once, BOUNCES 1): the caustic net of the triangulated surface with
+/// its interpolated normals.
+#[test]
+fn water_photons_and_render_match_the_floor_truth() {
+    let (t, checked, rel) = check_sample("water.toml", 300_000, 24, None);
+    assert_eq!(t.bounces, vec![1]);
+    assert!(checked >= 400, "{checked}");
+    assert_rendered("water", &rel, 100);
+}
+
+/// Prism (refracted in and out, BOUNCES 2), per RGB channel: the dispersed bands.
+#[test]
+fn prism_photons_and_render_match_the_floor_truth() {
+    let (t, checked, rel) = check_sample("prism.toml", 300_000, 24, None);
+    assert_eq!(t.bounces, vec![2]);
+    assert!(checked >= 300, "{checked}");
+    assert_rendered("prism", &rel, 500);
+}
+
+/// Metal ring: one or more reflections off either side of the wall (every BOUNCES the truth
+/// lists), gold reflectance per channel.
+#[test]
+fn ring_photons_and_render_match_the_floor_truth() {
+    let (t, checked, rel) = check_sample("ring.toml", 300_000, 24, None);
+    assert!(t.bounces.starts_with(&[1, 2, 3]), "{:?}", t.bounces);
+    assert!(checked >= 150, "{checked}");
+    assert_rendered("ring", &rel, 500);
+}
+
+/// Scenes without a known truth are refused, not integrated wrongly.
+#[test]
+fn other_scenes_have_no_truth() {
+    for f in ["cognac.toml", "reflector.toml", "point-glass.toml", "sphere-point.toml"] {
+        let scene = Scene::load(&root().join("samples/scenes").join(f)).unwrap();
+        let g = FloorGrid { min: [-1.0, -1.0], max: [1.0, 1.0], cells: [4, 4], z: 0.0 };
+        match floor_truth(&scene, &g, Quality::Test) {
+            Err(TruthError::Unsupported(why)) => assert!(!why.is_empty()),
+            other => panic!("{f}: {:?}", other.map(|t| t.method)),
+        }
+        assert!(matches!(default_grid(&scene, 8), Err(TruthError::Unsupported(_))), "{f}");
     }
 }

@@ -1,6 +1,5 @@
-//! Ground truth without a photon map: floor irradiance computed from the optics alone, for
-//! scenes simple enough to integrate (issue 7). Every function here is independent of the
-//! tracer: its own f64 geometry, Snell's law in angle form and the Fresnel equations.
+//! The glass sphere's caustic as a 1-D radial quadrature (the radially symmetric check on the
+//! 2-D floor truth), and the Fresnel reflectance in angle form.
 
 use std::f64::consts::PI;
 

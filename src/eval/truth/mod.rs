@@ -1,0 +1,269 @@
+//! Ground truth without a photon map: floor irradiance computed from the optics alone, for
+//! scenes simple enough to integrate (issue 7). Every function here is independent of the
+//! tracer: its own f64 geometry, Snell's law and the Fresnel equations; from the scene it reads
+//! only parameters (shapes, materials, the emitter) and the tracer's colour definition (the
+//! wavelength → RGB weights and the uniform wavelength distribution).
+//!
+//! [`floor_truth`] gives cell-averaged irradiance on a [`FloorGrid`]: flux landing in each cell
+//! divided by its area. The beam's parameter square is cut into triangles whose corners are
+//! carried through the optics (E(X) = Σ E0·T/|det X′| over the pre-images of X, integrated
+//! exactly over each cell for the piecewise-linear map; [`splat`]). `docs/truth.md` describes
+//! each scene's truth and its accuracy.
+
+mod optics;
+mod sphere;
+mod splat;
+
+pub use sphere::{SphereCaustic, fresnel_reflectance};
+
+use crate::scene::Scene;
+use crate::scene::material::WAVELENGTH_RANGE_NM;
+use optics::{Optic, Setup};
+use splat::Accumulator;
+
+/// A rectangle of the floor plane z = `z`, cut into `cells[0]` columns (x, increasing) and
+/// `cells[1]` rows; row 0 is the largest y (the top row of an orthographic top-down image
+/// with up = +y).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FloorGrid {
+    pub min: [f64; 2],
+    pub max: [f64; 2],
+    pub cells: [usize; 2],
+    pub z: f64,
+}
+
+impl FloorGrid {
+    /// Width and height of one cell, metres.
+    pub fn cell_size(&self) -> [f64; 2] {
+        [
+            (self.max[0] - self.min[0]) / self.cells[0] as f64,
+            (self.max[1] - self.min[1]) / self.cells[1] as f64,
+        ]
+    }
+
+    /// Area of one cell, m².
+    pub fn cell_area(&self) -> f64 {
+        let [w, h] = self.cell_size();
+        w * h
+    }
+
+    /// The cell (column, row) holding floor point (x, y), if on the grid.
+    pub fn cell_of(&self, x: f64, y: f64) -> Option<(usize, usize)> {
+        let [w, h] = self.cell_size();
+        let c = ((x - self.min[0]) / w).floor();
+        let r = ((self.max[1] - y) / h).floor();
+        (c >= 0.0 && r >= 0.0 && (c as usize) < self.cells[0] && (r as usize) < self.cells[1])
+            .then_some((c as usize, r as usize))
+    }
+
+    /// Centre of cell (column, row).
+    pub fn centre(&self, col: usize, row: usize) -> [f64; 2] {
+        let [w, h] = self.cell_size();
+        [self.min[0] + (col as f64 + 0.5) * w, self.max[1] - (row as f64 + 0.5) * h]
+    }
+
+    fn check(&self) -> Result<(), TruthError> {
+        let ok = self.cells[0] > 0
+            && self.cells[1] > 0
+            && self.cells[0].checked_mul(self.cells[1]).is_some_and(|n| n <= 1 << 26)
+            && self.min.iter().chain(&self.max).chain([&self.z]).all(|v| v.is_finite())
+            && self.max[0] > self.min[0]
+            && self.max[1] > self.min[1];
+        if ok { Ok(()) } else { Err(TruthError::BadGrid(format!("{self:?}"))) }
+    }
+}
+
+/// Cell-averaged caustic irradiance on a floor grid, W/m² per RGB channel, row-major
+/// (index = row * cells[0] + column).
+#[derive(Clone, Debug)]
+pub struct FloorTruth {
+    pub grid: FloorGrid,
+    pub irradiance: Vec<[f64; 3]>,
+    /// Which stored photons this truth accounts for, by their BOUNCES value (specular bounces
+    /// before the floor), e.g. [2] for the sphere's once-in-once-out light. The comparison keeps
+    /// only these photons before running any method.
+    pub bounces: Vec<u8>,
+    /// Per cell: true where light arrives from two or more separate pre-image sheets (folded
+    /// or crossing filaments overlap), each bringing at least 10 % of the cell's flux.
+    pub overlap: Vec<bool>,
+    /// A short human description of what was integrated and how (quadrature, sample counts).
+    pub method: String,
+}
+
+/// How hard to integrate.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Quality {
+    /// Fast, for unit tests (< 1 s in the dev profile).
+    Test,
+    /// Converged for a 256² grid; seconds in release.
+    Report,
+}
+
+/// Why there is no truth.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum TruthError {
+    #[error("no ground truth for this scene: {0}")]
+    Unsupported(String),
+    #[error("unusable floor grid {0}: needs positive extents, 1 to 2^26 cells and finite values")]
+    BadGrid(String),
+    #[error("the grid lies at z = {grid}, the scene's floor at z = {floor}")]
+    WrongPlane { grid: f64, floor: f64 },
+}
+
+/// Integration effort: parameter quads per side, subdivision depth, wavelengths.
+struct Effort {
+    n: usize,
+    depth: u32,
+    wavelengths: usize,
+}
+
+fn effort(setup: &Setup, q: Quality) -> Effort {
+    match (&setup.optic, q) {
+        // The prism's map is affine per wavelength: few triangles, many wavelengths.
+        (Optic::Facets { .. }, Quality::Test) => Effort { n: 4, depth: 6, wavelengths: 48 },
+        (Optic::Facets { .. }, Quality::Report) => Effort { n: 8, depth: 8, wavelengths: 2000 },
+        (_, Quality::Test) => Effort { n: 128, depth: 4, wavelengths: 16 },
+        (_, Quality::Report) => Effort { n: 1024, depth: 6, wavelengths: 200 },
+    }
+}
+
+/// The wavelengths (nm) of the quadrature and their weights: the midpoint rule over the
+/// tracer's uniform distribution on [`WAVELENGTH_RANGE_NM`]; one unweighted pass without
+/// dispersion.
+fn wavelengths(setup: &Setup, n: usize) -> Vec<(Option<f64>, f64)> {
+    if !setup.dispersive() {
+        return vec![(None, 1.0)];
+    }
+    let (lo, hi) = (WAVELENGTH_RANGE_NM.0 as f64, WAVELENGTH_RANGE_NM.1 as f64);
+    (0..n).map(|k| (Some(lo + (hi - lo) * (k as f64 + 0.5) / n as f64), 1.0 / n as f64)).collect()
+}
+
+/// The sample scenes with a known truth, recognised from the scene's contents (not its name):
+/// a dielectric sphere above a floor under a collimated beam; a dielectric height field (the
+/// tracer's triangulated one, with its interpolated normals) under a collimated beam; a
+/// flat-faceted dielectric solid of at most 64 triangles (the prism) under a collimated beam; a
+/// mirror cylinder on the floor under a collimated beam. There must be exactly one collimated
+/// emitter, one diffuse horizontal floor and one specular object.
+/// `Err(TruthError::Unsupported(why))` for anything else.
+pub fn floor_truth(scene: &Scene, grid: &FloorGrid, quality: Quality) -> Result<FloorTruth, TruthError> {
+    grid.check()?;
+    let setup = Setup::from_scene(scene)?;
+    if (setup.floor.z - grid.z).abs() > 1e-6 * (1.0 + grid.z.abs()) {
+        return Err(TruthError::WrongPlane { grid: grid.z, floor: setup.floor.z });
+    }
+    let e = effort(&setup, quality);
+    let mut acc = Accumulator::new(grid);
+    let lambdas = wavelengths(&setup, e.wavelengths);
+    for &(l, w) in &lambdas {
+        acc.splat([e.n, e.n], e.depth, setup.beam.power_w * w, &|u, v| setup.land(u, v, l));
+    }
+    let area = grid.cell_area();
+    let irradiance = acc.flux.iter().map(|f| f.map(|x| x / area)).collect();
+    let overlap = acc
+        .by_sign
+        .iter()
+        .map(|&[a, b]| {
+            let t = a + b;
+            t > 0.0 && a >= 0.1 * t && b >= 0.1 * t
+        })
+        .collect();
+    let method = format!(
+        "{}: the beam's parameter square in {n}×{n} quads of two triangles, carried through the \
+         optics in f64 (refraction only, expected Fresnel transmittance; or mirror reflections) \
+         and splatted onto the cells by exact polygon clipping of each image triangle \
+         (piecewise-linear map), subdivided up to {d} times where the path changes or an image \
+         spans over 64 cells: {t} triangles, {p} midpoint deposits{w}",
+        setup.kind(),
+        n = e.n,
+        d = e.depth,
+        t = acc.triangles,
+        p = acc.points,
+        w = if lambdas.len() > 1 {
+            format!("; {} wavelengths (midpoint rule, uniform on 380–720 nm, RGB weights as the tracer)", lambdas.len())
+        } else {
+            String::new()
+        }
+    );
+    Ok(FloorTruth { grid: *grid, irradiance, bounces: acc.bounces.into_iter().collect(), overlap, method })
+}
+
+/// A default floor grid for the scene: the rectangle that holds the caustic (the flux-weighted
+/// 0.2 % to 99.8 % range of landing x and y, padded by 5 % and kept on the floor), cut into
+/// `cells_x` columns of square cells.
+pub fn default_grid(scene: &Scene, cells_x: usize) -> Result<FloorGrid, TruthError> {
+    let setup = Setup::from_scene(scene)?;
+    if cells_x == 0 {
+        return Err(TruthError::BadGrid("no columns".into()));
+    }
+    let n = 160;
+    let mut pts: Vec<([f64; 2], f64)> = Vec::new();
+    for (l, w) in wavelengths(&setup, 9) {
+        for j in 0..n {
+            for i in 0..n {
+                let (u, v) = ((i as f64 + 0.5) / n as f64, (j as f64 + 0.5) / n as f64);
+                if let Some(x) = setup.land(u, v, l) {
+                    pts.push((x.xy, w * x.weight.iter().sum::<f64>()));
+                }
+            }
+        }
+    }
+    if pts.is_empty() {
+        return Err(TruthError::Unsupported("no light reaches the floor by a specular path".into()));
+    }
+    let range = |axis: usize| {
+        let mut v: Vec<(f64, f64)> = pts.iter().map(|(p, w)| (p[axis], *w)).collect();
+        v.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let total: f64 = v.iter().map(|x| x.1).sum();
+        let (mut acc, mut lo, mut hi) = (0.0, v[0].0, v[v.len() - 1].0);
+        let mut lo_set = false;
+        for &(x, w) in &v {
+            acc += w;
+            if !lo_set && acc >= 0.002 * total {
+                lo = x;
+                lo_set = true;
+            }
+            if acc >= 0.998 * total {
+                hi = x;
+                break;
+            }
+        }
+        let pad = 0.05 * (hi - lo).max(1e-3);
+        (lo - pad, hi + pad)
+    };
+    let (mut x0, mut x1) = range(0);
+    let (mut y0, mut y1) = range(1);
+    if let Some([fx0, fy0, fx1, fy1]) = setup.floor.bounds() {
+        (x0, x1, y0, y1) = (x0.max(fx0), x1.min(fx1), y0.max(fy0), y1.min(fy1));
+    }
+    let cell = (x1 - x0) / cells_x as f64;
+    let rows = ((y1 - y0) / cell).ceil().max(1.0) as usize;
+    let mid = 0.5 * (y0 + y1);
+    let half = 0.5 * rows as f64 * cell;
+    Ok(FloorGrid { min: [x0, mid - half], max: [x1, mid + half], cells: [cells_x, rows], z: setup.floor.z })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use std::path::Path;
+
+    fn sample(name: &str) -> Scene {
+        let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes").join(name);
+        Scene::load(&p).unwrap()
+    }
+
+    #[test]
+    fn explore() {
+        for s in ["glass-sphere.toml", "water.toml", "prism.toml", "ring.toml"] {
+            let sc = sample(s);
+            let t0 = std::time::Instant::now();
+            let g = default_grid(&sc, 48).unwrap();
+            let t = floor_truth(&sc, &g, Quality::Test).unwrap();
+            let tot: f64 = t.irradiance.iter().map(|e| e.iter().sum::<f64>()).sum::<f64>() * g.cell_area();
+            let ov = t.overlap.iter().filter(|&&o| o).count();
+            let max = t.irradiance.iter().map(|e| e.iter().sum::<f64>()).fold(0.0, f64::max);
+            println!("{s}: {g:?} total {tot:.4} W, max {max:.2}, overlap {ov}, bounces {:?}, {:?}\n  {}", t.bounces, t0.elapsed(), t.method);
+        }
+    }
+}

@@ -35,6 +35,8 @@ enum Command {
     Render(cli::render::Args),
     /// Render a reference image by progressive photon mapping (traces its own photons).
     Reference(cli::render::ReferenceArgs),
+    /// Compare every method's error and time against the truth (Table I with error rows).
+    Compare(cli::compare::Args),
     /// Summarise, check, dump or subsample a photon map.
     Inspect(cli::inspect::Args),
     /// Import photons from PLY, CSV/TSV or Radiance photon maps.
@@ -54,6 +56,7 @@ fn main() -> ExitCode {
         Command::Collapse(a) => cli::relax::collapse(a),
         Command::Render(a) => cli::render::run(a),
         Command::Reference(a) => cli::render::reference(a),
+        Command::Compare(a) => cli::compare::run(a),
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Import(a) => cli::import::run(a),
         Command::Export(a) => cli::export::run(a),

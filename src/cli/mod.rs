@@ -1,4 +1,5 @@
 //! One module per subcommand: its arguments (clap) and the call into the library.
+pub mod compare;
 pub mod detect;
 pub mod export;
 pub mod import;

@@ -58,8 +58,11 @@ pub fn mean(image: &[[f64; 3]]) -> f64 {
 pub fn rel_mse(image: &[[f64; 3]], truth: &[[f64; 3]], epsilon: f64) -> f64 {
     assert_eq!(image.len(), truth.len(), "image and truth differ in size");
     let e2 = epsilon * epsilon;
-    let sum: f64 =
-        image.iter().zip(truth).map(|(a, t)| (0..3).map(|c| (a[c] - t[c]).powi(2) / (t[c] * t[c] + e2)).sum::<f64>()).sum();
+    let sum: f64 = image
+        .iter()
+        .zip(truth)
+        .map(|(a, t)| (0..3).map(|c| (a[c] - t[c]).powi(2) / (t[c] * t[c] + e2)).sum::<f64>())
+        .sum();
     sum / (3 * image.len().max(1)) as f64
 }
 
@@ -123,13 +126,10 @@ pub fn ssim(x: &[f64], y: &[f64], width: usize, height: usize, range: f64) -> f6
             out
         })
         .collect();
+    let [fx, fy, fxx, fyy, fxy] = [&filtered[0], &filtered[1], &filtered[2], &filtered[3], &filtered[4]];
     let mut sum = 0.0;
-    for i in 0..ow * oh {
-        let (mx, my) = (filtered[0][i], filtered[1][i]);
-        let vx = filtered[2][i] - mx * mx;
-        let vy = filtered[3][i] - my * my;
-        let cxy = filtered[4][i] - mx * my;
-        sum += index(mx, my, vx, vy, cxy);
+    for ((((mx, my), xx), yy), xy) in fx.iter().zip(fy).zip(fxx).zip(fyy).zip(fxy) {
+        sum += index(*mx, *my, xx - mx * mx, yy - my * my, xy - mx * my);
     }
     sum / (ow * oh) as f64
 }
@@ -202,7 +202,8 @@ pub fn measure(
     // [0, 1], so a caustic's focal spike (orders of magnitude above the rest) neither sets
     // the dynamic range nor hides every other difference.
     let white = percentile_luminance(truth, 0.99).max(f64::MIN_POSITIVE);
-    let lum = |img: &[[f64; 3]]| img.iter().map(|&p| (luminance(p) / white).clamp(0.0, 1.0)).collect::<Vec<_>>();
+    let lum =
+        |img: &[[f64; 3]]| img.iter().map(|&p| (luminance(p) / white).clamp(0.0, 1.0)).collect::<Vec<_>>();
     let (li, lt) = (lum(image), lum(truth));
     let r = rmse(image, truth, None);
     Errors {
@@ -242,10 +243,10 @@ mod tests {
         let x: Vec<f64> = (0..w * w).map(|i| ((i * 7919) % 101) as f64 / 100.0).collect();
         assert!((ssim(&x, &x, w, w, 1.0) - 1.0).abs() < 1e-12);
         // Constant images m and m + c: σ terms are 0 so SSIM = (2m(m+c) + C1)/(m² + (m+c)² + C1).
-        let (m, c, l) = (0.4, 0.1, 1.0);
+        let (m, c, l): (f64, f64, f64) = (0.4, 0.1, 1.0);
         let a = vec![m; w * w];
         let b = vec![m + c; w * w];
-        let c1 = (0.01 * l as f64).powi(2);
+        let c1 = (0.01 * l).powi(2);
         let want = (2.0 * m * (m + c) + c1) / (m * m + (m + c) * (m + c) + c1);
         assert!((ssim(&a, &b, w, w, l) - want).abs() < 1e-12);
         // A small image is one window: y = 2m − x (same mean, anticorrelated) gives the
@@ -258,7 +259,8 @@ mod tests {
         let want = (-2.0 * var + c2) / (2.0 * var + c2);
         assert!((ssim(&x, &y, 3, 2, 1.0) - want).abs() < 1e-12);
         // Noise lowers it.
-        let noisy: Vec<f64> = x.iter().enumerate().map(|(i, v)| v + if i % 2 == 0 { 0.1 } else { -0.1 }).collect();
+        let noisy: Vec<f64> =
+            x.iter().enumerate().map(|(i, v)| v + if i % 2 == 0 { 0.1 } else { -0.1 }).collect();
         assert!(ssim(&x, &noisy, 3, 2, 1.0) < 1.0);
     }
 
@@ -295,7 +297,8 @@ mod tests {
         let doubled: Vec<[f64; 3]> = t.iter().map(|p| p.map(|c| 2.0 * c)).collect();
         let e = measure(&doubled, &t, w, h, &band, None);
         // Doubling: RMSE = RMS of the truth, normalised by its mean.
-        let rms = (t.iter().map(|p| p.iter().map(|c| c * c).sum::<f64>()).sum::<f64>() / (3 * w * h) as f64).sqrt();
+        let rms =
+            (t.iter().map(|p| p.iter().map(|c| c * c).sum::<f64>()).sum::<f64>() / (3 * w * h) as f64).sqrt();
         assert!((e.nrmse - rms / mean(&t)).abs() < 1e-12);
         assert!(e.overlap_nrmse.is_nan());
         assert!(e.ssim < 1.0);

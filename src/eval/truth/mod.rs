@@ -180,7 +180,10 @@ pub fn floor_truth(scene: &Scene, grid: &FloorGrid, quality: Quality) -> Result<
         t = acc.triangles,
         p = acc.points,
         w = if lambdas.len() > 1 {
-            format!("; {} wavelengths (midpoint rule, uniform on 380–720 nm, RGB weights as the tracer)", lambdas.len())
+            format!(
+                "; {} wavelengths (midpoint rule, uniform on 380–720 nm, RGB weights as the tracer)",
+                lambdas.len()
+            )
         } else {
             String::new()
         }
@@ -263,7 +266,12 @@ mod tests {
             let tot: f64 = t.irradiance.iter().map(|e| e.iter().sum::<f64>()).sum::<f64>() * g.cell_area();
             let ov = t.overlap.iter().filter(|&&o| o).count();
             let max = t.irradiance.iter().map(|e| e.iter().sum::<f64>()).fold(0.0, f64::max);
-            println!("{s}: {g:?} total {tot:.4} W, max {max:.2}, overlap {ov}, bounces {:?}, {:?}\n  {}", t.bounces, t0.elapsed(), t.method);
+            println!(
+                "{s}: {g:?} total {tot:.4} W, max {max:.2}, overlap {ov}, bounces {:?}, {:?}\n  {}",
+                t.bounces,
+                t0.elapsed(),
+                t.method
+            );
         }
     }
 }

@@ -302,7 +302,12 @@ mod tests {
         let g = FloorGrid { min: [0.0, -0.5], max: [1.0, 0.5], cells: [40, 40], z: 0.0 };
         let mut acc = Accumulator::new(&g);
         let map = |u: f64, v: f64| {
-            Some(Landing { xy: [0.3 + 0.5 * u - 0.2 * v, -0.4 + 0.6 * v], weight: [1.0, 0.0, 0.0], class: 0, bounces: 1 })
+            Some(Landing {
+                xy: [0.3 + 0.5 * u - 0.2 * v, -0.4 + 0.6 * v],
+                weight: [1.0, 0.0, 0.0],
+                class: 0,
+                bounces: 1,
+            })
         };
         acc.splat([3, 5], 4, 1.0, &map);
         let cell = 0.025 * 0.025;

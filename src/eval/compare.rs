@@ -1,0 +1,618 @@
+//! `photonkit compare`: every method on the same traced photons, each stage timed, each image
+//! measured against the truth.
+//!
+//! The methods (the columns of the paper's Table I): standard photon mapping (K = 15), the
+//! 2009 photon relaxation (gradient constraint, 14 world-space iterations), diffusion-based
+//! photon mapping (500 neighbours, q = 0.02), this method (parameter-space PCA, 7 iterations in
+//! the high-dimensional space, collapse, 7 in world space), and progressive photon mapping at
+//! several pass counts. All but progressive photon mapping share one traced photon map; a
+//! progressive pass traces its own photons (as the method does), as many per pass as the
+//! shared map emitted unless told otherwise.
+//!
+//! The images are compared on a [`Target`]: a view, a render mode and the truth's image in
+//! it — the closed-form floor irradiance of [`crate::eval::truth`] through an orthographic
+//! top-down camera, or a long progressive run where there is no closed form.
+
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+use glam::Vec3;
+
+use super::metrics::{self, Errors};
+use super::truth::{self, FloorGrid, Quality};
+use crate::detect::{self, DetectParams, Method};
+use crate::format::{Output, PhotonMap};
+use crate::relax::{self, RelaxParams};
+use crate::render::reference::{Progressive, ReferenceOptions, ReferenceState};
+use crate::render::{
+    Estimator, EyeOptions, Image, Kernel, Mode, PhotonData, PhotonLookup, RenderOptions, Renderer, View,
+};
+use crate::scene::{Camera, Projection, Scene};
+use crate::trace::{self, Budget, TraceOptions};
+
+/// Everything that can go wrong in a comparison.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum CompareError {
+    #[error(transparent)]
+    Format(#[from] crate::format::FormatError),
+    #[error(transparent)]
+    Trace(#[from] crate::trace::TraceError),
+    #[error(transparent)]
+    Detect(#[from] crate::detect::DetectError),
+    #[error(transparent)]
+    Relax(#[from] crate::relax::RelaxError),
+    #[error(transparent)]
+    Render(#[from] crate::render::RenderError),
+    #[error(transparent)]
+    Truth(#[from] truth::TruthError),
+    #[error("{path}: {source}")]
+    Io { path: String, source: std::io::Error },
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// The methods compared.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum MethodKind {
+    /// Standard photon mapping: the K nearest photons, Epanechnikov kernel.
+    StandardPm,
+    /// Photon relaxation (Spencer & Jones 2009): gradient constraint, world-space iterations.
+    Relaxation2009,
+    /// Diffusion-based photon mapping (Schjøth et al. 2008).
+    DiffusionPm,
+    /// This method: parameter-space PCA, relax, collapse, relax.
+    Ours,
+    /// Progressive photon mapping (memoryless, Knaus & Zwicker 2011).
+    Progressive,
+}
+
+impl MethodKind {
+    pub const ALL: [MethodKind; 5] = [
+        MethodKind::StandardPm,
+        MethodKind::Relaxation2009,
+        MethodKind::DiffusionPm,
+        MethodKind::Ours,
+        MethodKind::Progressive,
+    ];
+
+    /// The column name of the paper's Table I.
+    pub fn label(self) -> &'static str {
+        match self {
+            MethodKind::StandardPm => "Standard PM",
+            MethodKind::Relaxation2009 => "Photon Relax.",
+            MethodKind::DiffusionPm => "Diff-Based PM",
+            MethodKind::Ours => "Our method",
+            MethodKind::Progressive => "Progressive PM",
+        }
+    }
+
+    /// A short name for files and the command line.
+    pub fn slug(self) -> &'static str {
+        match self {
+            MethodKind::StandardPm => "pm",
+            MethodKind::Relaxation2009 => "relax2009",
+            MethodKind::DiffusionPm => "diffusion",
+            MethodKind::Ours => "ours",
+            MethodKind::Progressive => "ppm",
+        }
+    }
+
+    pub fn from_slug(s: &str) -> Option<MethodKind> {
+        MethodKind::ALL.into_iter().find(|m| m.slug() == s)
+    }
+}
+
+/// The settings of one comparison run (the paper's defaults).
+#[derive(Clone, Debug, PartialEq)]
+pub struct CompareOptions {
+    /// Photons emitted for the shared map.
+    pub photons: u64,
+    pub seed: u64,
+    /// K of the radiance estimate (standard PM, 2009 relaxation, ours).
+    pub k: usize,
+    /// Kc and β of feature detection.
+    pub kc: usize,
+    pub beta: f32,
+    /// Kf of the repulsion force.
+    pub kf: usize,
+    /// R: iterations before the collapse and again after it (this method).
+    pub iterations: usize,
+    /// World-space iterations of the 2009 relaxation.
+    pub iterations_2009: usize,
+    /// Neighbours and the control q of diffusion-based photon mapping.
+    pub diffusion_k: usize,
+    pub diffusion_q: f32,
+    /// Progressive photon mapping: the pass counts at which its image is measured.
+    pub ppm_passes: Vec<u64>,
+    /// Photons per progressive pass (default: `photons`).
+    pub ppm_photons_per_pass: Option<u64>,
+    /// Samples per pixel of every image.
+    pub spp: u32,
+    pub methods: Vec<MethodKind>,
+}
+
+impl Default for CompareOptions {
+    fn default() -> Self {
+        CompareOptions {
+            photons: 1_000_000,
+            seed: 1,
+            k: 15,
+            kc: 50,
+            beta: 3.0,
+            kf: 16,
+            iterations: 7,
+            iterations_2009: 14,
+            diffusion_k: 500,
+            diffusion_q: 0.02,
+            ppm_passes: vec![1, 4, 16],
+            ppm_photons_per_pass: None,
+            spp: 4,
+            methods: MethodKind::ALL.to_vec(),
+        }
+    }
+}
+
+/// What the images are measured against: a view, a mode and the truth's image in that view.
+#[derive(Clone, Debug)]
+pub struct Target {
+    pub camera: Camera,
+    pub mode: Mode,
+    /// The truth, row-major, `camera.resolution` pixels.
+    pub truth: Vec<[f64; 3]>,
+    /// The band around the truth's caustic edges ([`metrics::edge_band`]).
+    pub edges: Vec<bool>,
+    /// Where filaments overlap, if the truth knows.
+    pub overlap: Option<Vec<bool>>,
+    /// Keep only photons with these bounce counts (the path families the truth accounts for).
+    pub bounces: Option<Vec<u8>>,
+    /// What the truth is, for the report.
+    pub description: String,
+}
+
+/// Width of the edge band on each side of an edge, pixels.
+pub const EDGE_BAND: usize = 2;
+
+/// The orthographic top-down camera whose pixels are the cells of `grid`.
+pub fn floor_camera(grid: &FloorGrid) -> Result<Camera, CompareError> {
+    let (w, h) = (grid.max[0] - grid.min[0], grid.max[1] - grid.min[1]);
+    let centre = Vec3::new(
+        (0.5 * (grid.min[0] + grid.max[0])) as f32,
+        (0.5 * (grid.min[1] + grid.max[1])) as f32,
+        grid.z as f32,
+    );
+    let cells = [grid.cells[0] as u32, grid.cells[1] as u32];
+    let square = (w / cells[0] as f64) / (h / cells[1] as f64);
+    if !(w > 0.0 && h > 0.0 && (square - 1.0).abs() < 1e-3) {
+        return Err(CompareError::Invalid(format!(
+            "the floor grid {w} × {h} m in {} × {} cells does not have square cells",
+            cells[0], cells[1]
+        )));
+    }
+    let eye = centre + Vec3::Z * (10.0 * w.max(h)) as f32;
+    Camera::look_at(Projection::Orthographic { height_m: h as f32 }, eye, centre, Vec3::Y, cells)
+        .ok_or_else(|| CompareError::Invalid("degenerate floor camera".into()))
+}
+
+impl Target {
+    /// The closed-form floor irradiance of a scene [`truth::floor_truth`] knows, on its default
+    /// grid of `cells` columns.
+    pub fn closed_form(scene: &Scene, cells: usize, quality: Quality) -> Result<Target, CompareError> {
+        let grid = truth::default_grid(scene, cells)?;
+        let t = truth::floor_truth(scene, &grid, quality)?;
+        let camera = floor_camera(&t.grid)?;
+        let edges = metrics::edge_band(&t.irradiance, t.grid.cells[0], t.grid.cells[1], EDGE_BAND);
+        Ok(Target {
+            camera,
+            mode: Mode::Irradiance,
+            edges,
+            overlap: Some(t.overlap),
+            bounces: Some(t.bounces),
+            description: format!("closed-form floor irradiance: {}", t.method),
+            truth: t.irradiance,
+        })
+    }
+
+    /// A long progressive photon mapping run in `camera`'s view with `mode`, as the truth of a
+    /// scene without a closed form: `passes` passes of `photons_per_pass`, seeds far from the
+    /// compared runs'.
+    pub fn progressive_reference(
+        scene: &Scene,
+        camera: Camera,
+        mode: Mode,
+        passes: u64,
+        photons_per_pass: u64,
+        spp: u32,
+        progress: &dyn Fn(u64),
+    ) -> Result<Target, CompareError> {
+        let [w, h] = camera.resolution;
+        let render =
+            RenderOptions { width: w, height: h, spp, mode, seed: 0x5EED, ..RenderOptions::default() };
+        let p = Progressive {
+            scene,
+            camera: camera.clone(),
+            render,
+            kernel: Kernel::Epanechnikov,
+            bounces: None,
+        };
+        let options =
+            ReferenceOptions { photons_per_pass, seed: 1_000_000_007, ..ReferenceOptions::default() };
+        let mut state = ReferenceState {
+            passes: 0,
+            initial_radius: 0.0,
+            next_radius2: 0.0,
+            options,
+            settings: serde_json::Value::Null,
+        };
+        let mut image = Image::new(w, h);
+        p.run(&mut image, &mut state, passes, &mut |s, _| {
+            progress(s.passes);
+            Ok(true)
+        })?;
+        let truth = pixels(&image);
+        let edges = metrics::edge_band(&truth, w as usize, h as usize, EDGE_BAND);
+        Ok(Target {
+            camera,
+            mode,
+            truth,
+            edges,
+            overlap: None,
+            bounces: None,
+            description: format!(
+                "progressive photon mapping reference: {passes} passes of {photons_per_pass} photons"
+            ),
+        })
+    }
+
+    pub fn width(&self) -> usize {
+        self.camera.resolution[0] as usize
+    }
+
+    pub fn height(&self) -> usize {
+        self.camera.resolution[1] as usize
+    }
+}
+
+/// An image's pixels as f64 RGB.
+pub fn pixels(img: &Image) -> Vec<[f64; 3]> {
+    img.pixels.iter().map(|p| p.as_dvec3().to_array()).collect()
+}
+
+/// Seconds spent in each stage of one method (`None`: the method has no such stage).
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct StageTimes {
+    pub trace: Option<f64>,
+    pub detect: Option<f64>,
+    /// Relaxation, including the collapse.
+    pub relax: Option<f64>,
+    pub render: Option<f64>,
+    pub total: f64,
+}
+
+/// One method's result.
+#[derive(Clone, Debug)]
+pub struct Row {
+    pub method: MethodKind,
+    /// The method's settings in a few words (K, iterations, passes).
+    pub setting: String,
+    /// Photons emitted, and photons in the map the estimate used (all passes for progressive).
+    pub emitted: u64,
+    pub photons: u64,
+    /// K of the radiance estimate (0 for the progressive radius estimate).
+    pub radiance_k: usize,
+    pub times: StageTimes,
+    pub errors: Errors,
+    /// The image, in the target's view.
+    pub image: Image,
+}
+
+/// What a comparison reports while it runs.
+#[derive(Clone, Copy, Debug)]
+pub enum Progress<'a> {
+    /// A stage or method has begun (e.g. "trace", "Our method").
+    Started(&'a str),
+    /// A one-line result of a finished stage or method.
+    Finished(&'a str),
+}
+
+/// Runs every requested method on one traced map and measures it against `target`.
+/// Intermediate photon maps go to `work_dir`; `log` hears each stage begin and end.
+pub fn run(
+    scene: &Scene,
+    scene_label: &str,
+    scene_text: &str,
+    target: &Target,
+    o: &CompareOptions,
+    work_dir: &Path,
+    log: &dyn Fn(Progress),
+) -> Result<Vec<Row>, CompareError> {
+    if o.photons == 0 {
+        return Err(CompareError::Invalid("the comparison needs at least one photon".into()));
+    }
+    std::fs::create_dir_all(work_dir)
+        .map_err(|e| CompareError::Io { path: work_dir.display().to_string(), source: e })?;
+    let file = |name: &str| -> PathBuf { work_dir.join(name) };
+    let mut rows = Vec::new();
+    let wants = |m: MethodKind| o.methods.contains(&m);
+    let (w, h) = (target.width(), target.height());
+    let measure = |img: &Image| {
+        metrics::measure(&pixels(img), &target.truth, w, h, &target.edges, target.overlap.as_deref())
+    };
+
+    // Trace once for every map-based method.
+    let map_based = o.methods.iter().any(|&m| m != MethodKind::Progressive);
+    let mut trace_secs = 0.0;
+    if map_based {
+        let topts =
+            TraceOptions { seed: o.seed, budget: Budget::Emitted(o.photons), ..TraceOptions::default() };
+        log(Progress::Started("trace"));
+        let t = Instant::now();
+        let mut traced = trace::trace(scene, &topts, &|_, _| {})?;
+        if let Some(keep) = &target.bounces {
+            traced.retain_bounces(keep);
+        }
+        trace_secs = t.elapsed().as_secs_f64();
+        if traced.stored == 0 {
+            return Err(CompareError::Invalid(format!(
+                "no photon of the kind the truth accounts for was stored from {} emitted",
+                o.photons
+            )));
+        }
+        let info = trace::map_info(scene, &topts, &traced, scene_label, scene_text);
+        traced.write(Output::Path(file("traced.phm")), info)?;
+        log(Progress::Finished(&format!("trace: {:.2} s, {} photons stored", trace_secs, traced.stored)));
+    }
+
+    let render = |map: &PhotonMap, estimator: Estimator| -> Result<(Image, f64), CompareError> {
+        let t = Instant::now();
+        let normals = map.column::<[f32; 3]>(crate::format::name::NORMAL)?;
+        let data = PhotonData { positions: map.positions(), flux: map.flux(), normals };
+        let lookup = PhotonLookup::new(map.file_name(), data)?;
+        let renderer = Renderer {
+            view: View::Scene { scene, camera: target.camera.clone() },
+            photons: Some(&lookup),
+            diagnostic: None,
+            opts: RenderOptions {
+                width: w as u32,
+                height: h as u32,
+                spp: o.spp,
+                mode: target.mode,
+                estimator,
+                eye: EyeOptions::default(),
+                seed: 0,
+            },
+        };
+        let (img, _) = renderer.render(&|_| {})?;
+        Ok((img, t.elapsed().as_secs_f64()))
+    };
+    let knn = Estimator::Knn { k: o.k, kernel: Kernel::Epanechnikov, max_radius: None };
+
+    let detect_stage = |input: &str, output: &str, method: Method| -> Result<f64, CompareError> {
+        let map = PhotonMap::open_path(&file(input))?;
+        let dp = DetectParams { kc: o.kc, beta: o.beta, method, ..DetectParams::default() };
+        let t = Instant::now();
+        let d = detect::detect_map(&map, &dp, &|_| {})?;
+        let secs = t.elapsed().as_secs_f64();
+        detect::write_detected(&map, &d, &dp, secs, Output::Path(file(output)))?;
+        Ok(secs)
+    };
+    let relax_stage = |input: &str, output: &str, iterations: usize| -> Result<f64, CompareError> {
+        let map = PhotonMap::open_path(&file(input))?;
+        let rp = RelaxParams { iterations, kf: o.kf, ..RelaxParams::default() };
+        let t = Instant::now();
+        let r = relax::relax_map_on(&map, &rp, Some(scene), |_| {})?;
+        let secs = t.elapsed().as_secs_f64();
+        relax::write_relaxed(&map, &r, &rp, secs, Output::Path(file(output)))?;
+        Ok(secs)
+    };
+    let collapse_stage = |input: &str, output: &str| -> Result<f64, CompareError> {
+        let map = PhotonMap::open_path(&file(input))?;
+        let t = Instant::now();
+        relax::collapse(&map, Output::Path(file(output)))?;
+        Ok(t.elapsed().as_secs_f64())
+    };
+
+    let mut push = |method: MethodKind,
+                    setting: String,
+                    map: &PhotonMap,
+                    radiance_k,
+                    times: StageTimes,
+                    image: Image| {
+        let errors = measure(&image);
+        log(Progress::Finished(&format!(
+            "{}: {:.2} s, NRMSE {:.4}, SSIM {:.4}",
+            method.label(),
+            times.total,
+            errors.nrmse,
+            errors.ssim
+        )));
+        rows.push(Row {
+            method,
+            setting,
+            emitted: o.photons,
+            photons: map.len() as u64,
+            radiance_k,
+            times,
+            errors,
+            image,
+        });
+    };
+
+    if wants(MethodKind::StandardPm) {
+        log(Progress::Started(MethodKind::StandardPm.label()));
+        let map = PhotonMap::open_path(&file("traced.phm"))?;
+        let (img, secs) = render(&map, knn)?;
+        let times = StageTimes {
+            trace: Some(trace_secs),
+            render: Some(secs),
+            total: trace_secs + secs,
+            ..Default::default()
+        };
+        push(MethodKind::StandardPm, format!("K = {}", o.k), &map, o.k, times, img);
+    }
+    if wants(MethodKind::DiffusionPm) {
+        log(Progress::Started(MethodKind::DiffusionPm.label()));
+        let map = PhotonMap::open_path(&file("traced.phm"))?;
+        let (img, secs) = render(&map, Estimator::Diffusion { k: o.diffusion_k, q: o.diffusion_q })?;
+        let times = StageTimes {
+            trace: Some(trace_secs),
+            render: Some(secs),
+            total: trace_secs + secs,
+            ..Default::default()
+        };
+        push(
+            MethodKind::DiffusionPm,
+            format!("{} neighbours, q = {}", o.diffusion_k, o.diffusion_q),
+            &map,
+            o.diffusion_k,
+            times,
+            img,
+        );
+    }
+    if wants(MethodKind::Relaxation2009) {
+        log(Progress::Started(MethodKind::Relaxation2009.label()));
+        let det = detect_stage("traced.phm", "relax2009-detected.phm", Method::Gradient)?;
+        let col = collapse_stage("relax2009-detected.phm", "relax2009-collapsed.phm")?;
+        let rel = relax_stage("relax2009-collapsed.phm", "relax2009-relaxed.phm", o.iterations_2009)?;
+        let map = PhotonMap::open_path(&file("relax2009-relaxed.phm"))?;
+        let (img, secs) = render(&map, knn)?;
+        let times = StageTimes {
+            trace: Some(trace_secs),
+            detect: Some(det),
+            relax: Some(col + rel),
+            render: Some(secs),
+            total: trace_secs + det + col + rel + secs,
+        };
+        push(
+            MethodKind::Relaxation2009,
+            format!("gradient, {} world iterations, K = {}", o.iterations_2009, o.k),
+            &map,
+            o.k,
+            times,
+            img,
+        );
+    }
+    if wants(MethodKind::Ours) {
+        log(Progress::Started(MethodKind::Ours.label()));
+        let traced = PhotonMap::open_path(&file("traced.phm"))?;
+        let (method, _) = detect::choose_method(&traced, None)?;
+        drop(traced);
+        let det = detect_stage("traced.phm", "ours-detected.phm", method)?;
+        let r1 = relax_stage("ours-detected.phm", "ours-relaxed-params.phm", o.iterations)?;
+        let col = collapse_stage("ours-relaxed-params.phm", "ours-collapsed.phm")?;
+        let r2 = relax_stage("ours-collapsed.phm", "ours-relaxed.phm", o.iterations)?;
+        let map = PhotonMap::open_path(&file("ours-relaxed.phm"))?;
+        let (img, secs) = render(&map, knn)?;
+        let times = StageTimes {
+            trace: Some(trace_secs),
+            detect: Some(det),
+            relax: Some(r1 + col + r2),
+            render: Some(secs),
+            total: trace_secs + det + r1 + col + r2 + secs,
+        };
+        push(
+            MethodKind::Ours,
+            format!("{}, {} + {} iterations, K = {}", method.name(), o.iterations, o.iterations, o.k),
+            &map,
+            o.k,
+            times,
+            img,
+        );
+    }
+    if wants(MethodKind::Progressive) && !o.ppm_passes.is_empty() {
+        log(Progress::Started(MethodKind::Progressive.label()));
+        let per_pass = o.ppm_photons_per_pass.unwrap_or(o.photons);
+        let mut passes = o.ppm_passes.clone();
+        passes.sort_unstable();
+        passes.dedup();
+        let last = *passes.last().expect("not empty");
+        let p = Progressive {
+            scene,
+            camera: target.camera.clone(),
+            render: RenderOptions {
+                width: w as u32,
+                height: h as u32,
+                spp: o.spp,
+                mode: target.mode,
+                ..RenderOptions::default()
+            },
+            kernel: Kernel::Epanechnikov,
+            bounces: target.bounces.as_deref(),
+        };
+        let options =
+            ReferenceOptions { photons_per_pass: per_pass, seed: o.seed, ..ReferenceOptions::default() };
+        let mut state = ReferenceState {
+            passes: 0,
+            initial_radius: 0.0,
+            next_radius2: 0.0,
+            options,
+            settings: serde_json::Value::Null,
+        };
+        let mut image = Image::new(w as u32, h as u32);
+        let start = Instant::now();
+        let mut snapshots = Vec::new();
+        // The clock stops while a snapshot is measured.
+        let mut paused = 0.0;
+        p.run(&mut image, &mut state, last, &mut |s, img| {
+            if passes.contains(&s.passes) {
+                let t = Instant::now();
+                snapshots.push((s.passes, start.elapsed().as_secs_f64() - paused, img.clone()));
+                paused += t.elapsed().as_secs_f64();
+            }
+            Ok(true)
+        })?;
+        for (n, secs, img) in snapshots {
+            let errors = measure(&img);
+            log(Progress::Finished(&format!(
+                "{} ({n} passes): {:.2} s, NRMSE {:.4}, SSIM {:.4}",
+                MethodKind::Progressive.label(),
+                secs,
+                errors.nrmse,
+                errors.ssim
+            )));
+            rows.push(Row {
+                method: MethodKind::Progressive,
+                setting: format!("{n} passes of {per_pass}"),
+                emitted: n * per_pass,
+                photons: 0,
+                radiance_k: 0,
+                times: StageTimes { total: secs, ..Default::default() },
+                errors,
+                image: img,
+            });
+        }
+    }
+    // The paper's column order.
+    rows.sort_by_key(|r| MethodKind::ALL.iter().position(|&m| m == r.method));
+    Ok(rows)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_floor_camera_looks_at_each_cells_centre_from_above() {
+        let grid = FloorGrid { min: [-1.0, 0.5], max: [1.0, 1.5], cells: [40, 20], z: 0.25 };
+        let cam = floor_camera(&grid).unwrap();
+        for (col, row) in [(0usize, 0usize), (39, 0), (0, 19), (17, 11)] {
+            let ray = cam.ray(col as f32 + 0.5, row as f32 + 0.5);
+            assert!((ray.dir - Vec3::NEG_Z).length() < 1e-6);
+            let t = (grid.z as f32 - ray.origin.z) / ray.dir.z;
+            let hit = ray.origin + ray.dir * t;
+            // Column 0 is the smallest x, row 0 the largest y; cells 0.05 m square.
+            let want = (-1.0 + 0.05 * (col as f32 + 0.5), 1.5 - 0.05 * (row as f32 + 0.5));
+            assert!((hit.x - want.0).abs() < 1e-5 && (hit.y - want.1).abs() < 1e-5, "{col},{row}: {hit}");
+        }
+        let bad = FloorGrid { cells: [40, 40], ..grid };
+        assert!(floor_camera(&bad).is_err(), "cells must be square");
+    }
+
+    #[test]
+    fn method_slugs_round_trip() {
+        for m in MethodKind::ALL {
+            assert_eq!(MethodKind::from_slug(m.slug()), Some(m));
+        }
+        assert_eq!(MethodKind::from_slug("nope"), None);
+    }
+}

@@ -1,0 +1,406 @@
+//! The comparison's report: a Markdown table shaped like the paper's Table I with error rows
+//! added, the same numbers as CSV, an image grid with error maps, and an error-versus-time
+//! plot. Every file is written to a temporary file and renamed into place.
+
+use std::fmt::Write as _;
+use std::path::Path;
+
+use plotters::prelude::*;
+
+use super::compare::{CompareError, MethodKind, Row, Target};
+use super::metrics::{luminance, percentile_luminance};
+use crate::render::image::srgb8;
+
+/// One run of the comparison: the rows of every method, and what was varied to get it (empty
+/// for a single run; e.g. "photons = 300000" in a sweep).
+#[derive(Clone, Debug)]
+pub struct Run {
+    pub label: String,
+    pub rows: Vec<Row>,
+}
+
+fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CompareError> {
+    let io = |e: std::io::Error| CompareError::Io { path: path.display().to_string(), source: e };
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(".photonkit-").suffix(".tmp");
+    // Mode 0666 before the umask, as for any file a command creates (tempfile's default is 0600).
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    let mut tmp = builder.tempfile_in(dir).map_err(io)?;
+    std::io::Write::write_all(&mut tmp, bytes).map_err(io)?;
+    tmp.persist(path).map_err(|e| io(e.error))?;
+    Ok(())
+}
+
+fn secs(t: Option<f64>) -> String {
+    t.map_or("-".into(), |s| {
+        if s >= 60.0 { format!("{}m {:.0}s", (s / 60.0) as u64, s % 60.0) } else { format!("{s:.2}s") }
+    })
+}
+
+fn num(x: f64) -> String {
+    if x.is_nan() { "-".into() } else { format!("{x:.4}") }
+}
+
+fn count(n: u64) -> String {
+    match n {
+        0 => "-".into(),
+        n if n >= 1_000_000 && n % 100_000 == 0 => format!("{}M", n as f64 / 1e6),
+        n if n >= 1_000_000 => format!("{:.2}M", n as f64 / 1e6),
+        n if n >= 1000 => format!("{}k", (n as f64 / 1e3).round()),
+        n => n.to_string(),
+    }
+}
+
+/// The table of one run, transposed like Table I: a column per method, a row per quantity.
+pub fn table_markdown(rows: &[Row]) -> String {
+    let mut s = String::new();
+    let head: Vec<String> = rows
+        .iter()
+        .map(|r| {
+            if r.method == MethodKind::Progressive {
+                format!("{} ({})", r.method.label(), r.setting)
+            } else {
+                r.method.label().to_string()
+            }
+        })
+        .collect();
+    let _ = writeln!(s, "| | {} |", head.join(" | "));
+    let _ = writeln!(s, "|---|{}", "---|".repeat(rows.len()));
+    let line = |s: &mut String, name: &str, f: &dyn Fn(&Row) -> String| {
+        let cells: Vec<String> = rows.iter().map(f).collect();
+        let _ = writeln!(s, "| {name} | {} |", cells.join(" | "));
+    };
+    line(&mut s, "M / absorbed M", &|r| format!("{} / {}", count(r.emitted), count(r.photons)));
+    line(&mut s, "Photon cast t", &|r| secs(r.times.trace));
+    line(&mut s, "Radiance K", &|r| {
+        if r.radiance_k == 0 { "variable".into() } else { r.radiance_k.to_string() }
+    });
+    line(&mut s, "Feature detect t", &|r| secs(r.times.detect));
+    line(&mut s, "Relaxation t", &|r| secs(r.times.relax));
+    line(&mut s, "Render t", &|r| secs(r.times.render));
+    line(&mut s, "Total t", &|r| secs(Some(r.times.total)));
+    line(&mut s, "NRMSE", &|r| num(r.errors.nrmse));
+    line(&mut s, "relative MSE", &|r| num(r.errors.rel_mse));
+    line(&mut s, "SSIM", &|r| num(r.errors.ssim));
+    line(&mut s, "edge-band NRMSE", &|r| num(r.errors.edge_nrmse));
+    line(&mut s, "overlap NRMSE", &|r| num(r.errors.overlap_nrmse));
+    line(&mut s, "setting", &|r| r.setting.clone());
+    s
+}
+
+/// Every row of every run as CSV, one line per method and run.
+pub fn csv(runs: &[Run]) -> String {
+    let mut s = String::from(
+        "run,method,setting,emitted,photons,radiance_k,trace_s,detect_s,relax_s,render_s,total_s,rmse,nrmse,rel_mse,ssim,edge_nrmse,overlap_nrmse\n",
+    );
+    let opt = |t: Option<f64>| t.map_or(String::new(), |x| format!("{x:.6}"));
+    let quote = |x: &str| format!("\"{}\"", x.replace('"', "\"\""));
+    for run in runs {
+        for r in &run.rows {
+            let e = &r.errors;
+            let _ = writeln!(
+                s,
+                "{},{},{},{},{},{},{},{},{},{},{:.6},{:.6e},{:.6e},{:.6e},{:.6},{:.6e},{:.6e}",
+                quote(&run.label),
+                r.method.slug(),
+                quote(&r.setting),
+                r.emitted,
+                r.photons,
+                r.radiance_k,
+                opt(r.times.trace),
+                opt(r.times.detect),
+                opt(r.times.relax),
+                opt(r.times.render),
+                r.times.total,
+                e.rmse,
+                e.nrmse,
+                e.rel_mse,
+                e.ssim,
+                e.edge_nrmse,
+                e.overlap_nrmse
+            );
+        }
+    }
+    s
+}
+
+/// A method's error at time `t`, interpolated linearly in log time and log error between its
+/// two measured points that bracket `t`; `None` if its points do not reach `t`.
+pub fn error_at_time(points: &[(f64, f64)], t: f64) -> Option<f64> {
+    let mut p: Vec<(f64, f64)> = points.iter().copied().filter(|(x, y)| *x > 0.0 && *y > 0.0).collect();
+    p.sort_by(|a, b| a.0.total_cmp(&b.0));
+    if let Some(&(x, y)) = p.iter().find(|(x, _)| (*x / t - 1.0).abs() < 1e-9) {
+        let _ = x;
+        return Some(y);
+    }
+    let i = p.iter().position(|(x, _)| *x > t)?;
+    if i == 0 {
+        return None;
+    }
+    let ((x0, y0), (x1, y1)) = (p[i - 1], p[i]);
+    let f = (t.ln() - x0.ln()) / (x1.ln() - x0.ln());
+    Some((y0.ln() + f * (y1.ln() - y0.ln())).exp())
+}
+
+/// The (total time, NRMSE) points of each method over every run, in method order.
+fn points(runs: &[Run]) -> Vec<(MethodKind, Vec<(f64, f64)>)> {
+    MethodKind::ALL
+        .into_iter()
+        .map(|m| {
+            let p = runs
+                .iter()
+                .flat_map(|r| &r.rows)
+                .filter(|r| r.method == m)
+                .map(|r| (r.times.total, r.errors.nrmse))
+                .collect::<Vec<_>>();
+            (m, p)
+        })
+        .filter(|(_, p)| !p.is_empty())
+        .collect()
+}
+
+/// The equal-time table: for each run of this method, every other method's NRMSE at the same
+/// total time (interpolated over its runs), and the ratio to ours (> 1: ours is better).
+pub fn equal_time_markdown(runs: &[Run]) -> String {
+    let pts = points(runs);
+    let others: Vec<&(MethodKind, Vec<(f64, f64)>)> =
+        pts.iter().filter(|(m, _)| *m != MethodKind::Ours).collect();
+    let mut s = String::new();
+    let _ = writeln!(
+        s,
+        "| run | our time | our NRMSE | {} |",
+        others.iter().map(|(m, _)| format!("{} NRMSE (ratio)", m.label())).collect::<Vec<_>>().join(" | ")
+    );
+    let _ = writeln!(s, "|---|---|---|{}", "---|".repeat(others.len()));
+    for run in runs {
+        for r in run.rows.iter().filter(|r| r.method == MethodKind::Ours) {
+            let t = r.times.total;
+            let cells: Vec<String> = others
+                .iter()
+                .map(|(_, p)| match error_at_time(p, t) {
+                    Some(e) => format!("{:.4} ({:.2}×)", e, e / r.errors.nrmse),
+                    None => "not measured at this time".into(),
+                })
+                .collect();
+            let _ = writeln!(
+                s,
+                "| {} | {} | {:.4} | {} |",
+                run.label,
+                secs(Some(t)),
+                r.errors.nrmse,
+                cells.join(" | ")
+            );
+        }
+    }
+    s
+}
+
+/// The font the plots and the grid's labels are drawn with (embedded, so no system fonts
+/// are needed).
+fn register_font() -> Result<(), CompareError> {
+    plotters::style::register_font("sans-serif", FontStyle::Normal, epaint_default_fonts::UBUNTU_LIGHT)
+        .map_err(|_| CompareError::Invalid("the embedded font could not be read".into()))
+}
+
+fn png_bytes(rgb: &[u8], w: u32, h: u32) -> Result<Vec<u8>, CompareError> {
+    let mut out = Vec::new();
+    let err = |e: png::EncodingError| CompareError::Invalid(format!("PNG encoding: {e}"));
+    let mut enc = png::Encoder::new(&mut out, w, h);
+    enc.set_color(png::ColorType::Rgb);
+    enc.set_depth(png::BitDepth::Eight);
+    let mut wr = enc.write_header().map_err(err)?;
+    wr.write_image_data(rgb).map_err(err)?;
+    wr.finish().map_err(err)?;
+    Ok(out)
+}
+
+/// Colours of the methods in the plot.
+fn colour(m: MethodKind) -> RGBColor {
+    match m {
+        MethodKind::StandardPm => RGBColor(90, 90, 90),
+        MethodKind::Relaxation2009 => RGBColor(31, 119, 180),
+        MethodKind::DiffusionPm => RGBColor(44, 160, 44),
+        MethodKind::Ours => RGBColor(214, 39, 40),
+        MethodKind::Progressive => RGBColor(148, 103, 189),
+    }
+}
+
+/// The error-versus-time plot (log–log, NRMSE against total seconds, a line per method) as PNG.
+pub fn plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
+    register_font()?;
+    let (w, h) = (900u32, 600u32);
+    let mut buf = vec![255u8; (w * h * 3) as usize];
+    let pts = points(runs);
+    let all: Vec<(f64, f64)> =
+        pts.iter().flat_map(|(_, p)| p.iter().copied()).filter(|(t, e)| *t > 0.0 && *e > 0.0).collect();
+    if all.is_empty() {
+        return Err(CompareError::Invalid("nothing to plot: no run has a positive time and error".into()));
+    }
+    let (t0, t1) = all.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+    let (e0, e1) = all.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let draw = |buf: &mut [u8]| -> Result<(), Box<dyn std::error::Error + '_>> {
+        let root = BitMapBackend::with_buffer(buf, (w, h)).into_drawing_area();
+        let mut chart = ChartBuilder::on(&root)
+            .caption(title, ("sans-serif", 22))
+            .margin(15)
+            .x_label_area_size(45)
+            .y_label_area_size(70)
+            .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.3..e1 * 1.3).log_scale())?;
+        chart
+            .configure_mesh()
+            .x_desc("total time, s")
+            .y_desc("NRMSE")
+            .label_style(("sans-serif", 15))
+            .draw()?;
+        for (m, p) in &pts {
+            let mut p = p.clone();
+            p.sort_by(|a, b| a.0.total_cmp(&b.0));
+            let c = colour(*m);
+            chart
+                .draw_series(LineSeries::new(p.iter().copied(), c.stroke_width(2)))?
+                .label(m.label())
+                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
+            chart.draw_series(p.iter().map(|&(x, y)| Circle::new((x, y), 4, c.filled())))?;
+        }
+        chart
+            .configure_series_labels()
+            .label_font(("sans-serif", 15))
+            .background_style(WHITE.mix(0.8))
+            .border_style(BLACK)
+            .draw()?;
+        root.present()?;
+        Ok(())
+    };
+    draw(&mut buf).map_err(|e| CompareError::Invalid(format!("drawing the plot: {e}")))?;
+    png_bytes(&buf, w, h)
+}
+
+/// The image grid: the truth and each method's image on the top row (one exposure for all:
+/// the truth's 99th-percentile luminance maps to white), and below each image its signed
+/// luminance error (red: too bright, blue: too dark, full colour at a quarter of that
+/// percentile).
+pub fn grid_png(target: &Target, rows: &[Row]) -> Result<Vec<u8>, CompareError> {
+    register_font()?;
+    let (iw, ih) = (target.width(), target.height());
+    // Small images are enlarged (nearest neighbour) so the tiles are readable.
+    let zoom = (256 / iw.max(ih)).max(1);
+    let (tw, th) = (iw * zoom, ih * zoom);
+    let label_h = 24;
+    let cols = rows.len() + 1;
+    let (w, h) = (cols * tw, 2 * (th + label_h));
+    let mut buf = vec![255u8; w * h * 3];
+    let p99 = percentile_luminance(&target.truth, 0.99).max(f64::MIN_POSITIVE);
+    let mut put = |col: usize, row: usize, f: &dyn Fn(usize) -> [u8; 3]| {
+        let (x0, y0) = (col * tw, row * (th + label_h) + label_h);
+        for y in 0..th {
+            for x in 0..tw {
+                let px = f((y / zoom) * iw + x / zoom);
+                let o = ((y0 + y) * w + x0 + x) * 3;
+                buf[o..o + 3].copy_from_slice(&px);
+            }
+        }
+    };
+    let tone = |p: [f64; 3]| p.map(|c| srgb8((c / p99) as f32));
+    put(0, 0, &|i| tone(target.truth[i]));
+    for (c, r) in rows.iter().enumerate() {
+        let img = &r.image.pixels;
+        put(c + 1, 0, &|i| tone(img[i].as_dvec3().to_array()));
+        put(c + 1, 1, &|i| {
+            let e = (luminance(img[i].as_dvec3().to_array()) - luminance(target.truth[i])) / (0.25 * p99);
+            let e = e.clamp(-1.0, 1.0);
+            let fade = (255.0 * (1.0 - e.abs())) as u8;
+            if e >= 0.0 { [255, fade, fade] } else { [fade, fade, 255] }
+        });
+    }
+    let mut labels: Vec<String> = vec!["truth".into()];
+    labels.extend(rows.iter().map(|r| {
+        if r.method == MethodKind::Progressive {
+            format!("PPM {}", r.setting.split(' ').next().unwrap_or(""))
+        } else {
+            r.method.label().into()
+        }
+    }));
+    let draw = |buf: &mut [u8]| -> Result<(), Box<dyn std::error::Error + '_>> {
+        let root = BitMapBackend::with_buffer(buf, (w as u32, h as u32)).into_drawing_area();
+        let style = ("sans-serif", 16).into_font().color(&BLACK);
+        for (c, l) in labels.iter().enumerate() {
+            root.draw(&Text::new(l.clone(), ((c * tw + 4) as i32, 4), style.clone()))?;
+            if c > 0 {
+                root.draw(&Text::new(
+                    format!("{l}: error"),
+                    ((c * tw + 4) as i32, (th + label_h + 4) as i32),
+                    style.clone(),
+                ))?;
+            }
+        }
+        root.present()?;
+        Ok(())
+    };
+    draw(&mut buf).map_err(|e| CompareError::Invalid(format!("drawing the grid labels: {e}")))?;
+    png_bytes(&buf, w as u32, h as u32)
+}
+
+/// Writes report.md, report.csv, grid.png (of the last run) and error-vs-time.png into `dir`.
+pub fn write(
+    dir: &Path,
+    title: &str,
+    target: &Target,
+    runs: &[Run],
+    command: &str,
+) -> Result<(), CompareError> {
+    let mut md = String::new();
+    let _ = writeln!(md, "# {title}\n");
+    let _ = writeln!(md, "Made by `{command}`.\n");
+    let _ = writeln!(md, "Truth: {}.\n", target.description);
+    let _ = writeln!(
+        md,
+        "Errors are over every pixel and RGB channel of a {}×{} image; NRMSE is the RMSE over the truth's mean; \
+         relative MSE uses ε = 1 % of the truth's mean; SSIM is on luminance as displayed (over the truth's 99th percentile, clamped to 1; 11×11 Gaussian window, σ = 1.5); the \
+         edge band is every pixel within {} pixels of a sharp rise in the truth; overlap is where the truth has \
+         light from two or more separate sheets of rays.\n",
+        target.width(),
+        target.height(),
+        super::compare::EDGE_BAND
+    );
+    for run in runs {
+        if !run.label.is_empty() {
+            let _ = writeln!(md, "## {}\n", run.label);
+        }
+        md.push_str(&table_markdown(&run.rows));
+        md.push('\n');
+    }
+    let _ = writeln!(md, "## At equal time\n");
+    let _ = writeln!(
+        md,
+        "Each method's NRMSE at our method's total time, interpolated (log–log) between its runs; the ratio is its \
+         error over ours (above 1: ours is better). Methods need runs on both sides of the time to be compared.\n"
+    );
+    md.push_str(&equal_time_markdown(runs));
+    let _ = writeln!(md, "\n![error against time](error-vs-time.png)\n\n![images and error maps](grid.png)");
+    write_atomic(&dir.join("report.md"), md.as_bytes())?;
+    write_atomic(&dir.join("report.csv"), csv(runs).as_bytes())?;
+    write_atomic(&dir.join("error-vs-time.png"), &plot_png(runs, title)?)?;
+    if let Some(last) = runs.last() {
+        write_atomic(&dir.join("grid.png"), &grid_png(target, &last.rows)?)?;
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn equal_time_interpolates_in_log_log_and_refuses_to_extrapolate() {
+        // e = 1/t on a log–log line: interpolation is exact.
+        let p = [(1.0, 1.0), (4.0, 0.25), (16.0, 1.0 / 16.0)];
+        assert!((error_at_time(&p, 2.0).unwrap() - 0.5).abs() < 1e-12);
+        assert!((error_at_time(&p, 8.0).unwrap() - 0.125).abs() < 1e-12);
+        assert_eq!(error_at_time(&p, 4.0), Some(0.25));
+        assert_eq!(error_at_time(&p, 0.5), None);
+        assert_eq!(error_at_time(&p, 17.0), None);
+        assert_eq!(error_at_time(&[], 1.0), None);
+    }
+}

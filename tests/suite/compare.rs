@@ -1,0 +1,111 @@
+//! `photonkit compare` end to end on a small run of the default scene.
+
+use super::common::*;
+
+/// Reads report.csv into (method, setting, columns by name).
+fn rows(csv: &str) -> Vec<std::collections::HashMap<String, String>> {
+    let mut lines = csv.lines();
+    let head: Vec<String> = lines.next().unwrap().split(',').map(str::to_string).collect();
+    lines
+        .map(|l| {
+            // Quoted fields hold no commas in these runs except inside the setting: split
+            // outside quotes.
+            let mut fields = Vec::new();
+            let (mut cur, mut quoted) = (String::new(), false);
+            for ch in l.chars() {
+                match ch {
+                    '"' => quoted = !quoted,
+                    ',' if !quoted => fields.push(std::mem::take(&mut cur)),
+                    c => cur.push(c),
+                }
+            }
+            fields.push(cur);
+            assert_eq!(fields.len(), head.len(), "{l}");
+            head.iter().cloned().zip(fields).collect()
+        })
+        .collect()
+}
+
+#[test]
+fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same_photons() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cmp");
+    let o = photonkit(&[
+        "compare",
+        "--photons",
+        "40000",
+        "--cells",
+        "32",
+        "--spp",
+        "1",
+        "--diffusion-k",
+        "60",
+        "--ppm-passes",
+        "1,8",
+        "--ppm-photons",
+        "10000",
+        "--fast-truth",
+        "--out-dir",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    for f in ["report.md", "report.csv", "grid.png", "error-vs-time.png"] {
+        let p = out.join(f);
+        assert!(p.is_file() && std::fs::metadata(&p).unwrap().len() > 100, "{f} missing");
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    for row in [
+        "Photon cast t",
+        "Feature detect t",
+        "Relaxation t",
+        "Render t",
+        "Total t",
+        "NRMSE",
+        "SSIM",
+        "At equal time",
+    ] {
+        assert!(md.contains(row), "report.md lacks '{row}'");
+    }
+    let csv = std::fs::read_to_string(out.join("report.csv")).unwrap();
+    let r = rows(&csv);
+    let methods: Vec<&str> = r.iter().map(|x| x["method"].as_str()).collect();
+    assert_eq!(methods, ["pm", "relax2009", "diffusion", "ours", "ppm", "ppm"]);
+    let num = |row: &std::collections::HashMap<String, String>, k: &str| row[k].parse::<f64>().unwrap();
+    for row in &r {
+        for k in ["total_s", "rmse", "nrmse", "rel_mse", "ssim", "edge_nrmse"] {
+            let v = num(row, k);
+            assert!(v.is_finite() && v >= 0.0, "{} {k} = {v}", row["method"]);
+        }
+        assert!(num(row, "ssim") <= 1.0 + 1e-9);
+    }
+    // Relaxation removes the noise of the same photons: its relative error is well below the
+    // raw estimate's (0.51× in this run; the threshold leaves room for rounding elsewhere).
+    let by = |m: &str| r.iter().find(|x| x["method"] == m).unwrap();
+    assert!(
+        num(by("ours"), "rel_mse") < 0.7 * num(by("pm"), "rel_mse"),
+        "ours {} against standard PM {}",
+        num(by("ours"), "rel_mse"),
+        num(by("pm"), "rel_mse")
+    );
+    // Progressive photon mapping converges: 8 passes beat 1.
+    let ppm: Vec<f64> = r.iter().filter(|x| x["method"] == "ppm").map(|x| num(x, "rmse")).collect();
+    assert!(ppm[1] < ppm[0], "PPM error {ppm:?} did not fall with passes");
+    // Only the photons the truth accounts for are compared: fewer than were traced.
+    let stored = num(by("pm"), "photons");
+    assert!(stored > 1000.0 && stored < 40000.0);
+}
+
+#[test]
+fn compare_refuses_bad_options_clearly() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("cmp");
+    let o = photonkit(&["compare", "--methods", "pm,magic", "--out-dir", out.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("unknown method 'magic'"), "{}", stderr(&o));
+    let o = photonkit(&["compare", "--sweep", "colour=1,2", "--out-dir", out.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("unknown setting 'colour'"), "{}", stderr(&o));
+    let o = photonkit(&["compare", "--photons", "0", "--out-dir", out.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(!out.join("report.md").exists(), "no report from a failed run");
+}

@@ -491,7 +491,7 @@ fn back_to_surfaces(
 /// tangent plane, and the surface's normal there (oriented like `normal`): the photon's
 /// surface is searched along ±normal within 2·step plus a rounding margin (a tangent step of
 /// length s leaves a surface of radius R by s²/2R, far less for any step the step limit
-/// allows). `None` if another surface or none lies there.
+/// allows). `None` if another surface or none lies there, or if `step` is not positive.
 pub fn return_to_surface(
     scene: &crate::scene::Scene,
     surface: u32,
@@ -500,7 +500,9 @@ pub fn return_to_surface(
     step: f32,
 ) -> Option<(Vec3, Vec3)> {
     let n = normal.try_normalize()?;
-    let reach = 2.0 * step + 1e-5 * (1.0 + moved.abs().max_element());
+    // The margin covers the rounding of `moved` (relative to its size) and, at the origin, a
+    // fraction of the step: no absolute length, so it holds at any scene scale.
+    let reach = 2.0 * step + 1e-5 * moved.abs().max_element().max(step);
     for dir in [-n, n] {
         let ray = crate::scene::Ray::new(moved - dir * reach, dir);
         if let Some(hit) = scene.intersect(&ray, 0.0, 2.0 * reach)

@@ -1,4 +1,5 @@
 pub mod common;
+mod extremes;
 mod format;
 mod import;
 mod phm_py;

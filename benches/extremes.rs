@@ -50,7 +50,11 @@ fn stage<T>(name: &str, per: usize, f: impl FnOnce() -> T) -> T {
     let (c, t) = (cpu(), Instant::now());
     let out = f();
     let (c, w) = (cpu() - c, t.elapsed().as_secs_f64());
-    println!("| {name} | {per} | {c:.1} | {w:.1} | {:.2} | {:.0} |", c / per.max(1) as f64 * 1e6, peak_rss_mb());
+    println!(
+        "| {name} | {per} | {c:.1} | {w:.1} | {:.2} | {:.0} |",
+        c / per.max(1) as f64 * 1e6,
+        peak_rss_mb()
+    );
     out
 }
 
@@ -103,15 +107,25 @@ fn main() {
         relax::iterate(&mut pos, &search, constraint, &rp, 0, &mut relax::Scratch::default())
     });
     assert!(finite3(&pos), "relax: not finite");
-    let moved = pos.iter().zip(&ph.position).map(|(a, b)| Vec3::from(*a).distance(Vec3::from(*b))).fold(0f32, f32::max);
+    let moved = pos
+        .iter()
+        .zip(&ph.position)
+        .map(|(a, b)| Vec3::from(*a).distance(Vec3::from(*b)))
+        .fold(0f32, f32::max);
     drop(d);
 
     let img = stage("render 64×64, full, 1 spp (index + render)", n, || {
         let data = PhotonData { positions: &pos, flux: &ph.flux, normals: Some(&ph.normal) };
         let lookup = PhotonLookup::new("bench", data).expect("lookup");
         let camera = scene.camera.clone().expect("camera");
-        let opts = RenderOptions { width: 64, height: 64, spp: 1, mode: Mode::Full, ..RenderOptions::default() };
-        let r = Renderer { view: View::Scene { scene: &scene, camera }, photons: Some(&lookup), diagnostic: None, opts };
+        let opts =
+            RenderOptions { width: 64, height: 64, spp: 1, mode: Mode::Full, ..RenderOptions::default() };
+        let r = Renderer {
+            view: View::Scene { scene: &scene, camera },
+            photons: Some(&lookup),
+            diagnostic: None,
+            opts,
+        };
         r.render(&|_| {}).expect("render").0
     });
     assert!(img.pixels.iter().all(|p| p.is_finite() && p.min_element() >= 0.0), "render: not finite");
@@ -142,7 +156,8 @@ fn main() {
         emitters: None,
     };
     let d = stage(&format!("detect, param-pca, Kc = 1000, scale {kc_scale:e}"), n, || {
-        detect::detect(&input, &DetectParams { kc: 1000, ..DetectParams::default() }, &|_| {}).expect("detect")
+        detect::detect(&input, &DetectParams { kc: 1000, ..DetectParams::default() }, &|_| {})
+            .expect("detect")
     });
     assert!(finite3(&d.basis_u) && finite3(&d.basis_v) && d.lambda2.iter().all(|x| x.is_finite()));
     println!(

@@ -1104,7 +1104,10 @@ mod tests {
             );
             let moved = Vec3::new(0.01, 0.0, 0.0) * s;
             let (at, n) = return_to_surface(&scene, 0, moved, Vec3::Z, 0.01 * s).expect("floor found");
-            assert!(at.z.abs() <= 1e-6 * s && (at.x - moved.x).abs() <= 1e-6 * s && n == Vec3::Z, "{s}: {at}");
+            assert!(
+                at.z.abs() <= 1e-6 * s && (at.x - moved.x).abs() <= 1e-6 * s && n == Vec3::Z,
+                "{s}: {at}"
+            );
         }
     }
 }

@@ -93,7 +93,11 @@ pub fn eye_path(scene: &Scene, ray: Ray, opts: &EyeOptions, rng: &mut PhotonRng,
             Material::Mirror { reflectance } => {
                 let w = weight * *reflectance;
                 if alive(w) {
-                    stack.push((Ray::new(p + ng * scene.ray_offset(), mirror(ray.dir, ns, ng)), w, depth + 1));
+                    stack.push((
+                        Ray::new(p + ng * scene.ray_offset(), mirror(ray.dir, ns, ng)),
+                        w,
+                        depth + 1,
+                    ));
                 }
             }
             Material::Dielectric(di) => {

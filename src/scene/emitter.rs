@@ -80,9 +80,12 @@ impl Emitter {
     /// watts is kept.
     pub fn scaled(&self, f: f32) -> Emitter {
         let kind = match self.kind {
-            EmitterShape::Collimated { origin, edge_u, edge_v, direction } => {
-                EmitterShape::Collimated { origin: origin * f, edge_u: edge_u * f, edge_v: edge_v * f, direction }
-            }
+            EmitterShape::Collimated { origin, edge_u, edge_v, direction } => EmitterShape::Collimated {
+                origin: origin * f,
+                edge_u: edge_u * f,
+                edge_v: edge_v * f,
+                direction,
+            },
             EmitterShape::Point { position } => EmitterShape::Point { position: position * f },
             EmitterShape::Spot { position, axis, half_angle_rad } => {
                 EmitterShape::Spot { position: position * f, axis, half_angle_rad }

@@ -94,7 +94,9 @@ impl Shape {
             Shape::Rectangle { origin, edge_u, edge_v, .. } => {
                 Shape::rectangle(origin * f, edge_u * f, edge_v * f).unwrap_or_else(|| self.clone())
             }
-            Shape::Disc { center, normal, radius } => Shape::Disc { center: center * f, normal, radius: radius * f },
+            Shape::Disc { center, normal, radius } => {
+                Shape::Disc { center: center * f, normal, radius: radius * f }
+            }
             Shape::Cylinder { base, axis, radius, height } => {
                 Shape::Cylinder { base: base * f, axis, radius: radius * f, height: height * f }
             }

@@ -84,7 +84,8 @@ fn pipeline(scene: &Scene, photons: u64, dir: &Path, mode: Mode) -> Run {
     let lookup = PhotonLookup::new("relaxed.phm", data).unwrap();
     let camera = scene.camera.clone().expect("the scene has a camera");
     let ro = RenderOptions { width: 48, height: 48, spp: 1, mode, ..RenderOptions::default() };
-    let r = Renderer { view: View::Scene { scene, camera }, photons: Some(&lookup), diagnostic: None, opts: ro };
+    let r =
+        Renderer { view: View::Scene { scene, camera }, photons: Some(&lookup), diagnostic: None, opts: ro };
     let (img, _) = r.render(&|_| {}).expect("render");
     assert!(img.pixels.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
     let total = |c: usize| map.flux().iter().map(|f| f[c] as f64).sum::<f64>();
@@ -165,7 +166,9 @@ fn scaled_scenes_give_the_same_images_up_to_the_scale() {
             }
             let scaled: Vec<Vec3> = run.pixels.iter().map(|p| *p * (s * s)).collect();
             let e = relative_l1(&base.pixels, &scaled);
-            eprintln!("{file} at scale {s:e}: {n} photons (unscaled {n0}), relative L1 image difference {e:.2e}, worst floor z {worst:.1e} extents");
+            eprintln!(
+                "{file} at scale {s:e}: {n} photons (unscaled {n0}), relative L1 image difference {e:.2e}, worst floor z {worst:.1e} extents"
+            );
             assert!(e < 3e-3, "{file} at scale {s:e}: relative L1 image difference {e:e}");
         }
     }
@@ -235,8 +238,21 @@ fn cli_stages(dir: &Path) -> Vec<&'static str> {
         ("relax (world)", &["relax", "{dir}/c.phm", "-o", "{dir}/r2.phm"], "r2.phm"),
         (
             "render",
-            &["render", "{dir}/r2.phm", "--plane", "z=0", "--width", "8", "--height", "8", "--spp", "1", "-o",
-                "{dir}/e.exr", "--no-png"],
+            &[
+                "render",
+                "{dir}/r2.phm",
+                "--plane",
+                "z=0",
+                "--width",
+                "8",
+                "--height",
+                "8",
+                "--spp",
+                "1",
+                "-o",
+                "{dir}/e.exr",
+                "--no-png",
+            ],
             "",
         ),
     ];
@@ -309,7 +325,9 @@ fn tracing_a_handful_of_photons_gives_a_map_or_a_clear_error() {
     }
     // A beam beside the sphere: nothing stored.
     let path = root().join("samples/scenes/glass-sphere.toml");
-    let text = std::fs::read_to_string(path).unwrap().replace("center = [0.0, 0.0, 2.0]", "center = [1.5, 0.0, 2.0]");
+    let text = std::fs::read_to_string(path)
+        .unwrap()
+        .replace("center = [0.0, 0.0, 2.0]", "center = [1.5, 0.0, 2.0]");
     let scene = dir.path().join("miss.toml");
     std::fs::write(&scene, text).unwrap();
     assert_eq!(check(&["trace", scene.to_str().unwrap(), "--photons", "10", "-o", "{dir}/map.phm"]), 0);
@@ -364,7 +382,10 @@ fn coincident_duplicated_and_collinear_photons_stay_finite_through_every_stage()
     let sets: [(&str, SyntheticMap); 4] = [
         ("coincident", moved(square(300), |_, _| [0.25, 0.5, 0.0])),
         ("coincident at 1e6", moved(square(300), |_, _| [1e6, -1e6, 0.0])),
-        ("duplicates", moved(square(1000), |i, p| if i < 900 { [(i % 9) as f32 * 0.1, 0.3, 0.0] } else { p })),
+        (
+            "duplicates",
+            moved(square(1000), |i, p| if i < 900 { [(i % 9) as f32 * 0.1, 0.3, 0.0] } else { p }),
+        ),
         ("collinear", moved(square(500), |i, _| [i as f32 / 500.0, 0.5, 0.0])),
     ];
     for (what, m) in sets {
@@ -379,7 +400,6 @@ fn coincident_duplicated_and_collinear_photons_stay_finite_through_every_stage()
     }
 }
 
-
 /// Scaling by a power of two is exact in floating point, so with no absolute length left in
 /// any stage the runs at 2^-20 m and 2^20 m must be bit for bit the unit run scaled: the same
 /// photons at exactly s times the positions, and exactly 1/s² times the pixels.
@@ -390,7 +410,10 @@ fn power_of_two_scales_are_exact() {
     for s in [2f32.powi(-20), 2f32.powi(20)] {
         let run = pipeline(&sample_scene("glass-sphere.toml", Some(s)), 20_000, dir.path(), Mode::Full);
         assert_eq!(run.positions.len(), base.positions.len());
-        assert!(run.positions.iter().zip(&base.positions).all(|(a, b)| a.map(|x| x / s) == *b), "scale {s:e}");
+        assert!(
+            run.positions.iter().zip(&base.positions).all(|(a, b)| a.map(|x| x / s) == *b),
+            "scale {s:e}"
+        );
         assert!(run.pixels.iter().zip(&base.pixels).all(|(a, b)| *a * (s * s) == *b), "scale {s:e}");
         assert_eq!(run.flux_w, base.flux_w);
     }

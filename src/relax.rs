@@ -491,7 +491,7 @@ fn back_to_surfaces(
 /// tangent plane, and the surface's normal there (oriented like `normal`): the photon's
 /// surface is searched along ±normal within 2·step plus a rounding margin (a tangent step of
 /// length s leaves a surface of radius R by s²/2R, far less for any step the step limit
-/// allows). `None` if another surface or none lies there.
+/// allows). `None` if another surface or none lies there, or if `step` is not positive.
 pub fn return_to_surface(
     scene: &crate::scene::Scene,
     surface: u32,
@@ -500,7 +500,9 @@ pub fn return_to_surface(
     step: f32,
 ) -> Option<(Vec3, Vec3)> {
     let n = normal.try_normalize()?;
-    let reach = 2.0 * step + 1e-5 * (1.0 + moved.abs().max_element());
+    // The margin covers the rounding of `moved` (relative to its size) and, at the origin, a
+    // fraction of the step: no absolute length, so it holds at any scene scale.
+    let reach = 2.0 * step + 1e-5 * moved.abs().max_element().max(step);
     for dir in [-n, n] {
         let ray = crate::scene::Ray::new(moved - dir * reach, dir);
         if let Some(hit) = scene.intersect(&ray, 0.0, 2.0 * reach)
@@ -1065,6 +1067,47 @@ mod tests {
                 .fold(0.0, f64::max);
             assert!(err < 1e-5, "scale {s:e}: max |x/s − x| {err:e}");
             assert!(moved > 0.1, "the unscaled run barely moved ({moved})");
+        }
+    }
+
+    /// Issue 7: returning a photon to its surface uses no absolute length. A floor at z = 0
+    /// between two parallel shelves 2 µm above and below it, at scales 1e-6 (the shelves 2 µm
+    /// away) and 1 (2 m away), and a photon moved 10 nm (10 mm) in the floor's plane: the
+    /// search reaches 2·step beyond it, so it finds the floor and not a shelf. (With the former
+    /// margin of 1e-5 m, the search at 1e-6 met a shelf first in both directions and refused.)
+    #[test]
+    fn return_to_surface_holds_at_micrometre_scale() {
+        use crate::scene::{Material, Scene, Shape, Surface, SurfaceGeometry};
+        for s in [1e-6f32, 1.0] {
+            let rect = |z: f32| {
+                let o = Vec3::new(-10.0, -10.0, z) * s;
+                Shape::rectangle(o, Vec3::X * 20.0 * s, Vec3::Y * 20.0 * s).unwrap()
+            };
+            let surfaces = [0.0, 2.0, -2.0]
+                .iter()
+                .enumerate()
+                .map(|(i, &z)| Surface {
+                    name: format!("s{i}"),
+                    material: 0,
+                    geometry: SurfaceGeometry::Analytic(rect(z)),
+                })
+                .collect();
+            let emitter = crate::scene::Emitter {
+                kind: crate::scene::EmitterShape::Point { position: Vec3::new(0.0, 0.0, 1.0) * s },
+                power_w: 1.0,
+                colour: Vec3::ONE,
+            };
+            let scene = Scene::new(
+                vec![("floor".into(), Material::Diffuse { albedo: Vec3::ONE })],
+                vec![emitter],
+                surfaces,
+            );
+            let moved = Vec3::new(0.01, 0.0, 0.0) * s;
+            let (at, n) = return_to_surface(&scene, 0, moved, Vec3::Z, 0.01 * s).expect("floor found");
+            assert!(
+                at.z.abs() <= 1e-6 * s && (at.x - moved.x).abs() <= 1e-6 * s && n == Vec3::Z,
+                "{s}: {at}"
+            );
         }
     }
 }

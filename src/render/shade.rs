@@ -25,7 +25,6 @@ use glam::Vec3;
 
 use crate::scene::material::{fresnel, reflect, refract};
 use crate::scene::{EmitterShape, Material, Ray, Scene, Shape};
-use crate::trace::RAY_OFFSET_M;
 use crate::trace::halton::PhotonRng;
 
 /// How an eye ray meeting a dielectric continues.
@@ -79,7 +78,7 @@ pub fn eye_path(scene: &Scene, ray: Ray, opts: &EyeOptions, rng: &mut PhotonRng,
         let ns = if front { hit.shading } else { -hit.shading };
         let material = scene.material(hit.shape);
         if opts.see_through && material.is_specular() {
-            stack.push((Ray::new(p - ng * RAY_OFFSET_M, ray.dir), weight, depth));
+            stack.push((Ray::new(p - ng * scene.ray_offset(), ray.dir), weight, depth));
             continue;
         }
         if depth >= opts.max_depth && material.is_specular() {
@@ -94,7 +93,11 @@ pub fn eye_path(scene: &Scene, ray: Ray, opts: &EyeOptions, rng: &mut PhotonRng,
             Material::Mirror { reflectance } => {
                 let w = weight * *reflectance;
                 if alive(w) {
-                    stack.push((Ray::new(p + ng * RAY_OFFSET_M, mirror(ray.dir, ns, ng)), w, depth + 1));
+                    stack.push((
+                        Ray::new(p + ng * scene.ray_offset(), mirror(ray.dir, ns, ng)),
+                        w,
+                        depth + 1,
+                    ));
                 }
             }
             Material::Dielectric(di) => {
@@ -111,8 +114,8 @@ pub fn eye_path(scene: &Scene, ray: Ray, opts: &EyeOptions, rng: &mut PhotonRng,
                     Some(_) if di.ideal => 0.0,
                     Some(_) => fresnel(-ray.dir.dot(normal), eta),
                 };
-                let reflected = Ray::new(p + ng * RAY_OFFSET_M, mirror(ray.dir, normal, ng));
-                let transmitted = refracted.map(|t| Ray::new(p - ng * RAY_OFFSET_M, t));
+                let reflected = Ray::new(p + ng * scene.ray_offset(), mirror(ray.dir, normal, ng));
+                let transmitted = refracted.map(|t| Ray::new(p - ng * scene.ray_offset(), t));
                 match opts.specular {
                     Specular::Split => {
                         if alive(weight * f) {
@@ -208,7 +211,7 @@ impl Lights {
     /// Direct irradiance at `p` on a surface with unit normal `n` (facing the side lit),
     /// W/m² per channel; see the module docs for the closed forms.
     pub fn irradiance(&self, scene: &Scene, p: Vec3, n: Vec3) -> Vec3 {
-        let origin = p + n * RAY_OFFSET_M;
+        let origin = p + n * scene.ray_offset();
         let mut e = Vec3::ZERO;
         for light in &self.lights {
             // Distances from the surface point itself; only the shadow ray starts off it.

@@ -41,6 +41,16 @@ impl Camera {
         Some(Camera { projection, eye, forward, right, up, resolution })
     }
 
+    /// The camera of the scene scaled by `f` > 0 about the origin: the eye moves, the view
+    /// directions stay, an orthographic view's height scales.
+    pub fn scaled(&self, f: f32) -> Camera {
+        let projection = match self.projection {
+            Projection::Orthographic { height_m } => Projection::Orthographic { height_m: height_m * f },
+            p => p,
+        };
+        Camera { projection, eye: self.eye * f, ..self.clone() }
+    }
+
     /// The ray through image position (x, y) in pixels, (0, 0) the top-left corner.
     pub fn ray(&self, x: f32, y: f32) -> Ray {
         let [w, h] = self.resolution.map(|r| r as f32);

@@ -76,6 +76,34 @@ impl Emitter {
         }
     }
 
+    /// The emitter with every length multiplied by `f` > 0 (about the origin); its power in
+    /// watts is kept.
+    pub fn scaled(&self, f: f32) -> Emitter {
+        let kind = match self.kind {
+            EmitterShape::Collimated { origin, edge_u, edge_v, direction } => EmitterShape::Collimated {
+                origin: origin * f,
+                edge_u: edge_u * f,
+                edge_v: edge_v * f,
+                direction,
+            },
+            EmitterShape::Point { position } => EmitterShape::Point { position: position * f },
+            EmitterShape::Spot { position, axis, half_angle_rad } => {
+                EmitterShape::Spot { position: position * f, axis, half_angle_rad }
+            }
+        };
+        Emitter { kind, ..self.clone() }
+    }
+
+    /// Points whose bounding box holds where the emitter's photons start.
+    pub fn extent_points(&self) -> Vec<Vec3> {
+        match self.kind {
+            EmitterShape::Collimated { origin, edge_u, edge_v, .. } => {
+                vec![origin, origin + edge_u, origin + edge_v, origin + edge_u + edge_v]
+            }
+            EmitterShape::Point { position } | EmitterShape::Spot { position, .. } => vec![position],
+        }
+    }
+
     pub fn param_dims(&self) -> u32 {
         match self.kind {
             EmitterShape::Collimated { .. } => 2,

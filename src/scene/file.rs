@@ -44,6 +44,8 @@ struct RawScene {
     #[serde(default)]
     name: Option<String>,
     #[serde(default)]
+    scale: Option<Sp<f32>>,
+    #[serde(default)]
     camera: Option<Sp<RawCamera>>,
     #[serde(default)]
     materials: BTreeMap<String, Sp<RawMaterial>>,
@@ -222,6 +224,13 @@ pub(super) fn parse(src: &str, file: &str, dir: &Path) -> Result<Scene, SceneErr
     let cx = Ctx { file, src };
     let raw: RawScene = toml::from_str(src).map_err(|e| cx.toml(&e))?;
 
+    let scale = match &raw.scale {
+        Some(f) if !(*f.get_ref() > 0.0 && f.get_ref().is_finite()) => {
+            return Err(cx.err(f.span(), "scale", "must be a finite positive number"));
+        }
+        Some(f) => *f.get_ref(),
+        None => 1.0,
+    };
     let camera = raw.camera.as_ref().map(|c| camera(&cx, c)).transpose()?;
 
     let mut material_index = BTreeMap::new();
@@ -262,7 +271,7 @@ pub(super) fn parse(src: &str, file: &str, dir: &Path) -> Result<Scene, SceneErr
         return Err(cx.err(0..0, "shapes", "the scene has no shape: add a [[shapes]] table"));
     }
     scene.finish();
-    Ok(scene)
+    Ok(if scale == 1.0 { scene } else { scene.scaled(scale) })
 }
 
 /// Refuses keys that are not in `allowed` for this `kind`.

@@ -29,6 +29,11 @@ pub const DEFAULT_SCENE: &str = include_str!("../../samples/scenes/glass-sphere.
 /// The name the default scene goes by in messages and stage records.
 pub const DEFAULT_SCENE_NAME: &str = "<default scene: glass-sphere.toml>";
 
+/// The ray offset as a fraction of the scene's extent ([`Scene::ray_offset`]).
+pub const RAY_OFFSET_REL: f32 = 2.5e-5;
+/// The ray offset of a scene with no extent (a single point), metres.
+const RAY_OFFSET_FALLBACK_M: f32 = 1e-4;
+
 /// Everything that can be wrong with a scene file.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -82,6 +87,8 @@ pub struct Scene {
     triangles: Vec<[Vec3; 3]>,
     tri_info: Vec<TriInfo>,
     bvh: bvh::Bvh,
+    /// See [`Scene::ray_offset`].
+    ray_offset: f32,
 }
 
 impl Scene {
@@ -98,6 +105,7 @@ impl Scene {
             triangles: Vec::new(),
             tri_info: Vec::new(),
             bvh: bvh::Bvh::default(),
+            ray_offset: RAY_OFFSET_FALLBACK_M,
         }
     }
 
@@ -155,6 +163,75 @@ impl Scene {
 
     fn finish(&mut self) {
         self.bvh = bvh::Bvh::build(&self.triangles);
+        self.ray_offset = self.compute_ray_offset();
+    }
+
+    /// The scene with every length multiplied by `f` (finite, > 0) about the origin: shapes,
+    /// meshes, emitter positions and sizes, the camera's eye and orthographic height. Powers
+    /// stay in watts, so irradiance on the scaled scene is 1/f² times the original's.
+    pub fn scaled(&self, f: f32) -> Scene {
+        assert!(f > 0.0 && f.is_finite(), "scale factor {f}: must be finite and positive");
+        let materials = self.material_names.iter().cloned().zip(self.materials.iter().cloned()).collect();
+        let emitters = self.emitters.iter().map(|e| e.scaled(f)).collect();
+        let surfaces = self
+            .surfaces
+            .iter()
+            .map(|s| Surface {
+                name: s.name.clone(),
+                material: s.material,
+                geometry: match &s.geometry {
+                    SurfaceGeometry::Analytic(shape) => SurfaceGeometry::Analytic(shape.scaled(f)),
+                    SurfaceGeometry::Mesh(m) => SurfaceGeometry::Mesh(Mesh {
+                        positions: m.positions.iter().map(|p| *p * f).collect(),
+                        ..m.clone()
+                    }),
+                },
+            })
+            .collect();
+        let mut s = Scene::new(materials, emitters, surfaces);
+        s.name = self.name.clone();
+        s.emitter_names = self.emitter_names.clone();
+        s.camera = self.camera.as_ref().map(|c| c.scaled(f));
+        s
+    }
+
+    /// The side of the axis-aligned box around every finite shape, mesh and emitter, metres:
+    /// the scene's length scale (an infinite plane counts by its anchor point only).
+    pub fn extent(&self) -> f32 {
+        let (lo, hi) = self.bounds();
+        (hi - lo).max_element().max(0.0)
+    }
+
+    fn bounds(&self) -> (Vec3, Vec3) {
+        let mut lo = Vec3::splat(f32::INFINITY);
+        let mut hi = Vec3::splat(f32::NEG_INFINITY);
+        let mut add = |p: Vec3| {
+            lo = lo.min(p);
+            hi = hi.max(p);
+        };
+        self.analytic.iter().flat_map(|(s, _)| s.extent_points()).for_each(&mut add);
+        self.triangles.iter().flatten().copied().for_each(&mut add);
+        self.emitters.iter().flat_map(|e| e.extent_points()).for_each(&mut add);
+        (lo, hi)
+    }
+
+    /// How far a continuing ray starts off the surface it left (the tracer's and the eye
+    /// paths' self-intersection guard), metres: [`RAY_OFFSET_REL`] of the scene's
+    /// [extent](Scene::extent), so it scales with the scene (1e-4 m for the default 4 m
+    /// scene), and never under 64 f32 ulps of the largest coordinate, so it still moves a
+    /// point far from the origin.
+    pub fn ray_offset(&self) -> f32 {
+        self.ray_offset
+    }
+
+    fn compute_ray_offset(&self) -> f32 {
+        let (lo, hi) = self.bounds();
+        let extent = (hi - lo).max_element();
+        if !(extent > 0.0 && extent.is_finite()) {
+            return RAY_OFFSET_FALLBACK_M;
+        }
+        let far = lo.abs().max(hi.abs()).max_element();
+        (RAY_OFFSET_REL * extent).max(64.0 * f32::EPSILON * far)
     }
 
     /// Number of mesh triangles in the scene.

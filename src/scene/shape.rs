@@ -86,6 +86,41 @@ impl Shape {
         Some(Shape::Rectangle { origin, edge_u, edge_v, normal: n.normalize(), dual_u, dual_v })
     }
 
+    /// The shape with every length multiplied by `f` > 0 (about the origin).
+    pub fn scaled(&self, f: f32) -> Shape {
+        match *self {
+            Shape::Sphere { center, radius } => Shape::Sphere { center: center * f, radius: radius * f },
+            Shape::Plane { point, normal } => Shape::Plane { point: point * f, normal },
+            Shape::Rectangle { origin, edge_u, edge_v, .. } => {
+                Shape::rectangle(origin * f, edge_u * f, edge_v * f).unwrap_or_else(|| self.clone())
+            }
+            Shape::Disc { center, normal, radius } => {
+                Shape::Disc { center: center * f, normal, radius: radius * f }
+            }
+            Shape::Cylinder { base, axis, radius, height } => {
+                Shape::Cylinder { base: base * f, axis, radius: radius * f, height: height * f }
+            }
+        }
+    }
+
+    /// Points whose bounding box is the shape's (an infinite plane gives only its `point`).
+    pub fn extent_points(&self) -> Vec<Vec3> {
+        match *self {
+            Shape::Sphere { center, radius } | Shape::Disc { center, radius, .. } => {
+                vec![center - Vec3::splat(radius), center + Vec3::splat(radius)]
+            }
+            Shape::Plane { point, .. } => vec![point],
+            Shape::Rectangle { origin, edge_u, edge_v, .. } => {
+                vec![origin, origin + edge_u, origin + edge_v, origin + edge_u + edge_v]
+            }
+            Shape::Cylinder { base, axis, radius, height } => {
+                let top = base + axis * height;
+                let r = Vec3::splat(radius);
+                vec![base - r, base + r, top - r, top + r]
+            }
+        }
+    }
+
     /// The nearest intersection with `t` in (`t_min`, `t_max`): distance and outward normal.
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, Vec3)> {
         match *self {

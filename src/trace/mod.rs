@@ -33,8 +33,6 @@ pub use merge::merge;
 
 /// Emission numbers per unit of parallel work.
 pub const CHUNK: u64 = 4096;
-/// How far a continuing ray starts off the surface it left, metres.
-pub const RAY_OFFSET_M: f32 = 1e-4;
 
 /// Everything that can go wrong while tracing or merging.
 #[derive(Debug, thiserror::Error)]
@@ -521,7 +519,7 @@ impl Tracer<'_> {
                     if d.dot(ng) <= 0.0 {
                         d = reflect(ray.dir, ng); // the shading normal would send it into the surface
                     }
-                    ray = Ray::new(p + ng * RAY_OFFSET_M, d);
+                    ray = Ray::new(p + ng * scene.ray_offset(), d);
                 }
                 Material::Dielectric(di) => {
                     if di.dispersion.is_some() && wavelength.is_none() {
@@ -549,14 +547,14 @@ impl Tracer<'_> {
                             if !roulette(&mut flux, di.tint, &mut rng) {
                                 return false;
                             }
-                            ray = Ray::new(p - ng * RAY_OFFSET_M, t);
+                            ray = Ray::new(p - ng * scene.ray_offset(), t);
                         }
                         _ => {
                             let mut d = reflect(ray.dir, normal);
                             if d.dot(ng) <= 0.0 {
                                 d = reflect(ray.dir, ng);
                             }
-                            ray = Ray::new(p + ng * RAY_OFFSET_M, d);
+                            ray = Ray::new(p + ng * scene.ray_offset(), d);
                         }
                     }
                 }

@@ -1,5 +1,6 @@
 pub mod common;
 mod compare;
+mod extremes;
 mod format;
 mod import;
 mod phm_py;

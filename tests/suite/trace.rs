@@ -173,12 +173,12 @@ fn retrace(s: &Scene, mut ray: Ray) -> Option<Vec3> {
         let n = if front { h.normal } else { -h.normal };
         match s.material(h.shape) {
             Material::Diffuse { .. } => return Some(p),
-            Material::Mirror { .. } => ray = Ray::new(p + n * 1e-4, reflect(ray.dir, n)),
+            Material::Mirror { .. } => ray = Ray::new(p + n * s.ray_offset(), reflect(ray.dir, n)),
             Material::Dielectric(d) => {
                 let eta = if front { 1.0 / d.ior } else { d.ior };
                 ray = match refract(ray.dir, n, eta) {
-                    Some(t) => Ray::new(p - n * 1e-4, t),
-                    None => Ray::new(p + n * 1e-4, reflect(ray.dir, n)),
+                    Some(t) => Ray::new(p - n * s.ray_offset(), t),
+                    None => Ray::new(p + n * s.ray_offset(), reflect(ray.dir, n)),
                 };
             }
             _ => return None,

@@ -2,10 +2,11 @@
 //! array, ordered stack traversal, leaves tested four triangles at a time.
 //!
 //! Our own rather than a crate's: on the triangle meshes of the sample scenes its closest-hit
-//! queries measured 1.7–3.3× faster per core than the best of the `bvh` crate's (0.13.0;
-//! e.g. the water height field, 115 k triangles: 0.95 against 0.44 M rays/s), and 3.0× on a
-//! 1 M-triangle soup, with the same hits on every ray (`cargo bench --bench bvh`;
-//! BENCHMARKS.md, "Tracer"). The crate builds 7–22 % faster. The traversal is ordered and
+//! queries measured 2.8–3.9× faster per core than the best of the `bvh` crate's (0.13.0;
+//! e.g. the water height field, 115 k triangles: 0.77 against 0.28 M rays/s on a loaded
+//! machine), and 3.4× on a 1 M-triangle soup, with the same hits on every ray
+//! (`cargo bench --bench bvh`; BENCHMARKS.md, "Tracer"). The crate builds faster (75
+//! against 93 ms for the water). The traversal is ordered and
 //! prunes by the best hit so far, and the triangles are kept in leaf order next to the
 //! nodes, which is what makes photon tracing cache-friendly.
 

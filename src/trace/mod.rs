@@ -455,8 +455,8 @@ impl Tracer<'_> {
         let mut flux = self.table.colour[e];
         let mut rng = PhotonRng::new(self.opts.seed, index);
         let mut wavelength: Option<f32> = None;
-        // The index of the dielectric met last at this photon's wavelength: a dispersion
-        // formula is evaluated once per photon and material, not at every interface.
+        // The dielectric met last and its index of refraction at this photon's wavelength:
+        // a dispersion formula is evaluated once per photon and material, not per interface.
         let mut ior: Option<(&Dielectric, f32)> = None;
         let mut specular = 0u32;
         let mut path = 0.0f32;

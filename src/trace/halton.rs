@@ -25,18 +25,118 @@ impl Halton {
 
     /// The point of `index`: four coordinates in [0, 1).
     pub fn point(&self, index: u64) -> [f32; 4] {
-        let raw = [
-            (index.reverse_bits() >> 11) as f64 * (1.0 / (1u64 << 53) as f64),
+        self.rotate([
+            base2(index),
             radical_inverse::<3>(index),
             radical_inverse::<5>(index),
             radical_inverse::<7>(index),
-        ];
+        ])
+    }
+
+    /// The points of `start`, `start + 1`, … in turn, each equal to [`Halton::point`] of its
+    /// index but cheaper: the digits are carried from one index to the next.
+    pub fn run(&self, start: u64) -> HaltonRun<'_> {
+        HaltonRun {
+            halton: self,
+            index: start,
+            digits: [Digits::new(3, start), Digits::new(5, start), Digits::new(7, start)],
+        }
+    }
+
+    fn rotate(&self, raw: [f64; 4]) -> [f32; 4] {
         std::array::from_fn(|d| {
             let x = raw[d] + self.offsets[d];
             let x = if x >= 1.0 { x - 1.0 } else { x };
             // Rounding to f32 may reach 1.0: stay inside [0, 1).
             (x as f32).min(1.0 - f32::EPSILON / 2.0)
         })
+    }
+}
+
+/// The base-2 radical inverse, by reversing the bits (53 of them survive in an f64).
+fn base2(index: u64) -> f64 {
+    (index.reverse_bits() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
+}
+
+/// Consecutive points of the sequence, from [`Halton::run`].
+pub struct HaltonRun<'a> {
+    halton: &'a Halton,
+    index: u64,
+    digits: [Digits; 3],
+}
+
+impl HaltonRun<'_> {
+    /// The point of the current index; then moves to the next index.
+    pub fn next_point(&mut self) -> [f32; 4] {
+        let raw = [base2(self.index), self.digits[0].value(), self.digits[1].value(), self.digits[2].value()];
+        self.index = self.index.wrapping_add(1);
+        for d in &mut self.digits {
+            if self.index == 0 {
+                *d = Digits::new(d.base, 0); // wrapped past u64::MAX, like the index
+            } else {
+                d.increment();
+            }
+        }
+        self.halton.rotate(raw)
+    }
+}
+
+/// Most base-B digits a u64 has (B ≥ 3).
+const MAX_DIGITS: usize = 41;
+
+/// An index as its base-B digits, lowest first, with each digit's term of the radical
+/// inverse, d_k·B^−(k+1), kept ready.
+struct Digits {
+    base: u8,
+    /// Digits in use: the highest non-zero one and those below.
+    len: usize,
+    digits: [u8; MAX_DIGITS],
+    /// B^−(k+1), by repeated multiplication as in [`radical_inverse`].
+    weight: [f64; MAX_DIGITS],
+    term: [f64; MAX_DIGITS],
+}
+
+impl Digits {
+    fn new(base: u8, mut i: u64) -> Self {
+        let inv = 1.0 / base as f64;
+        let mut weight = [0.0; MAX_DIGITS];
+        let mut f = inv;
+        for w in &mut weight {
+            *w = f;
+            f *= inv;
+        }
+        let mut d = Digits { base, len: 0, digits: [0; MAX_DIGITS], weight, term: [0.0; MAX_DIGITS] };
+        while i > 0 {
+            d.set(d.len, (i % base as u64) as u8);
+            d.len += 1;
+            i /= base as u64;
+        }
+        d
+    }
+
+    fn set(&mut self, k: usize, digit: u8) {
+        self.digits[k] = digit;
+        self.term[k] = digit as f64 * self.weight[k];
+    }
+
+    fn increment(&mut self) {
+        let mut k = 0;
+        while k < MAX_DIGITS {
+            let d = self.digits[k] + 1;
+            if d < self.base {
+                self.set(k, d);
+                self.len = self.len.max(k + 1);
+                return;
+            }
+            self.set(k, 0);
+            k += 1;
+        }
+    }
+
+    /// The radical inverse: the terms summed lowest digit first, the order of
+    /// [`radical_inverse`], so the same rounding. (Terms of zero digits add exact zeros.)
+    fn value(&self) -> f64 {
+        self.term[..self.len].iter().fold(0.0, |r, &t| r + t)
     }
 }
 
@@ -87,6 +187,22 @@ mod tests {
         let h = Halton { offsets: [0.0; 4] };
         assert_eq!(h.point(6)[0], 0.375); // 6 = 110₂ → 0.011₂
         assert_eq!(h.point(0), [0.0; 4]);
+    }
+
+    #[test]
+    fn runs_equal_points_bit_for_bit() {
+        let h = Halton::new(7);
+        // Starts just below carries of every base into a new digit, and arbitrary ones.
+        for start in [0u64, 1, 48, 124, 242, 342, 2400, 6560, 15_624, 1_000_000, 4_782_968, 40_353_606] {
+            let mut run = h.run(start);
+            for i in start..start + 3000 {
+                assert_eq!(run.next_point(), h.point(i), "index {i} (run from {start})");
+            }
+        }
+        let mut run = h.run(u64::MAX - 5);
+        for i in (u64::MAX - 5..=u64::MAX).chain(0..5) {
+            assert_eq!(run.next_point(), h.point(i));
+        }
     }
 
     #[test]

@@ -27,7 +27,7 @@ use crate::format::{
     ColumnSpec, DType, FormatError, MapInfo, Output, PhotonWriter, StageRecord, State, name,
 };
 use crate::scene::material::{WAVELENGTH_RANGE_NM, fresnel, reflect, refract, wavelength_rgb};
-use crate::scene::{Material, Ray, Scene};
+use crate::scene::{Dielectric, Material, Ray, Scene};
 use halton::{Halton, PhotonRng};
 pub use merge::merge;
 
@@ -466,8 +466,9 @@ impl Tracer<'_> {
     fn chunk(&self, range: Range<u64>) -> (Photons, u64) {
         let mut out = Photons::default();
         let mut limited = 0;
+        let mut halton = self.halton.run(range.start);
         for i in range {
-            if self.photon(i, &mut out) {
+            if self.photon(i, halton.next_point(), &mut out) {
                 limited += 1;
             }
         }
@@ -475,15 +476,18 @@ impl Tracer<'_> {
     }
 
     /// Traces photon `index`, appending it to `out` if it is stored. Returns whether it was
-    /// dropped at the bounce limit.
-    fn photon(&self, index: u64, out: &mut Photons) -> bool {
+    /// dropped at the bounce limit. `point` is the Halton point of `index`.
+    fn photon(&self, index: u64, point: [f32; 4], out: &mut Photons) -> bool {
         let scene = self.scene;
-        let [u0, u1, u2, u3] = self.halton.point(index);
+        let [u0, u1, u2, u3] = point;
         let e = self.table.cdf.iter().position(|&c| u0 < c).unwrap_or(self.table.cdf.len() - 1);
         let (mut ray, params) = scene.emitters[e].emit(u1, u2);
         let mut flux = self.table.colour[e];
         let mut rng = PhotonRng::new(self.opts.seed, index);
         let mut wavelength: Option<f32> = None;
+        // The dielectric met last and its index of refraction at this photon's wavelength:
+        // a dispersion formula is evaluated once per photon and material, not per interface.
+        let mut ior: Option<(&Dielectric, f32)> = None;
         let mut specular = 0u32;
         let mut path = 0.0f32;
         loop {
@@ -528,7 +532,14 @@ impl Tracer<'_> {
                         flux *= wavelength_rgb(l);
                         wavelength = Some(l);
                     }
-                    let n = di.ior_at(wavelength);
+                    let n = match ior {
+                        Some((d, n)) if std::ptr::eq(d, di) => n,
+                        _ => {
+                            let n = di.ior_at(wavelength);
+                            ior = Some((di, n));
+                            n
+                        }
+                    };
                     let eta = if front { 1.0 / n } else { n };
                     let mut normal = ns;
                     let mut refracted = refract(ray.dir, normal, eta);

@@ -571,8 +571,9 @@ pub fn detect(
             index.knn(&points.query(i, radius), p.kc, &mut nb);
             let xi = input.positions[i];
             offsets.clear();
-            offsets.extend(nb.indices().map(|j| {
-                let xj = input.positions[j as usize];
+            // The index's copy of the neighbours' positions, in cache (the photon arrays are
+            // in emission order, where each neighbour would be a cache miss).
+            offsets.extend(nb.coords().iter().map(|xj| {
                 DVec3::new((xj[0] - xi[0]) as f64, (xj[1] - xi[1]) as f64, (xj[2] - xi[2]) as f64)
             }));
             let r2 = offsets.iter().map(|o| o.length_squared()).fold(0.0, f64::max);

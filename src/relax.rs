@@ -112,6 +112,9 @@ pub trait NeighbourSearch: Sync {
         xs.extend(ids.iter().map(|&j| Vec3::from(positions[j as usize])));
     }
 
+    /// Starts loading what a search for photon `i` will read (a hint; no effect by default).
+    fn prefetch(&self, _i: usize) {}
+
     /// An order to visit photons in that keeps successive queries in nearby memory (every
     /// photon once); `None` for index order.
     fn order(&self) -> Option<Vec<u32>> {
@@ -193,6 +196,21 @@ pub fn iterate(
                 .enumerate()
             {
                 let i = order[c * CHUNK + o] as usize;
+                // The photon arrays are in emission order: start loading a photon a few
+                // places ahead, whose data would otherwise be a cache miss when its turn comes.
+                if let Some(&a) = order.get(c * CHUNK + o + crate::spatial::PREFETCH_AHEAD) {
+                    let a = a as usize;
+                    index.prefetch(a);
+                    crate::spatial::prefetch(&snapshot[a]);
+                    crate::spatial::prefetch(&limit_of[a]);
+                    match constraint {
+                        Constraint::Basis { u, v } => {
+                            crate::spatial::prefetch(&u[a]);
+                            crate::spatial::prefetch(&v[a]);
+                        }
+                        Constraint::Tangent { normal } => crate::spatial::prefetch(&normal[a]),
+                    }
+                }
                 index.neighbours_at(i, p.kf, snapshot, &mut ids, &mut xs);
                 let xi = Vec3::from(snapshot[i]);
                 let r_k = xs.last().map_or(0.0, |&x| xi.distance(x));
@@ -318,6 +336,13 @@ impl IndexSearch<'_> {
 }
 
 impl NeighbourSearch for IndexSearch<'_> {
+    fn prefetch(&self, i: usize) {
+        self.points.prefetch(i);
+        if let Some(r) = self.radius.and_then(|r| r.get(i)) {
+            crate::spatial::prefetch(r);
+        }
+    }
+
     fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
         out.clear();
         self.search(i, k, |j, _| out.push(j));

@@ -106,7 +106,14 @@ pub trait NeighbourSearch: Sync {
 
     /// [`Self::neighbours`], and their positions in `xs`: by default read from `positions`
     /// (the snapshot the index was built over).
-    fn neighbours_at(&self, i: usize, k: usize, positions: &[[f32; 3]], ids: &mut Vec<u32>, xs: &mut Vec<Vec3>) {
+    fn neighbours_at(
+        &self,
+        i: usize,
+        k: usize,
+        positions: &[[f32; 3]],
+        ids: &mut Vec<u32>,
+        xs: &mut Vec<Vec3>,
+    ) {
         self.neighbours(i, k, ids);
         xs.clear();
         xs.extend(ids.iter().map(|&j| Vec3::from(positions[j as usize])));

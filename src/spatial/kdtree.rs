@@ -10,9 +10,15 @@
 //! A query finds the k records nearest the query in the `W` distance dimensions among those
 //! within a Euclidean ball in the `P` dimensions, with the ball test inside the traversal: a
 //! subtree is skipped when either its distance lower bound exceeds the current k-th best or
-//! its ball lower bound exceeds the radius. Lower bounds are sums of per-axis squared offsets
-//! in the same order as the distances themselves, so in floating point a bound never exceeds
-//! the distance of any record below it and the search is exact, ties included.
+//! its ball lower bound exceeds the radius. On constrained trees each node's bounding box
+//! gives a second pair of bounds (positions and parameters are correlated, so a subtree can
+//! lie wholly outside the ball though no split on the path says so). Lower bounds are sums of
+//! per-axis squared offsets in the same order as the distances themselves, so in floating
+//! point a bound never exceeds the distance of any record below it and the search is exact,
+//! ties included.
+//!
+//! A search may also start with an upper bound on its k-th distance, taken from k of its
+//! candidates that the previous result of the same buffer holds (see `KdTree::seed`).
 
 use super::{Neighbour, Neighbours};
 
@@ -181,12 +187,14 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             return;
         }
         let (mut bound, mut worst) = (f32::INFINITY, u64::MAX);
-        if out.tree == id && !out.slots.is_empty() && tuning().seed {
-            if let Some(d) = self.seed(qw, qp, r2v, ball, exclude, k, &out.slots, &mut out.cands) {
-                // Every record ranked at most (d, any index) can still be among the k.
-                bound = d;
-                worst = rank(d, u32::MAX);
-            }
+        if out.tree == id
+            && !out.slots.is_empty()
+            && tuning().seed
+            && let Some(d) = self.seed(qw, qp, r2v, ball, exclude, k, &out.slots, &mut out.cands)
+        {
+            // Every record ranked at most (d, any index) can still be among the k.
+            bound = d;
+            worst = rank(d, u32::MAX);
         }
         out.cands.clear();
         let mut s = Search {
@@ -200,7 +208,9 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             heap: &mut out.cands,
             worst,
             bound,
-            boxes: tuning().boxes,
+            // Boxes pay for themselves on constrained trees, where they bound the parameter
+            // ball; on unconstrained ones the split planes prune about as well for less work.
+            boxes: tuning().boxes && (P > 0 || tuning().all_boxes),
         };
         let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);
         s.visit(0, 0, self.recs.len(), &mut ow, &mut op);
@@ -265,12 +275,13 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     }
 }
 
-/// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox`); both on
-/// by default. Results are the same either way.
+/// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox`):
+/// seeding on, boxes on constrained trees only, by default. Results are the same either way.
 #[derive(Clone, Copy, Debug)]
 struct Tuning {
     seed: bool,
     boxes: bool,
+    all_boxes: bool,
 }
 
 fn tuning() -> Tuning {
@@ -278,10 +289,13 @@ fn tuning() -> Tuning {
     let mut v = T.load(Ordering::Relaxed);
     if v == 0 {
         let s = std::env::var("PHOTONKIT_KD").unwrap_or_default();
-        v = 0x80 | u8::from(!s.contains("noseed")) | (u8::from(!s.contains("nobox")) << 1);
+        v = 0x80
+            | u8::from(!s.contains("noseed"))
+            | (u8::from(!s.contains("nobox")) << 1)
+            | (u8::from(s.contains("allbox")) << 2);
         T.store(v, Ordering::Relaxed);
     }
-    Tuning { seed: v & 1 != 0, boxes: v & 2 != 0 }
+    Tuning { seed: v & 1 != 0, boxes: v & 2 != 0, all_boxes: v & 4 != 0 }
 }
 
 /// Weights that normalise each group of axes by its largest extent, so world space and

@@ -504,7 +504,10 @@ pub fn param_radius(
     let mut found = vec![0f32; order.len()];
     found.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
         let mut nb = Neighbours::with_capacity(k_density);
-        for (r, &i) in out.iter_mut().zip(ids) {
+        for (o, (r, &i)) in out.iter_mut().zip(ids).enumerate() {
+            if let Some(&a) = ids.get(o + crate::spatial::PREFETCH_AHEAD) {
+                points.prefetch(a as usize);
+            }
             index.knn(&points.query(i as usize, None), k_density, &mut nb);
             *r = match nb.last() {
                 Some(last) => {
@@ -559,8 +562,20 @@ pub fn detect(
     results.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
         let mut nb = Neighbours::with_capacity(p.kc);
         let (mut offsets, mut weights, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
-        for (res, &i) in out.iter_mut().zip(ids) {
+        for (o, (res, &i)) in out.iter_mut().zip(ids).enumerate() {
             let i = i as usize;
+            // The photon arrays are in emission order: start loading a photon a few places
+            // ahead, whose data would otherwise be a cache miss when its turn comes.
+            if let Some(&a) = ids.get(o + crate::spatial::PREFETCH_AHEAD) {
+                let a = a as usize;
+                points.prefetch(a);
+                if let Some(n) = input.normals.and_then(|ns| ns.get(a)) {
+                    crate::spatial::prefetch(n);
+                }
+                if let Some(r) = r_param.as_ref().and_then(|r| r.get(a)) {
+                    crate::spatial::prefetch(r);
+                }
+            }
             let normal = input.normals.map(|ns| ns[i]);
             let Some(index) = &index else {
                 let (t1, t2) = tangent_basis(normal.and_then(unit_normal).unwrap_or(DVec3::Z));
@@ -571,8 +586,9 @@ pub fn detect(
             index.knn(&points.query(i, radius), p.kc, &mut nb);
             let xi = input.positions[i];
             offsets.clear();
-            offsets.extend(nb.indices().map(|j| {
-                let xj = input.positions[j as usize];
+            // The index's copy of the neighbours' positions, in cache (the photon arrays are
+            // in emission order, where each neighbour would be a cache miss).
+            offsets.extend(nb.coords().iter().map(|xj| {
                 DVec3::new((xj[0] - xi[0]) as f64, (xj[1] - xi[1]) as f64, (xj[2] - xi[2]) as f64)
             }));
             let r2 = offsets.iter().map(|o| o.length_squared()).fold(0.0, f64::max);

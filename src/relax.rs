@@ -104,6 +104,24 @@ pub trait NeighbourSearch: Sync {
     /// counting `i` itself, nearest first, as the current space defines them.
     fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>);
 
+    /// [`Self::neighbours`], and their positions in `xs`: by default read from `positions`
+    /// (the snapshot the index was built over).
+    fn neighbours_at(
+        &self,
+        i: usize,
+        k: usize,
+        positions: &[[f32; 3]],
+        ids: &mut Vec<u32>,
+        xs: &mut Vec<Vec3>,
+    ) {
+        self.neighbours(i, k, ids);
+        xs.clear();
+        xs.extend(ids.iter().map(|&j| Vec3::from(positions[j as usize])));
+    }
+
+    /// Starts loading what a search for photon `i` will read (a hint; no effect by default).
+    fn prefetch(&self, _i: usize) {}
+
     /// An order to visit photons in that keeps successive queries in nearby memory (every
     /// photon once); `None` for index order.
     fn order(&self) -> Option<Vec<u32>> {
@@ -185,10 +203,23 @@ pub fn iterate(
                 .enumerate()
             {
                 let i = order[c * CHUNK + o] as usize;
-                index.neighbours(i, p.kf, &mut ids);
+                // The photon arrays are in emission order: start loading a photon a few
+                // places ahead, whose data would otherwise be a cache miss when its turn comes.
+                if let Some(&a) = order.get(c * CHUNK + o + crate::spatial::PREFETCH_AHEAD) {
+                    let a = a as usize;
+                    index.prefetch(a);
+                    crate::spatial::prefetch(&snapshot[a]);
+                    crate::spatial::prefetch(&limit_of[a]);
+                    match constraint {
+                        Constraint::Basis { u, v } => {
+                            crate::spatial::prefetch(&u[a]);
+                            crate::spatial::prefetch(&v[a]);
+                        }
+                        Constraint::Tangent { normal } => crate::spatial::prefetch(&normal[a]),
+                    }
+                }
+                index.neighbours_at(i, p.kf, snapshot, &mut ids, &mut xs);
                 let xi = Vec3::from(snapshot[i]);
-                xs.clear();
-                xs.extend(ids.iter().map(|&j| Vec3::from(snapshot[j as usize])));
                 let r_k = xs.last().map_or(0.0, |&x| xi.distance(x));
                 *d1 = xs.first().map_or(0.0, |&x| xi.distance(x));
                 if r_k > 0.0 {
@@ -278,7 +309,8 @@ pub struct Relaxed {
 
 /// [`NeighbourSearch`] over a [`crate::spatial::SpatialIndex`] built over `points`, excluding
 /// the query photon; `radius` holds each photon's parameter-space radius (r_param) when the
-/// index searches world + parameter space.
+/// index searches world + parameter space. Neighbour positions come from the index, so
+/// `points.positions` must be the snapshot [`iterate`] is given.
 pub struct IndexSearch<'a> {
     pub index: &'a crate::spatial::SpatialIndex,
     pub points: &'a crate::spatial::PointSet<'a>,
@@ -289,14 +321,46 @@ thread_local! {
     static FOUND: std::cell::RefCell<crate::spatial::Neighbours> = Default::default();
 }
 
-impl NeighbourSearch for IndexSearch<'_> {
-    fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
-        let mut q = self.points.query(i, self.radius.map(|r| r[i]));
-        q.exclude = Some(i as u32);
+impl IndexSearch<'_> {
+    /// The k nearest photons other than `i`, and their positions, through `found`. The search
+    /// asks for k + 1 *including* `i` and drops it: the same k photons in the same order
+    /// (i is either among the k + 1, or ranks after all of them), and the previous query's
+    /// result then holds k + 1 candidates of this one, which gives the search its starting
+    /// bound ([`crate::spatial::SpatialIndex::knn`]).
+    fn search(&self, i: usize, k: usize, mut each: impl FnMut(u32, [f32; 3])) {
+        let q = self.points.query(i, self.radius.map(|r| r[i]));
         FOUND.with_borrow_mut(|found| {
-            self.index.knn(&q, k, found);
-            out.clear();
-            out.extend(found.indices());
+            self.index.knn(&q, k + 1, found);
+            let mut kept = 0;
+            for (n, x) in found.as_slice().iter().zip(found.coords()) {
+                if n.index as usize != i && kept < k {
+                    each(n.index, *x);
+                    kept += 1;
+                }
+            }
+        });
+    }
+}
+
+impl NeighbourSearch for IndexSearch<'_> {
+    fn prefetch(&self, i: usize) {
+        self.points.prefetch(i);
+        if let Some(r) = self.radius.and_then(|r| r.get(i)) {
+            crate::spatial::prefetch(r);
+        }
+    }
+
+    fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
+        out.clear();
+        self.search(i, k, |j, _| out.push(j));
+    }
+
+    fn neighbours_at(&self, i: usize, k: usize, _: &[[f32; 3]], ids: &mut Vec<u32>, xs: &mut Vec<Vec3>) {
+        ids.clear();
+        xs.clear();
+        self.search(i, k, |j, x| {
+            ids.push(j);
+            xs.push(Vec3::from(x));
         });
     }
 

@@ -125,7 +125,7 @@ impl BoxTree {
     /// The `k` points nearest `q` within distance² `max_dist2` (inclusive; ∞ for no limit),
     /// nearest first, ties by index.
     pub fn knn(&self, q: [f32; 3], k: usize, max_dist2: f32, out: &mut Neighbours) {
-        out.items.clear();
+        out.clear();
         if k == 0 || self.nodes.is_empty() || max_dist2.is_nan() {
             return;
         }

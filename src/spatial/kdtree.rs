@@ -10,11 +10,19 @@
 //! A query finds the k records nearest the query in the `W` distance dimensions among those
 //! within a Euclidean ball in the `P` dimensions, with the ball test inside the traversal: a
 //! subtree is skipped when either its distance lower bound exceeds the current k-th best or
-//! its ball lower bound exceeds the radius. Lower bounds are sums of per-axis squared offsets
-//! in the same order as the distances themselves, so in floating point a bound never exceeds
-//! the distance of any record below it and the search is exact, ties included.
+//! its ball lower bound exceeds the radius. On constrained trees each node's bounding box
+//! gives a second pair of bounds (positions and parameters are correlated, so a subtree can
+//! lie wholly outside the ball though no split on the path says so). Lower bounds are sums of
+//! per-axis squared offsets in the same order as the distances themselves, so in floating
+//! point a bound never exceeds the distance of any record below it and the search is exact,
+//! ties included.
+//!
+//! A search may also start with an upper bound on its k-th distance, taken from k of its
+//! candidates that the previous result of the same buffer holds (see `KdTree::seed`).
 
 use super::{Neighbour, Neighbours};
+
+use std::sync::atomic::{AtomicU8, Ordering};
 
 /// Records per leaf; chosen by measurement (BENCHMARKS.md, "Spatial index").
 pub(crate) const LEAF: usize = 12;
@@ -38,11 +46,43 @@ impl<const W: usize, const P: usize> Rec<W, P> {
     }
 }
 
-#[derive(Clone, Copy, Debug, Default)]
-struct Node {
+/// An internal node: its split, its right child, and the bounding box of all its records
+/// (distance and ball dimensions), which prunes far better than the split planes alone when
+/// the records are correlated across dimensions, as photon positions and parameters are.
+#[derive(Clone, Copy, Debug)]
+struct Node<const W: usize, const P: usize> {
     split: f32,
     axis: u32,
     right: u32,
+    lo_w: [f32; W],
+    hi_w: [f32; W],
+    lo_p: [f32; P],
+    hi_p: [f32; P],
+}
+
+impl<const W: usize, const P: usize> Default for Node<W, P> {
+    fn default() -> Self {
+        Node { split: 0.0, axis: 0, right: 0, lo_w: [0.0; W], hi_w: [0.0; W], lo_p: [0.0; P], hi_p: [0.0; P] }
+    }
+}
+
+/// Squared distance from `q` to the box [lo, hi], summed in axis order: for any point x in the
+/// box each axis's offset is at most |x − q| (rounding is monotone), so in floating point the
+/// bound never exceeds the distance of a record inside.
+#[inline(always)]
+fn box_dist2<const N: usize>(q: &[f32; N], lo: &[f32; N], hi: &[f32; N]) -> f32 {
+    let mut s = 0.0f32;
+    for i in 0..N {
+        let d = if q[i] < lo[i] {
+            lo[i] - q[i]
+        } else if q[i] > hi[i] {
+            q[i] - hi[i]
+        } else {
+            0.0
+        };
+        s += d * d;
+    }
+    s
 }
 
 /// Per-axis factors applied to extents when choosing a split axis (never to distances).
@@ -75,8 +115,21 @@ fn sum_sq<const N: usize>(o: &[f32; N]) -> f32 {
 /// The ranking of neighbours, distance² then photon index, as one integer: a distance² is
 /// never negative or NaN, and the bits of non-negative floats order as the floats do.
 #[inline(always)]
-fn rank(n: &Neighbour) -> u64 {
-    ((n.dist2.to_bits() as u64) << 32) | n.index as u64
+fn rank(dist2: f32, index: u32) -> u64 {
+    ((dist2.to_bits() as u64) << 32) | index as u64
+}
+
+/// A candidate of a search: its rank and its place among the tree's records.
+#[derive(Clone, Copy, Debug, Default)]
+pub(crate) struct Cand {
+    key: u64,
+    slot: u32,
+}
+
+impl Cand {
+    fn dist2(&self) -> f32 {
+        f32::from_bits((self.key >> 32) as u32)
+    }
 }
 
 /// Internal nodes of a subtree of `m` records.
@@ -87,7 +140,7 @@ fn count_nodes(m: usize) -> usize {
 #[derive(Clone, Debug, Default)]
 pub(crate) struct KdTree<const W: usize, const P: usize> {
     recs: Vec<Rec<W, P>>,
-    nodes: Vec<Node>,
+    nodes: Vec<Node<W, P>>,
 }
 
 impl<const W: usize, const P: usize> KdTree<W, P> {
@@ -112,7 +165,9 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     }
 
     /// The `k` records nearest `qw` with `|p − qp|² ≤ r2` (`r2 = None`: no ball), skipping
-    /// the record whose index is `exclude`; sorted by (distance², index) into `out`.
+    /// the record whose index is `exclude`; sorted by (distance², index) into `out`, with
+    /// their coordinates and places. `out`'s previous result, if it came from this tree,
+    /// gives the search its starting bound ([`super::SpatialIndex::knn`]).
     pub fn knn(
         &self,
         qw: &[f32; W],
@@ -122,29 +177,125 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         k: usize,
         out: &mut Neighbours,
     ) {
-        out.items.clear();
-        if k == 0 || self.recs.is_empty() {
+        let id = self as *const Self as usize;
+        let r2v = r2.unwrap_or(f32::INFINITY);
+        let ball = r2.is_some() && P > 0;
+        let exclude = exclude.unwrap_or(u32::MAX);
+        // A NaN radius admits nothing; so does a negative one (no distance is below it).
+        if k == 0 || self.recs.is_empty() || (ball && (r2v.is_nan() || r2v < 0.0)) {
+            out.clear();
             return;
         }
+        let (mut bound, mut worst) = (f32::INFINITY, u64::MAX);
+        if out.tree == id
+            && !out.slots.is_empty()
+            && tuning().seed
+            && let Some(d) = self.seed(qw, qp, r2v, ball, exclude, k, &out.slots, &mut out.cands)
+        {
+            // Every record ranked at most (d, any index) can still be among the k.
+            bound = d;
+            worst = rank(d, u32::MAX);
+        }
+        out.cands.clear();
         let mut s = Search {
             tree: self,
             qw,
             qp,
-            r2: r2.unwrap_or(f32::INFINITY),
-            ball: r2.is_some() && P > 0,
-            exclude: exclude.unwrap_or(u32::MAX),
+            r2: r2v,
+            ball,
+            exclude,
             k,
-            heap: &mut out.items,
-            worst: Neighbour { dist2: f32::INFINITY, index: u32::MAX },
+            heap: &mut out.cands,
+            worst,
+            bound,
+            // Boxes pay for themselves on constrained trees, where they bound the parameter
+            // ball; on unconstrained ones the split planes prune about as well for less work.
+            boxes: tuning().boxes && (P > 0 || tuning().all_boxes),
         };
-        // A NaN radius admits nothing; so does a negative one (no distance is below it).
-        if s.ball && (s.r2.is_nan() || s.r2 < 0.0) {
-            return;
-        }
         let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);
         s.visit(0, 0, self.recs.len(), &mut ow, &mut op);
+        if s.heap.len() < k && s.worst != u64::MAX {
+            // Unreachable in exact arithmetic (the bound has k candidates within it); kept so
+            // that a wrong bound could only cost time, never change a result.
+            s.heap.clear();
+            (s.worst, s.bound) = (u64::MAX, f32::INFINITY);
+            let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);
+            s.visit(0, 0, self.recs.len(), &mut ow, &mut op);
+        }
         s.finish();
+        out.items.clear();
+        out.coords.clear();
+        out.slots.clear();
+        out.tree = id;
+        for c in out.cands.iter() {
+            let r = &self.recs[c.slot as usize];
+            out.items.push(Neighbour { dist2: c.dist2(), index: r.idx });
+            out.coords.push(std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 }));
+            out.slots.push(c.slot);
+        }
     }
+
+    /// An upper bound on the k-th distance² of a query: the k-th among the records at `slots`
+    /// that are its candidates, or `None` when fewer than k of them are. Distances and the
+    /// ball test are computed exactly as the search computes them, so the bound is exact.
+    #[allow(clippy::too_many_arguments)]
+    fn seed(
+        &self,
+        qw: &[f32; W],
+        qp: &[f32; P],
+        r2: f32,
+        ball: bool,
+        exclude: u32,
+        k: usize,
+        slots: &[u32],
+        scratch: &mut Vec<Cand>,
+    ) -> Option<f32> {
+        if slots.len() < k {
+            return None;
+        }
+        scratch.clear();
+        let mut max = 0.0f32;
+        for &slot in slots {
+            let Some(r) = self.recs.get(slot as usize) else { continue };
+            if r.idx == exclude || (ball && dist2(&r.p, qp) > r2) {
+                continue;
+            }
+            let d = dist2(&r.w, qw);
+            max = max.max(d);
+            scratch.push(Cand { key: rank(d, r.idx), slot });
+        }
+        match scratch.len().cmp(&k) {
+            std::cmp::Ordering::Less => None,
+            std::cmp::Ordering::Equal => Some(max),
+            std::cmp::Ordering::Greater => {
+                let (_, kth, _) = scratch.select_nth_unstable_by_key(k - 1, |c| c.key);
+                Some(kth.dist2())
+            }
+        }
+    }
+}
+
+/// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox`):
+/// seeding on, boxes on constrained trees only, by default. Results are the same either way.
+#[derive(Clone, Copy, Debug)]
+struct Tuning {
+    seed: bool,
+    boxes: bool,
+    all_boxes: bool,
+}
+
+fn tuning() -> Tuning {
+    static T: AtomicU8 = AtomicU8::new(0);
+    let mut v = T.load(Ordering::Relaxed);
+    if v == 0 {
+        let s = std::env::var("PHOTONKIT_KD").unwrap_or_default();
+        v = 0x80
+            | u8::from(!s.contains("noseed"))
+            | (u8::from(!s.contains("nobox")) << 1)
+            | (u8::from(s.contains("allbox")) << 2);
+        T.store(v, Ordering::Relaxed);
+    }
+    Tuning { seed: v & 1 != 0, boxes: v & 2 != 0, all_boxes: v & 4 != 0 }
 }
 
 /// Weights that normalise each group of axes by its largest extent, so world space and
@@ -174,7 +325,7 @@ fn bounds<const W: usize, const P: usize>(recs: &[Rec<W, P>]) -> (Vec<f32>, Vec<
 
 fn build_node<const W: usize, const P: usize>(
     recs: &mut [Rec<W, P>],
-    nodes: &mut [Node],
+    nodes: &mut [Node<W, P>],
     base: usize,
     weights: &[f32],
 ) {
@@ -197,7 +348,15 @@ fn build_node<const W: usize, const P: usize>(
     let split = recs[mid].coord(axis);
     let left_nodes = count_nodes(mid);
     let (head, rest) = nodes.split_first_mut().expect("a subtree of more than LEAF records has a node");
-    *head = Node { split, axis: axis as u32, right: (base + 1 + left_nodes) as u32 };
+    *head = Node {
+        split,
+        axis: axis as u32,
+        right: (base + 1 + left_nodes) as u32,
+        lo_w: std::array::from_fn(|a| lo[a]),
+        hi_w: std::array::from_fn(|a| hi[a]),
+        lo_p: std::array::from_fn(|a| lo[W + a]),
+        hi_p: std::array::from_fn(|a| hi[W + a]),
+    };
     let (lrecs, rrecs) = recs.split_at_mut(mid);
     let (lnodes, rnodes) = rest.split_at_mut(left_nodes);
     if m >= PARALLEL_BUILD {
@@ -219,9 +378,13 @@ struct Search<'a, const W: usize, const P: usize> {
     ball: bool,
     exclude: u32,
     k: usize,
-    heap: &'a mut Vec<Neighbour>,
-    /// The k-th best so far, or +∞ while fewer than k are held.
-    worst: Neighbour,
+    heap: &'a mut Vec<Cand>,
+    /// The rank of the k-th best so far (`u64::MAX` while fewer than k are held and no bound
+    /// was given): a record ranked at or above it cannot enter.
+    worst: u64,
+    /// The distance² part of `worst` (+∞ while unset): subtrees beyond it are skipped.
+    bound: f32,
+    boxes: bool,
 }
 
 impl<const W: usize, const P: usize> Search<'_, W, P> {
@@ -230,7 +393,16 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
             self.scan(lo, hi);
             return;
         }
-        let n = self.tree.nodes[node];
+        let tree = self.tree;
+        let n = &tree.nodes[node];
+        // The node's box: a subtree is skipped when all its records are too far, or all lie
+        // outside the parameter ball, which the split planes on the path may not show.
+        if self.boxes
+            && (box_dist2(self.qw, &n.lo_w, &n.hi_w) > self.bound
+                || (self.ball && box_dist2(self.qp, &n.lo_p, &n.hi_p) > self.r2))
+        {
+            return;
+        }
         let axis = n.axis as usize;
         let mid = lo + (hi - lo) / 2;
         let q = if axis < W { self.qw[axis] } else { self.qp[axis - W] };
@@ -245,7 +417,7 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
         if axis < W {
             let old = ow[axis];
             ow[axis] = diff.abs();
-            if sum_sq(ow) <= self.worst.dist2 && (!self.ball || sum_sq(op) <= self.r2) {
+            if sum_sq(ow) <= self.bound && (!self.ball || sum_sq(op) <= self.r2) {
                 self.visit(far, flo, fhi, ow, op);
             }
             ow[axis] = old;
@@ -253,7 +425,7 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
             let a = axis - W;
             let old = op[a];
             op[a] = diff.abs();
-            if (!self.ball || sum_sq(op) <= self.r2) && sum_sq(ow) <= self.worst.dist2 {
+            if (!self.ball || sum_sq(op) <= self.r2) && sum_sq(ow) <= self.bound {
                 self.visit(far, flo, fhi, ow, op);
             }
             op[a] = old;
@@ -262,15 +434,15 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
 
     #[inline(always)]
     fn scan(&mut self, lo: usize, hi: usize) {
-        for r in &self.tree.recs[lo..hi] {
-            let d = dist2(&r.w, self.qw);
-            if d > self.worst.dist2 || (d == self.worst.dist2 && r.idx >= self.worst.index) {
+        for (slot, r) in self.tree.recs[lo..hi].iter().enumerate() {
+            let key = rank(dist2(&r.w, self.qw), r.idx);
+            if key >= self.worst {
                 continue;
             }
             if r.idx == self.exclude || (self.ball && dist2(&r.p, self.qp) > self.r2) {
                 continue;
             }
-            self.push(Neighbour { dist2: d, index: r.idx });
+            self.push(Cand { key, slot: (lo + slot) as u32 });
         }
     }
 
@@ -280,11 +452,12 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
     /// every insert (the bound lags a little, which costs less than it saves; measured in
     /// BENCHMARKS.md, "Spatial index").
     #[inline(always)]
-    fn push(&mut self, c: Neighbour) {
+    fn push(&mut self, c: Cand) {
         self.heap.push(c);
-        // The first k set the first bound; after that the buffer runs to 2k between cuts.
+        // The first k set the first bound (unless one was given); after that the buffer runs
+        // to 2k between cuts.
         let len = self.heap.len();
-        if len == 2 * self.k || (len == self.k && self.worst.dist2 == f32::INFINITY) {
+        if len == 2 * self.k || (len == self.k && self.worst == u64::MAX) {
             self.cut();
         }
     }
@@ -292,8 +465,9 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
     /// Keeps the k best candidates (unordered) and makes the k-th the bound.
     fn cut(&mut self) {
         let k = self.k;
-        let (_, kth, _) = self.heap.select_nth_unstable_by_key(k - 1, rank);
-        self.worst = *kth;
+        let (_, kth, _) = self.heap.select_nth_unstable_by_key(k - 1, |c| c.key);
+        self.worst = kth.key;
+        self.bound = kth.dist2();
         self.heap.truncate(k);
     }
 
@@ -302,6 +476,6 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
         if self.heap.len() > self.k {
             self.cut();
         }
-        self.heap.sort_unstable_by_key(rank);
+        self.heap.sort_unstable_by_key(|c| c.key);
     }
 }

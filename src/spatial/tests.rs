@@ -309,3 +309,42 @@ mod props {
         }
     }
 }
+
+/// The stages' pattern: one result buffer reused over every photon in the index's order (so
+/// most queries start from the previous result's bound), each photon with its own radius,
+/// on a folded sheet where world neighbours and parameter neighbours differ. Every result
+/// equals the scan's, and `coords` are the returned photons' positions.
+#[test]
+fn queries_in_leaf_order_with_a_reused_buffer_equal_brute_force_and_return_positions() {
+    let mut rng = Pcg64Mcg::seed_from_u64(11);
+    let n = 1500;
+    let mut pos = Vec::with_capacity(n);
+    let mut params = Vec::with_capacity(2 * n);
+    for _ in 0..n {
+        let (u, v) = (rng.random::<f32>(), rng.random::<f32>());
+        // Two halves of the parameter square land on overlapping strips (Fig. 3's fold).
+        let x = if u < 0.5 { 1.2 * u } else { 0.4 + 1.2 * (u - 0.5) };
+        pos.push([x, v, 0.0]);
+        params.extend([u, v]);
+    }
+    let radius: Vec<f32> = (0..n).map(|_| 0.02 + 0.1 * rng.random::<f32>()).collect();
+    let o = Owned { pos, params, stride: 2, dims: vec![2], emitters: None };
+    let set = o.set();
+    for (space, k) in
+        [(Space::WorldParams, 17), (Space::WorldParams, 50), (Space::Params, 50), (Space::World, 17)]
+    {
+        let index = SpatialIndex::build(&set, space).unwrap();
+        let mut out = Neighbours::default();
+        for i in index.order() {
+            let i = i as usize;
+            let q = set.query(i, Some(radius[i]));
+            index.knn(&q, k, &mut out);
+            let want = brute_force_knn(&set, space, &q, k);
+            assert_eq!(out.as_slice(), &want[..], "space {space:?}, k {k}, photon {i}");
+            if space != Space::Params {
+                let at: Vec<[f32; 3]> = out.indices().map(|j| o.pos[j as usize]).collect();
+                assert_eq!(out.coords(), &at[..]);
+            }
+        }
+    }
+}

@@ -246,6 +246,7 @@ pub fn default_grid(scene: &Scene, cells_x: usize) -> Result<FloorGrid, TruthErr
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::PI;
     use std::path::Path;
 
     fn sample(name: &str) -> Scene {
@@ -253,17 +254,125 @@ mod tests {
         Scene::load(&p).unwrap()
     }
 
+    fn parse(src: &str) -> Scene {
+        Scene::parse(src, "test.toml", Path::new(".")).unwrap()
+    }
+
+    fn sum(e: &[f64; 3]) -> f64 {
+        e[0] + e[1] + e[2]
+    }
+
     #[test]
-    fn explore() {
-        for s in ["glass-sphere.toml", "water.toml", "prism.toml", "ring.toml"] {
-            let sc = sample(s);
-            let t0 = std::time::Instant::now();
-            let g = default_grid(&sc, 48).unwrap();
-            let t = floor_truth(&sc, &g, Quality::Test).unwrap();
-            let tot: f64 = t.irradiance.iter().map(|e| e.iter().sum::<f64>()).sum::<f64>() * g.cell_area();
-            let ov = t.overlap.iter().filter(|&&o| o).count();
-            let max = t.irradiance.iter().map(|e| e.iter().sum::<f64>()).fold(0.0, f64::max);
-            println!("{s}: {g:?} total {tot:.4} W, max {max:.2}, overlap {ov}, bounces {:?}, {:?}\n  {}", t.bounces, t0.elapsed(), t.method);
+    fn cosine_and_angle_forms_of_fresnel_agree() {
+        for k in 1..89 {
+            let ti = (k as f64).to_radians();
+            let tt = (ti.sin() / 1.33).asin();
+            assert!((optics::fresnel(ti.cos(), 1.0 / 1.33) - fresnel_reflectance(ti, tt)).abs() < 1e-12);
+            // Leaving the glass below the critical angle: the same pair of angles, reversed.
+            assert!((optics::fresnel(tt.cos(), 1.33) - fresnel_reflectance(tt, ti)).abs() < 1e-12);
         }
+    }
+
+    /// Flat water (no waves): every ray refracts at normal incidence, so the floor under the
+    /// beam is lit uniformly with E0·(1 − ((n − 1)/(n + 1))²), a third per channel.
+    #[test]
+    fn flat_water_gives_the_uniform_transmitted_beam() {
+        let scene = parse(
+            r#"
+[materials.floor]
+kind = "diffuse"
+[materials.water]
+kind = "dielectric"
+ior = 1.33
+[[emitters]]
+kind = "collimated"
+center = [0.0, 0.0, 1.0]
+size = [1.0, 1.0]
+direction = [0.0, 0.0, -1.0]
+power_w = 10.0
+[[shapes]]
+kind = "rectangle"
+origin = [-1.0, -1.0, 0.0]
+edge_u = [2.0, 0.0, 0.0]
+edge_v = [0.0, 2.0, 0.0]
+material = "floor"
+[[shapes]]
+kind = "height_field"
+size = [1.2, 1.2]
+cells = [12, 12]
+height = 0.3
+material = "water"
+"#,
+        );
+        let grid = FloorGrid { min: [-0.6, -0.6], max: [0.6, 0.6], cells: [24, 24], z: 0.0 };
+        let t = floor_truth(&scene, &grid, Quality::Test).unwrap();
+        let want = 10.0 * (1.0 - (0.33f64 / 2.33).powi(2)) / 3.0;
+        for r in 0..24 {
+            for c in 0..24 {
+                let e = t.irradiance[r * 24 + c];
+                // The beam covers [−0.5, 0.5]²: cells 2..22 in each direction.
+                let inside = (2..22).contains(&r) && (2..22).contains(&c);
+                for ch in e {
+                    let w = if inside { want } else { 0.0 };
+                    assert!((ch - w).abs() < 1e-6 * want, "cell ({c}, {r}): {ch} vs {w}");
+                }
+            }
+        }
+        assert_eq!(t.bounces, vec![1]);
+        assert!(!t.overlap.contains(&true));
+    }
+
+    /// The 2-D truth of the default scene against the 1-D radial quadrature: every cell's
+    /// average of the radial irradiance (sampled 20 × 20 per cell from 0.5 mm annuli) away from
+    /// the central spike, and the total flux on the floor against the radial integral with
+    /// the exact share of each landing circle that lies on the 4 m × 4 m floor.
+    #[test]
+    fn sphere_grid_agrees_with_the_radial_quadrature_and_conserves_flux() {
+        let scene = sample("glass-sphere.toml");
+        let s = SphereCaustic { radius: 0.5, centre_height: 0.8, ior: 1.5, beam_irradiance: 10.0, fresnel: true };
+        let grid = FloorGrid { min: [-0.4, -0.4], max: [0.4, 0.4], cells: [32, 32], z: 0.0 };
+        let t = floor_truth(&scene, &grid, Quality::Test).unwrap();
+        assert_eq!(t.bounces, vec![2]);
+        let edges: Vec<f64> = (0..=1200).map(|i| i as f64 * 0.0005).collect();
+        let radial = s.radial(&edges, 400_000);
+        let (mut checked, mut worst) = (0, 0.0f64);
+        for r in 0..32 {
+            for c in 0..32 {
+                let [x, y] = grid.centre(c, r);
+                if x.hypot(y) < 0.1 || x.hypot(y) > 0.35 {
+                    continue;
+                }
+                let mut e = 0.0;
+                for k in 0..400 {
+                    let px = x + ((k % 20) as f64 + 0.5) / 20.0 * 0.025 - 0.0125;
+                    let py = y + ((k / 20) as f64 + 0.5) / 20.0 * 0.025 - 0.0125;
+                    e += radial[(px.hypot(py) / 0.0005) as usize] / 400.0;
+                }
+                let rel = sum(&t.irradiance[r * 32 + c]) / e - 1.0;
+                worst = worst.max(rel.abs());
+                checked += 1;
+            }
+        }
+        println!("{checked} cells, worst {worst}");
+        assert!(checked > 200 && worst < 0.02, "{checked} cells, worst relative difference {worst}");
+
+        let floor = FloorGrid { min: [-2.0, -2.0], max: [2.0, 2.0], cells: [64, 64], z: 0.0 };
+        let t = floor_truth(&scene, &floor, Quality::Test).unwrap();
+        let total: f64 = t.irradiance.iter().map(sum).sum::<f64>() * floor.cell_area();
+        // Share of the circle of radius ρ inside the square |x|, |y| ≤ 2.
+        let on_floor = |rho: f64| match rho {
+            r if r <= 2.0 => 1.0,
+            r if r < 2.0 * 2f64.sqrt() => 1.0 - 4.0 / PI * (2.0 / r).acos(),
+            _ => 0.0,
+        };
+        let n = 400_000;
+        let db = 0.5 / n as f64;
+        let want: f64 = (0..n)
+            .filter_map(|k| {
+                let b = (k as f64 + 0.5) * db;
+                s.landing(b).map(|(rho, tr)| 10.0 * tr * 2.0 * PI * b * db * on_floor(rho.abs()))
+            })
+            .sum();
+        assert!((total / want - 1.0).abs() < 2e-3, "{total} W on the floor, radial quadrature {want} W");
     }
 }

@@ -103,7 +103,7 @@ impl<'g> Accumulator<'g> {
         if let Some(ls) = same {
             let p = ls.map(|x| x.xy);
             let (w, h) = self.extent_cells(&p);
-            if depth == 0 || w * h <= REFINE_CELLS {
+            if depth == 0 || (w * h <= REFINE_CELLS && self.nearly_linear(map, q, &p)) {
                 let mut f = [0.0; 3];
                 for x in &ls {
                     for c in 0..3 {
@@ -138,6 +138,20 @@ impl<'g> Accumulator<'g> {
         self.triangle(map, [m01, q[1], m12], [l01, l[1], l12], depth - 1, power);
         self.triangle(map, [m20, m12, q[2]], [l20, l12, l[2]], depth - 1, power);
         self.triangle(map, [m01, m12, m20], [l01, l12, l20], depth - 1, power);
+    }
+
+    /// Whether the map carries the parameter triangle's centroid within a hundredth of a cell of
+    /// its image triangle's centroid (else the linear interpolation is refined). Triangles
+    /// inside one cell need no check: the cell gets their flux either way.
+    fn nearly_linear(&self, map: &dyn Fn(f64, f64) -> Option<Landing>, q: [[f64; 2]; 3], p: &[[f64; 2]; 3]) -> bool {
+        let (w, h) = self.extent_cells(p);
+        if w < 0.5 && h < 0.5 {
+            return true;
+        }
+        let c = [(q[0][0] + q[1][0] + q[2][0]) / 3.0, (q[0][1] + q[1][1] + q[2][1]) / 3.0];
+        let Some(x) = map(c[0], c[1]) else { return false };
+        let lin = [(p[0][0] + p[1][0] + p[2][0]) / 3.0, (p[0][1] + p[1][1] + p[2][1]) / 3.0];
+        ((x.xy[0] - lin[0]) / self.cell[0]).abs() < 0.01 && ((x.xy[1] - lin[1]) / self.cell[1]).abs() < 0.01
     }
 
     /// Width and height of a triangle's bounding box in cells.

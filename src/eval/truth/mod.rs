@@ -375,4 +375,129 @@ material = "water"
             .sum();
         assert!((total / want - 1.0).abs() < 2e-3, "{total} W on the floor, radial quadrature {want} W");
     }
+
+    /// The prism with a fixed index 1.7 (no dispersion): every ray turns by the same angles,
+    /// so the band on the floor is one rectangle of constant irradiance. Its edges and level
+    /// follow from Snell's law in angle form applied by hand to the beam's two edge rays
+    /// (directions as angles in the x–z plane from +x).
+    #[test]
+    fn prism_band_edges_follow_snells_law_by_hand() {
+        let src = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes/prism.toml"))
+            .unwrap();
+        let start = src.find("sellmeier").unwrap();
+        let end = start + src[start..].find('\n').unwrap();
+        let scene = parse(&src.replace(&src[start..end], "ior = 1.7"));
+        let n = 1.7f64;
+        let d = [0.837f64, 0.547];
+        let alpha = d[1].atan2(d[0]);
+        // The faces' normals from the outline (its apex 0.8598 makes the faces 59.9998°, not
+        // 60°: the difference moves the band by 0.2 mm).
+        let in_left = 0.2598f64.atan2(0.15) - PI / 2.0; // inward normal of the left face, ≈ −30°
+        let out_right = 0.2598f64.atan2(-0.15) - PI / 2.0; // outward normal of the right face, ≈ 30°
+        let ti1 = alpha - in_left;
+        let tt1 = (ti1.sin() / n).asin();
+        let beta = in_left + tt1;
+        let ti2 = beta - out_right;
+        let tt2 = (n * ti2.sin()).asin();
+        let gamma = out_right + tt2;
+        assert!(gamma < 0.0, "the ray leaves downward");
+        let trans = (1.0 - fresnel_reflectance(ti1, tt1)) * (1.0 - fresnel_reflectance(ti2, tt2));
+        // Where the line p + s·(cos a, sin a) meets the segment a0–a1.
+        let meet = |p: [f64; 2], a: f64, a0: [f64; 2], a1: [f64; 2]| {
+            let (dx, dz) = (a.cos(), a.sin());
+            let (ex, ez) = (a1[0] - a0[0], a1[1] - a0[1]);
+            let den = dx * ez - dz * ex;
+            let s = ((a0[0] - p[0]) * ez - (a0[1] - p[1]) * ex) / den;
+            let u = ((a0[0] - p[0]) * dz - (a0[1] - p[1]) * dx) / den;
+            assert!((0.0..=1.0).contains(&u), "misses the face");
+            [p[0] + s * dx, p[1] + s * dz]
+        };
+        let (left, right) = (([-0.15, 0.6], [0.0, 0.8598]), ([0.15, 0.6], [0.0, 0.8598]));
+        let _ = &right;
+        let norm = d[0].hypot(d[1]);
+        // Across the beam (side +1 is up-left); the beam spans ±0.06 m about its centre, but
+        // its upper part passes above the apex: only s ≤ s_apex meets the left face.
+        let across = [-d[1] / norm, d[0] / norm];
+        let centre = [-0.546, 0.456];
+        let apex = [0.0, 0.8598];
+        let s_apex = (apex[0] - centre[0]) * across[0] + (apex[1] - centre[1]) * across[1];
+        assert!(s_apex > -0.06 && s_apex < 0.06);
+        let floor_x = |r: [f64; 2]| r[0] - r[1] / gamma.tan();
+        let lower = [centre[0] - 0.06 * across[0], centre[1] - 0.06 * across[1]];
+        let q = meet(lower, alpha, left.0, left.1);
+        let a = floor_x(meet(q, beta, right.0, right.1));
+        let b = floor_x(apex); // the ray through the apex enters and leaves there
+        let (x0, x1) = (a.min(b), a.max(b));
+        let power = 10.0 * (s_apex + 0.06) / 0.12;
+        let want = power * trans / ((x1 - x0) * 0.4) / 3.0;
+        let cells = 200;
+        let grid = FloorGrid { min: [x0 - 0.05, -0.3], max: [x1 + 0.05, 0.3], cells: [cells, 12], z: 0.0 };
+        let t = floor_truth(&scene, &grid, Quality::Test).unwrap();
+        assert_eq!(t.bounces, vec![2]);
+        let w = grid.cell_size()[0];
+        for r in 0..12 {
+            // Rows of 5 cm: the beam's y ∈ [−0.2, 0.2] covers rows 2..10 exactly.
+            let lit_row = (2..10).contains(&r);
+            for c in 0..cells {
+                let xl = grid.min[0] + c as f64 * w;
+                let cover = ((x1.min(xl + w) - x0.max(xl)) / w).clamp(0.0, 1.0);
+                let expect = if lit_row { want * cover } else { 0.0 };
+                let got = t.irradiance[r * cells + c];
+                // The apex edge is resolved by subdivision (rays above it miss): its cell to a
+                // tenth of a cell; the other edge to a micrometre (the scene's f32 vertices);
+                // everywhere else to rounding.
+                let tol = if (xl - x1).abs() < 2.0 * w {
+                    0.1
+                } else if (xl - x0).abs() < 2.0 * w {
+                    2e-3
+                } else {
+                    1e-6
+                };
+                for ch in got {
+                    assert!((ch - expect).abs() < tol * want, "cell ({c}, {r}): {ch} vs {expect}");
+                }
+            }
+        }
+    }
+
+    /// The ring: for parallel light in the plane of a circular mirror of radius R the caustic
+    /// is a nephroid with its cusp R/2 from the centre. At 30° elevation a wall reflection keeps
+    /// the vertical component, so each reflected ray's horizontal projection is the 2-D one:
+    /// rays of one horizontal offset fill a vertical plane, and neighbouring planes meet on the
+    /// vertical line over the 2-D caustic; the floor caustic is the nephroid itself, cusp at
+    /// (−R/2, 0) (light from +x). It is reached: the paraxial ray crosses the focal line at
+    /// floor level after meeting the far wall (R/2)·tan 30° = 0.289 m high, below the 0.5 m rim.
+    /// Checked on the forward map: the floor landings of once-reflected rays of one small
+    /// offset y = ε lie on a line that crosses the axis at −R/2 + O(ε²).
+    #[test]
+    fn ring_caustic_has_its_cusp_half_a_radius_from_the_centre() {
+        let scene = sample("ring.toml");
+        let setup = optics::Setup::from_scene(&scene).unwrap();
+        // The beam's u runs along +y over 2.4 m; v up its face.
+        for eps in [1e-3, -2e-3] {
+            let u = 0.5 + eps / 2.4;
+            let hits: Vec<[f64; 2]> = (0..100)
+                .filter_map(|k| setup.land(u, k as f64 / 100.0, None))
+                .filter(|l| l.bounces == 1 && l.xy[0] < 0.0)
+                .map(|l| l.xy)
+                .collect();
+            assert!(hits.len() > 10, "{} once-reflected rays", hits.len());
+            let (p, q) = (hits[0], hits[hits.len() - 1]);
+            let x_axis = p[0] - p[1] * (q[0] - p[0]) / (q[1] - p[1]);
+            assert!((x_axis + 0.5).abs() < 1e-5, "ε = {eps}: crosses the axis at {x_axis}");
+            // One vertical plane: every landing on that line.
+            for h in &hits {
+                let off = (h[0] - p[0]) * (q[1] - p[1]) - (h[1] - p[1]) * (q[0] - p[0]);
+                assert!(off.abs() < 1e-12, "{h:?}");
+            }
+        }
+        let grid = FloorGrid { min: [-0.95, -0.0125], max: [-0.05, 0.0125], cells: [72, 1], z: 0.0 };
+        let t = floor_truth(&scene, &grid, Quality::Test).unwrap();
+        // Between the cusp and the wall two sheets of once-reflected light overlap (the fold's
+        // two sides); between the centre and the cusp there is one.
+        let at = |x: f64| grid.cell_of(x, 0.0).unwrap().0;
+        assert!(t.overlap[at(-0.75)], "{:?}", t.overlap);
+        assert!(!t.overlap[at(-0.3)]);
+        assert_eq!(t.bounces.first(), Some(&1));
+    }
 }

@@ -147,12 +147,26 @@ fn wavelengths(setup: &Setup, n: usize) -> Vec<(Option<f64>, f64)> {
 /// emitter, one diffuse horizontal floor and one specular object.
 /// `Err(TruthError::Unsupported(why))` for anything else.
 pub fn floor_truth(scene: &Scene, grid: &FloorGrid, quality: Quality) -> Result<FloorTruth, TruthError> {
+    floor_truth_scaled(scene, grid, quality, 1)
+}
+
+/// [`floor_truth`] with `scale` times the quality's parameter quads per side and wavelengths
+/// (for convergence checks: `benches/truth.rs`).
+#[doc(hidden)]
+pub fn floor_truth_scaled(
+    scene: &Scene,
+    grid: &FloorGrid,
+    quality: Quality,
+    scale: usize,
+) -> Result<FloorTruth, TruthError> {
     grid.check()?;
     let setup = Setup::from_scene(scene)?;
     if (setup.floor.z - grid.z).abs() > 1e-6 * (1.0 + grid.z.abs()) {
         return Err(TruthError::WrongPlane { grid: grid.z, floor: setup.floor.z });
     }
-    let e = effort(&setup, quality);
+    let mut e = effort(&setup, quality);
+    e.n *= scale.max(1);
+    e.wavelengths *= scale.max(1);
     let mut acc = Accumulator::new(grid);
     let lambdas = wavelengths(&setup, e.wavelengths);
     for &(l, w) in &lambdas {
@@ -413,7 +427,6 @@ material = "water"
             [p[0] + s * dx, p[1] + s * dz]
         };
         let (left, right) = (([-0.15, 0.6], [0.0, 0.8598]), ([0.15, 0.6], [0.0, 0.8598]));
-        let _ = &right;
         let norm = d[0].hypot(d[1]);
         // Across the beam (side +1 is up-left); the beam spans ±0.06 m about its centre, but
         // its upper part passes above the apex: only s ≤ s_apex meets the left face.

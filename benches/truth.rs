@@ -24,7 +24,9 @@ fn total(e: &[f64; 3]) -> f64 {
 
 fn main() {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes");
-    println!("scene | cells | Report CPU s | 2× CPU s | L1 rel. diff | cells > 1 % off (of cells ≥ 1 % of max) | overlap cells");
+    println!(
+        "scene | cells | Report CPU s | 2× CPU s | L1 rel. diff | cells > 1 % off (of cells ≥ 1 % of max) | overlap cells"
+    );
     for f in ["glass-sphere.toml", "water.toml", "prism.toml", "ring.toml"] {
         let scene = Scene::load(&dir.join(f)).expect("sample scene");
         let grid = default_grid(&scene, 256).expect("a truth scene");
@@ -33,8 +35,9 @@ fn main() {
         let t1 = cpu();
         let b = floor_truth_scaled(&scene, &grid, Quality::Report, 2).expect("truth");
         let t2 = cpu();
-        let l1: f64 = a.irradiance.iter().zip(&b.irradiance).map(|(x, y)| (total(x) - total(y)).abs()).sum::<f64>()
-            / b.irradiance.iter().map(total).sum::<f64>();
+        let l1: f64 =
+            a.irradiance.iter().zip(&b.irradiance).map(|(x, y)| (total(x) - total(y)).abs()).sum::<f64>()
+                / b.irradiance.iter().map(total).sum::<f64>();
         let max = b.irradiance.iter().map(total).fold(0.0, f64::max);
         let (mut big, mut off) = (0, 0);
         for (x, y) in a.irradiance.iter().zip(&b.irradiance) {

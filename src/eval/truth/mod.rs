@@ -122,9 +122,9 @@ fn effort(setup: &Setup, q: Quality) -> Effort {
     match (&setup.optic, q) {
         // The prism's map is affine per wavelength: few triangles, many wavelengths.
         (Optic::Facets { .. }, Quality::Test) => Effort { n: 4, depth: 6, wavelengths: 48 },
-        (Optic::Facets { .. }, Quality::Report) => Effort { n: 8, depth: 8, wavelengths: 2000 },
+        (Optic::Facets { .. }, Quality::Report) => Effort { n: 4, depth: 6, wavelengths: 400 },
         (_, Quality::Test) => Effort { n: 128, depth: 4, wavelengths: 16 },
-        (_, Quality::Report) => Effort { n: 1024, depth: 6, wavelengths: 200 },
+        (_, Quality::Report) => Effort { n: 512, depth: 4, wavelengths: 200 },
     }
 }
 
@@ -194,7 +194,10 @@ pub fn floor_truth_scaled(
         t = acc.triangles,
         p = acc.points,
         w = if lambdas.len() > 1 {
-            format!("; {} wavelengths (midpoint rule, uniform on 380–720 nm, RGB weights as the tracer)", lambdas.len())
+            format!(
+                "; {} wavelengths (midpoint rule, uniform on 380–720 nm, RGB weights as the tracer)",
+                lambdas.len()
+            )
         } else {
             String::new()
         }
@@ -343,7 +346,8 @@ material = "water"
     #[test]
     fn sphere_grid_agrees_with_the_radial_quadrature_and_conserves_flux() {
         let scene = sample("glass-sphere.toml");
-        let s = SphereCaustic { radius: 0.5, centre_height: 0.8, ior: 1.5, beam_irradiance: 10.0, fresnel: true };
+        let s =
+            SphereCaustic { radius: 0.5, centre_height: 0.8, ior: 1.5, beam_irradiance: 10.0, fresnel: true };
         let grid = FloorGrid { min: [-0.4, -0.4], max: [0.4, 0.4], cells: [32, 32], z: 0.0 };
         let t = floor_truth(&scene, &grid, Quality::Test).unwrap();
         assert_eq!(t.bounces, vec![2]);
@@ -396,8 +400,9 @@ material = "water"
     /// (directions as angles in the x–z plane from +x).
     #[test]
     fn prism_band_edges_follow_snells_law_by_hand() {
-        let src = std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes/prism.toml"))
-            .unwrap();
+        let src =
+            std::fs::read_to_string(Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes/prism.toml"))
+                .unwrap();
         let start = src.find("sellmeier").unwrap();
         let end = start + src[start..].find('\n').unwrap();
         let scene = parse(&src.replace(&src[start..end], "ior = 1.7"));

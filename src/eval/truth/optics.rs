@@ -60,7 +60,10 @@ impl Floor {
         let corners = [o, o + eu, o + ev, o + eu + ev];
         let xs = corners.map(|c| c.x);
         let ys = corners.map(|c| c.y);
-        let f = |v: [f64; 4], max: bool| v.into_iter().fold(if max { f64::MIN } else { f64::MAX }, |a, b| if max { a.max(b) } else { a.min(b) });
+        let f = |v: [f64; 4], max: bool| {
+            v.into_iter()
+                .fold(if max { f64::MIN } else { f64::MAX }, |a, b| if max { a.max(b) } else { a.min(b) })
+        };
         Some([f(xs, false), f(ys, false), f(xs, true), f(ys, true)])
     }
 }
@@ -107,6 +110,9 @@ pub(crate) struct HeightField {
     pub z_mid: f64,
 }
 
+/// A vertex and its shading normal.
+type VertexNormal = (DVec3, DVec3);
+
 /// A triangle of a flat-faceted solid, with its outward normal and the id of its plane.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Facet {
@@ -118,11 +124,27 @@ pub(crate) struct Facet {
 /// The one specular object of a scene with a known truth.
 #[derive(Clone, Debug)]
 pub(crate) enum Optic {
-    Sphere { centre: DVec3, radius: f64, glass: Glass },
-    HeightField { field: HeightField, glass: Glass },
-    Facets { facets: Vec<Facet>, glass: Glass },
+    Sphere {
+        centre: DVec3,
+        radius: f64,
+        glass: Glass,
+    },
+    HeightField {
+        field: HeightField,
+        glass: Glass,
+    },
+    Facets {
+        facets: Vec<Facet>,
+        glass: Glass,
+    },
     /// An open mirror cylinder (both sides reflect).
-    Cylinder { base: DVec3, axis: DVec3, radius: f64, height: f64, reflectance: [f64; 3] },
+    Cylinder {
+        base: DVec3,
+        axis: DVec3,
+        radius: f64,
+        height: f64,
+        reflectance: [f64; 3],
+    },
 }
 
 /// A scene the truth can integrate: a collimated beam, a floor and one specular object.
@@ -147,7 +169,10 @@ fn unsupported(why: impl Into<String>) -> TruthError {
 impl Setup {
     pub fn from_scene(scene: &Scene) -> Result<Setup, TruthError> {
         let [e] = scene.emitters.as_slice() else {
-            return Err(unsupported(format!("{} emitters; the truth needs exactly one", scene.emitters.len())));
+            return Err(unsupported(format!(
+                "{} emitters; the truth needs exactly one",
+                scene.emitters.len()
+            )));
         };
         let EmitterShape::Collimated { origin, edge_u, edge_v, direction } = e.kind else {
             return Err(unsupported("the emitter is not a collimated beam"));
@@ -173,7 +198,10 @@ impl Setup {
                     floor = Some(floor_of(g)?);
                 }
                 (Material::Diffuse { .. }, SurfaceGeometry::Mesh(_)) => {
-                    return Err(unsupported(format!("the diffuse surface '{}' is a mesh, not a floor", s.name)));
+                    return Err(unsupported(format!(
+                        "the diffuse surface '{}' is a mesh, not a floor",
+                        s.name
+                    )));
                 }
                 (Material::Absorber, _) => return Err(unsupported(format!("absorber '{}'", s.name))),
                 (m, g) => {
@@ -222,9 +250,13 @@ impl Setup {
             weight = [weight[0] * rgb.x as f64, weight[1] * rgb.y as f64, weight[2] * rgb.z as f64];
         }
         match &self.optic {
-            Optic::Cylinder { base, axis, radius, height, reflectance } => {
-                self.mirror_path(o, d, weight, |o, d| cylinder_hit(*base, *axis, *radius, *height, o, d), *reflectance)
-            }
+            Optic::Cylinder { base, axis, radius, height, reflectance } => self.mirror_path(
+                o,
+                d,
+                weight,
+                |o, d| cylinder_hit(*base, *axis, *radius, *height, o, d),
+                *reflectance,
+            ),
             Optic::Sphere { glass, .. } | Optic::HeightField { glass, .. } | Optic::Facets { glass, .. } => {
                 self.dielectric_path(o, d, weight, glass, glass.ior_at(wavelength_nm))
             }
@@ -241,7 +273,14 @@ impl Setup {
     }
 
     /// Refraction only, at every dielectric interface, to the floor: weight Π (1 − F)·tint.
-    fn dielectric_path(&self, mut o: DVec3, mut d: DVec3, mut w: [f64; 3], glass: &Glass, n: f64) -> Option<Landing> {
+    fn dielectric_path(
+        &self,
+        mut o: DVec3,
+        mut d: DVec3,
+        mut w: [f64; 3],
+        glass: &Glass,
+        n: f64,
+    ) -> Option<Landing> {
         let mut bounces = 0u8;
         let mut class = 0u64;
         loop {
@@ -262,8 +301,8 @@ impl Setup {
                     }
                     let t = t?; // total internal reflection: not a refraction-only path
                     let trans = if glass.ideal { 1.0 } else { 1.0 - fresnel(-d.dot(normal), eta) };
-                    for c in 0..3 {
-                        w[c] *= trans * glass.tint[c];
+                    for (wc, tc) in w.iter_mut().zip(glass.tint) {
+                        *wc *= trans * tc;
                     }
                     bounces += 1;
                     class = class.wrapping_mul(1 << 20).wrapping_add(h.id + 1);
@@ -297,8 +336,8 @@ impl Setup {
                 (Some(h), tf) if tf.is_none_or(|tf| h.t < tf) => {
                     let p = o + h.t * d;
                     d = d - 2.0 * d.dot(h.normal) * h.normal;
-                    for c in 0..3 {
-                        w[c] *= reflectance[c];
+                    for (wc, rc) in w.iter_mut().zip(reflectance) {
+                        *wc *= rc;
                     }
                     bounces += 1;
                     if bounces > MAX_BOUNCES {
@@ -353,22 +392,28 @@ fn optic_of(name: &str, m: &Material, g: &SurfaceGeometry) -> Result<Optic, Trut
     };
     match (m, g) {
         (Material::Dielectric(_), SurfaceGeometry::Analytic(Shape::Sphere { center, radius })) => {
-            Ok(Optic::Sphere { centre: d3(*center), radius: *radius as f64, glass: glass(m).expect("dielectric") })
-        }
-        (Material::Mirror { reflectance }, SurfaceGeometry::Analytic(Shape::Cylinder { base, axis, radius, height })) => {
-            Ok(Optic::Cylinder {
-                base: d3(*base),
-                axis: d3(*axis).normalize(),
+            Ok(Optic::Sphere {
+                centre: d3(*center),
                 radius: *radius as f64,
-                height: *height as f64,
-                reflectance: reflectance.as_dvec3().to_array(),
+                glass: glass(m).expect("dielectric"),
             })
         }
+        (
+            Material::Mirror { reflectance },
+            SurfaceGeometry::Analytic(Shape::Cylinder { base, axis, radius, height }),
+        ) => Ok(Optic::Cylinder {
+            base: d3(*base),
+            axis: d3(*axis).normalize(),
+            radius: *radius as f64,
+            height: *height as f64,
+            reflectance: reflectance.as_dvec3().to_array(),
+        }),
         (Material::Dielectric(_), SurfaceGeometry::Mesh(mesh)) => {
             let glass = glass(m).expect("dielectric");
             if mesh.normals.is_some() {
-                let field = HeightField::from_mesh(mesh)
-                    .ok_or_else(|| unsupported(format!("'{name}': a smooth mesh that is not a regular height field")))?;
+                let field = HeightField::from_mesh(mesh).ok_or_else(|| {
+                    unsupported(format!("'{name}': a smooth mesh that is not a regular height field"))
+                })?;
                 Ok(Optic::HeightField { field, glass })
             } else if mesh.indices.len() <= 64 {
                 Ok(Optic::Facets { facets: facets_of(mesh), glass })
@@ -441,8 +486,18 @@ impl HeightField {
             }
         }
         let z: Vec<f64> = p.iter().map(|q| q.z as f64).collect();
-        let z_mid = 0.5 * (z.iter().cloned().fold(f64::MAX, f64::min) + z.iter().cloned().fold(f64::MIN, f64::max));
-        Some(HeightField { n: [nx, ny], x0, y0, dx, dy, z, normal: ns.iter().map(|n| d3(*n)).collect(), z_mid })
+        let z_mid =
+            0.5 * (z.iter().cloned().fold(f64::MAX, f64::min) + z.iter().cloned().fold(f64::MIN, f64::max));
+        Some(HeightField {
+            n: [nx, ny],
+            x0,
+            y0,
+            dx,
+            dy,
+            z,
+            normal: ns.iter().map(|n| d3(*n)).collect(),
+            z_mid,
+        })
     }
 
     fn vertex(&self, i: usize, j: usize) -> (DVec3, DVec3) {
@@ -450,8 +505,9 @@ impl HeightField {
         (DVec3::new(self.x0 + i as f64 * self.dx, self.y0 + j as f64 * self.dy, self.z[k]), self.normal[k])
     }
 
-    /// The facet under (x, y): its vertices, vertex normals and barycentric weights.
-    fn facet_at(&self, x: f64, y: f64) -> Option<(usize, [(DVec3, DVec3); 3], [f64; 3])> {
+    /// The facet under (x, y): its index, its vertices with their normals, and the
+    /// barycentric weights of (x, y).
+    fn facet_at(&self, x: f64, y: f64) -> Option<(usize, [VertexNormal; 3], [f64; 3])> {
         let fx = (x - self.x0) / self.dx;
         let fy = (y - self.y0) / self.dy;
         if !(fx >= 0.0 && fy >= 0.0 && fx <= self.n[0] as f64 && fy <= self.n[1] as f64) {

@@ -106,8 +106,8 @@ impl<'g> Accumulator<'g> {
             if depth == 0 || (w * h <= REFINE_CELLS && self.nearly_linear(map, q, &p)) {
                 let mut f = [0.0; 3];
                 for x in &ls {
-                    for c in 0..3 {
-                        f[c] += x.weight[c] / 3.0;
+                    for (fc, wc) in f.iter_mut().zip(x.weight) {
+                        *fc += wc / 3.0;
                     }
                 }
                 let f = f.map(|x| x * power * param_area.abs());
@@ -143,7 +143,12 @@ impl<'g> Accumulator<'g> {
     /// Whether the map carries the parameter triangle's centroid within a hundredth of a cell of
     /// its image triangle's centroid (else the linear interpolation is refined). Triangles
     /// inside one cell need no check: the cell gets their flux either way.
-    fn nearly_linear(&self, map: &dyn Fn(f64, f64) -> Option<Landing>, q: [[f64; 2]; 3], p: &[[f64; 2]; 3]) -> bool {
+    fn nearly_linear(
+        &self,
+        map: &dyn Fn(f64, f64) -> Option<Landing>,
+        q: [[f64; 2]; 3],
+        p: &[[f64; 2]; 3],
+    ) -> bool {
         let (w, h) = self.extent_cells(p);
         if w < 0.5 && h < 0.5 {
             return true;
@@ -169,8 +174,8 @@ impl<'g> Accumulator<'g> {
     }
 
     fn add(&mut self, k: usize, f: [f64; 3], share: f64, sign: Option<usize>) {
-        for c in 0..3 {
-            self.flux[k][c] += f[c] * share;
+        for (fc, x) in self.flux[k].iter_mut().zip(f) {
+            *fc += x * share;
         }
         if let Some(s) = sign {
             self.by_sign[k][s] += (f[0] + f[1] + f[2]) * share;
@@ -316,7 +321,12 @@ mod tests {
         let g = FloorGrid { min: [0.0, -0.5], max: [1.0, 0.5], cells: [40, 40], z: 0.0 };
         let mut acc = Accumulator::new(&g);
         let map = |u: f64, v: f64| {
-            Some(Landing { xy: [0.3 + 0.5 * u - 0.2 * v, -0.4 + 0.6 * v], weight: [1.0, 0.0, 0.0], class: 0, bounces: 1 })
+            Some(Landing {
+                xy: [0.3 + 0.5 * u - 0.2 * v, -0.4 + 0.6 * v],
+                weight: [1.0, 0.0, 0.0],
+                class: 0,
+                bounces: 1,
+            })
         };
         acc.splat([3, 5], 4, 1.0, &map);
         let cell = 0.025 * 0.025;

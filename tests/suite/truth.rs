@@ -1,7 +1,9 @@
 //! The tracer against ground truth computed from the optics alone (`photonkit::eval::truth`).
 
 use glam::Vec3;
-use photonkit::eval::truth::{FloorGrid, FloorTruth, Quality, SphereCaustic, TruthError, default_grid, floor_truth};
+use photonkit::eval::truth::{
+    FloorGrid, FloorTruth, Quality, SphereCaustic, TruthError, default_grid, floor_truth,
+};
 use photonkit::format::{PhotonMap, name};
 use photonkit::render::{Mode, PhotonData, PhotonLookup, RenderOptions, Renderer, View};
 use photonkit::scene::{Camera, Projection, Scene};
@@ -127,11 +129,18 @@ fn compare_binned(t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f32; 3]]) -> usize 
 /// orthographic top-down camera over the grid, `px` pixels per cell side, averaged per cell;
 /// returns (relative error, truth) for the cells where the truth is smooth: no overlap, at least
 /// a fifth of the mean over lit cells, and every neighbour within 25 % of it (away from folds and edges).
-fn compare_rendered(scene: &Scene, t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f32; 3]], px: u32) -> Vec<(f64, f64)> {
+fn compare_rendered(
+    scene: &Scene,
+    t: &FloorTruth,
+    pos: &[[f32; 3]],
+    flux: &[[f32; 3]],
+    px: u32,
+) -> Vec<(f64, f64)> {
     let g = &t.grid;
     let [cw, ch] = [g.cells[0] as u32, g.cells[1] as u32];
     let (w, h) = (cw * px, ch * px);
-    let centre = Vec3::new(0.5 * (g.min[0] + g.max[0]) as f32, 0.5 * (g.min[1] + g.max[1]) as f32, g.z as f32);
+    let centre =
+        Vec3::new(0.5 * (g.min[0] + g.max[0]) as f32, 0.5 * (g.min[1] + g.max[1]) as f32, g.z as f32);
     let camera = Camera::look_at(
         Projection::Orthographic { height_m: (g.max[1] - g.min[1]) as f32 },
         centre + Vec3::Z * 3.0,
@@ -141,7 +150,8 @@ fn compare_rendered(scene: &Scene, t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f3
     )
     .unwrap();
     let lookup = PhotonLookup::new("t", PhotonData { positions: pos, flux, normals: None }).unwrap();
-    let opts = RenderOptions { width: w, height: h, spp: 1, mode: Mode::Irradiance, ..RenderOptions::default() };
+    let opts =
+        RenderOptions { width: w, height: h, spp: 1, mode: Mode::Irradiance, ..RenderOptions::default() };
     let r = Renderer { view: View::Scene { scene, camera }, photons: Some(&lookup), diagnostic: None, opts };
     let (img, _) = r.render(&|_| {}).unwrap();
     let tsum = |k: usize| t.irradiance[k].iter().sum::<f64>();
@@ -172,7 +182,12 @@ fn compare_rendered(scene: &Scene, t: &FloorTruth, pos: &[[f32; 3]], flux: &[[f3
     out
 }
 
-fn check_sample(file: &str, photons: u64, cells: usize, fine: Option<FloorGrid>) -> (FloorTruth, usize, Vec<(f64, f64)>) {
+fn check_sample(
+    file: &str,
+    photons: u64,
+    cells: usize,
+    fine: Option<FloorGrid>,
+) -> (FloorTruth, usize, Vec<(f64, f64)>) {
     let (scene, p) = trace_sample(file, photons);
     let grid = default_grid(&scene, cells).unwrap();
     let t = floor_truth(&scene, &grid, Quality::Test).unwrap();
@@ -193,7 +208,10 @@ fn check_sample(file: &str, photons: u64, cells: usize, fine: Option<FloorGrid>)
         a.get(a.len() * 9 / 10).copied().unwrap_or(f64::NAN)
     };
     let mean_rel = rel.iter().map(|x| x.0).sum::<f64>() / rel.len() as f64;
-    println!("{file}: {checked} cells checked binned; rendered: {} smooth cells, median |rel| {med:.4}, 90 % {p90:.4}, worst {worst:.4}, mean signed {mean_rel:.4}", rel.len());
+    println!(
+        "{file}: {checked} cells checked binned; rendered: {} smooth cells, median |rel| {med:.4}, 90 % {p90:.4}, worst {worst:.4}, mean signed {mean_rel:.4}",
+        rel.len()
+    );
     (t, checked, rel)
 }
 

@@ -110,6 +110,9 @@ pub(crate) struct HeightField {
     pub z_mid: f64,
 }
 
+/// A vertex and its shading normal.
+type VertexNormal = (DVec3, DVec3);
+
 /// A triangle of a flat-faceted solid, with its outward normal and the id of its plane.
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Facet {
@@ -298,8 +301,8 @@ impl Setup {
                     }
                     let t = t?; // total internal reflection: not a refraction-only path
                     let trans = if glass.ideal { 1.0 } else { 1.0 - fresnel(-d.dot(normal), eta) };
-                    for c in 0..3 {
-                        w[c] *= trans * glass.tint[c];
+                    for (wc, tc) in w.iter_mut().zip(glass.tint) {
+                        *wc *= trans * tc;
                     }
                     bounces += 1;
                     class = class.wrapping_mul(1 << 20).wrapping_add(h.id + 1);
@@ -333,8 +336,8 @@ impl Setup {
                 (Some(h), tf) if tf.is_none_or(|tf| h.t < tf) => {
                     let p = o + h.t * d;
                     d = d - 2.0 * d.dot(h.normal) * h.normal;
-                    for c in 0..3 {
-                        w[c] *= reflectance[c];
+                    for (wc, rc) in w.iter_mut().zip(reflectance) {
+                        *wc *= rc;
                     }
                     bounces += 1;
                     if bounces > MAX_BOUNCES {
@@ -502,8 +505,9 @@ impl HeightField {
         (DVec3::new(self.x0 + i as f64 * self.dx, self.y0 + j as f64 * self.dy, self.z[k]), self.normal[k])
     }
 
-    /// The facet under (x, y): its vertices, vertex normals and barycentric weights.
-    fn facet_at(&self, x: f64, y: f64) -> Option<(usize, [(DVec3, DVec3); 3], [f64; 3])> {
+    /// The facet under (x, y): its index, its vertices with their normals, and the
+    /// barycentric weights of (x, y).
+    fn facet_at(&self, x: f64, y: f64) -> Option<(usize, [VertexNormal; 3], [f64; 3])> {
         let fx = (x - self.x0) / self.dx;
         let fy = (y - self.y0) / self.dy;
         if !(fx >= 0.0 && fy >= 0.0 && fx <= self.n[0] as f64 && fy <= self.n[1] as f64) {

@@ -103,11 +103,11 @@ impl<'g> Accumulator<'g> {
         if let Some(ls) = same {
             let p = ls.map(|x| x.xy);
             let (w, h) = self.extent_cells(&p);
-            if depth == 0 || w * h <= REFINE_CELLS {
+            if depth == 0 || (w * h <= REFINE_CELLS && self.nearly_linear(map, q, &p)) {
                 let mut f = [0.0; 3];
                 for x in &ls {
-                    for c in 0..3 {
-                        f[c] += x.weight[c] / 3.0;
+                    for (fc, wc) in f.iter_mut().zip(x.weight) {
+                        *fc += wc / 3.0;
                     }
                 }
                 let f = f.map(|x| x * power * param_area.abs());
@@ -140,6 +140,25 @@ impl<'g> Accumulator<'g> {
         self.triangle(map, [m01, m12, m20], [l01, l12, l20], depth - 1, power);
     }
 
+    /// Whether the map carries the parameter triangle's centroid within a hundredth of a cell of
+    /// its image triangle's centroid (else the linear interpolation is refined). Triangles
+    /// inside one cell need no check: the cell gets their flux either way.
+    fn nearly_linear(
+        &self,
+        map: &dyn Fn(f64, f64) -> Option<Landing>,
+        q: [[f64; 2]; 3],
+        p: &[[f64; 2]; 3],
+    ) -> bool {
+        let (w, h) = self.extent_cells(p);
+        if w < 0.5 && h < 0.5 {
+            return true;
+        }
+        let c = [(q[0][0] + q[1][0] + q[2][0]) / 3.0, (q[0][1] + q[1][1] + q[2][1]) / 3.0];
+        let Some(x) = map(c[0], c[1]) else { return false };
+        let lin = [(p[0][0] + p[1][0] + p[2][0]) / 3.0, (p[0][1] + p[1][1] + p[2][1]) / 3.0];
+        ((x.xy[0] - lin[0]) / self.cell[0]).abs() < 0.01 && ((x.xy[1] - lin[1]) / self.cell[1]).abs() < 0.01
+    }
+
     /// Width and height of a triangle's bounding box in cells.
     fn extent_cells(&self, p: &[[f64; 2]; 3]) -> (f64, f64) {
         let (x0, x1, y0, y1) = bbox(p);
@@ -155,8 +174,8 @@ impl<'g> Accumulator<'g> {
     }
 
     fn add(&mut self, k: usize, f: [f64; 3], share: f64, sign: Option<usize>) {
-        for c in 0..3 {
-            self.flux[k][c] += f[c] * share;
+        for (fc, x) in self.flux[k].iter_mut().zip(f) {
+            *fc += x * share;
         }
         if let Some(s) = sign {
             self.by_sign[k][s] += (f[0] + f[1] + f[2]) * share;

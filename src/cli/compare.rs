@@ -92,7 +92,9 @@ pub struct Args {
     #[arg(long, hide = true)]
     fast_truth: bool,
     /// Vary one setting over runs: photons=…, k=…, kc=…, beta=… or iterations=…
-    /// (comma-separated values), e.g. photons=1e5,3e5,1e6.
+    /// (comma-separated values), e.g. photons=1e5,3e5,1e6. Progressive photon mapping runs
+    /// again only when its photons per pass change (they follow --photons unless
+    /// --ppm-photons is given).
     #[arg(long, value_name = "KEY=V1,V2,…")]
     sweep: Option<String>,
 }
@@ -205,10 +207,18 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     eprintln!("truth: {}", target.description);
 
     let mut done = Vec::new();
-    for (label_run, o) in &runs {
+    for (i, (label_run, o)) in runs.iter().enumerate() {
         if !label_run.is_empty() {
             eprintln!("— {label_run}");
         }
+        // Progressive photon mapping depends on none of the swept settings but the photon
+        // count (when its photons per pass follow it): run it again only when that changed.
+        let mut o = o.clone();
+        let per_pass = |o: &CompareOptions| o.ppm_photons_per_pass.unwrap_or(o.photons);
+        if i > 0 && per_pass(&o) == per_pass(&runs[0].1) {
+            o.methods.retain(|&m| m != MethodKind::Progressive);
+        }
+        let o = &o;
         let bar = spinner();
         let rows = compare::run(&scene, &label, &text, &target, o, &a.out_dir, &|p| match p {
             Progress::Started(what) => bar.set_message(format!("{what}…")),

@@ -216,6 +216,17 @@ fn png_bytes(rgb: &[u8], w: u32, h: u32) -> Result<Vec<u8>, CompareError> {
     Ok(out)
 }
 
+/// A tick label with at most three significant digits (log axes land on values like
+/// 0.30000000000000004).
+fn tick(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() {
+        return format!("{v}");
+    }
+    let decimals = (2 - v.abs().log10().floor() as i32).max(0) as usize;
+    let s = format!("{v:.decimals$}");
+    if s.contains('.') { s.trim_end_matches('0').trim_end_matches('.').to_string() } else { s }
+}
+
 /// Colours of the methods in the plot.
 fn colour(m: MethodKind) -> RGBColor {
     match m {
@@ -252,6 +263,8 @@ pub fn plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
             .configure_mesh()
             .x_desc("total time, s")
             .y_desc("NRMSE")
+            .x_label_formatter(&|v| tick(*v))
+            .y_label_formatter(&|v| tick(*v))
             .label_style(("sans-serif", 15))
             .draw()?;
         for (m, p) in &pts {
@@ -391,6 +404,16 @@ pub fn write(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn tick_labels_keep_three_significant_digits() {
+        assert_eq!(tick(0.30000000000000004), "0.3");
+        assert_eq!(tick(0.05), "0.05");
+        assert_eq!(tick(1.5), "1.5");
+        assert_eq!(tick(100.0), "100");
+        assert_eq!(tick(0.1234567), "0.123");
+        assert_eq!(tick(12.345), "12.3");
+    }
 
     #[test]
     fn equal_time_interpolates_in_log_log_and_refuses_to_extrapolate() {

@@ -11,6 +11,7 @@ uses target/release/photonkit), --cores (the machine's cores, for the per-core r
 
 import argparse
 import csv
+import math
 import os
 import re
 import shutil
@@ -161,27 +162,71 @@ def table1(args):
     replace_section("table1", "\n".join(lines))
 
 
+def equal_time(rows):
+    """The equal-time table (as report.rs's equal_time_markdown) from a report.csv."""
+    order = ["pm", "relax2009", "diffusion", "ppm"]
+    pts = {m: [(fval(r, "total_s"), fval(r, "nrmse")) for r in rows if r["method"] == m] for m in order}
+    others = [m for m in order if pts[m]]
+
+    def interp(p, t):
+        p = sorted((x, y) for x, y in p if x and y and x > 0 and y > 0)
+        for x, y in p:
+            if abs(x / t - 1) < 1e-9:
+                return y
+        for i, (x, y) in enumerate(p):
+            if x > t:
+                if i == 0:
+                    return None
+                (x0, y0), (x1, y1) = p[i - 1], p[i]
+                f = (math.log(t) - math.log(x0)) / (math.log(x1) - math.log(x0))
+                return math.exp(math.log(y0) + f * (math.log(y1) - math.log(y0)))
+        return None
+
+    out = ["| run | our time | our NRMSE | " + " | ".join(LABELS[m] for m in others) + " |",
+           "|---|---|---|" + "---|" * len(others)]
+    for r in rows:
+        if r["method"] != "ours":
+            continue
+        t, e = fval(r, "total_s"), fval(r, "nrmse")
+        cells = []
+        for m in others:
+            within = [(x, y) for x, y in pts[m] if x <= t * (1 + 1e-9)]
+            best = min(within, key=lambda q: q[1]) if within else None
+            i = interp(pts[m], t)
+            parts = []
+            if best:
+                parts.append(f"best {best[1]:.4f} ({best[1] / e:.2f}×, {secs(best[0])})")
+            if i is not None:
+                parts.append(f"at our time {i:.4f} ({i / e:.2f}×)")
+            cells.append("; ".join(parts) if parts else "every run slower")
+        out.append(f"| {r['run']} | {secs(t)} | {e:.4f} | " + " | ".join(cells) + " |")
+    return "\n".join(out)
+
+
 def scenes(args):
-    bin_ = binary(args)
+    bin_ = None if args.reuse else binary(args)
     lines = [
         "## Speed against accuracy on the ground-truth scenes",
         "",
         f"`tools/compare-report.py scenes` ({time.strftime('%Y-%m-%d')}, {args.cores} cores) ran, for each scene, "
         f"`photonkit compare samples/scenes/SCENE.toml --sweep photons={args.sweep} --ppm-passes {args.ppm_passes} "
-        f"--ppm-photons {args.ppm_photons}`. Each table gives every method's NRMSE at our method's total time, "
-        "interpolated (log–log) between that method's runs (ratio above 1: ours is better); then the errors of "
-        "the largest run. Plots and image grids are in docs/compare/.",
+        f"--ppm-photons {args.ppm_photons}`. Each equal-time table gives, for each of our runs, every other "
+        "method with the same time budget: its lowest NRMSE among its runs that took no longer than ours (with "
+        "that run's time), and where its runs bracket our time, its NRMSE interpolated (log–log) at it; ratios "
+        "are its error over ours (above 1: ours is better). Then the errors of the largest run. Plots and image "
+        "grids are in docs/compare/.",
     ]
     os.makedirs(os.path.join(ROOT, "docs", "compare"), exist_ok=True)
     for s in SCENES:
         out = os.path.join(ROOT, "target", "compare", s)
         argv = [f"samples/scenes/{s}.toml", "--sweep", f"photons={args.sweep}", "--ppm-passes", args.ppm_passes,
                 "--ppm-photons", args.ppm_photons, "--out-dir", out]
-        run_compare(bin_, argv)
+        if not args.reuse:
+            run_compare(bin_, argv)
         md = open(os.path.join(out, "report.md")).read()
         truth = re.search(r"^Truth: (.*)$", md, flags=re.M)
-        eq = md.split("## At equal time", 1)[1].split("![", 1)[0].strip()
         rows = read_csv(os.path.join(out, "report.csv"))
+        eq = equal_time(rows)
         last = rows[-1]["run"]
         lines += ["", f"### {s}", "", f"Truth: {truth.group(1) if truth else '?'}", "", eq, "",
                   f"Errors at {last} (PPM rows: its pass counts):", "",
@@ -194,7 +239,8 @@ def scenes(args):
             lines.append(f"| {LABELS[r['method']]} | {r['setting']} | {secs(fval(r, 'total_s'))} | {f('nrmse')} | "
                          f"{f('rel_mse')} | {f('ssim')} | {f('edge_nrmse')} | {f('overlap_nrmse')} |")
         for f in ["grid.png", "error-vs-time.png"]:
-            shutil.copy(os.path.join(out, f), os.path.join(ROOT, "docs", "compare", f"{s}-{f}"))
+            if not args.reuse:
+                shutil.copy(os.path.join(out, f), os.path.join(ROOT, "docs", "compare", f"{s}-{f}"))
     replace_section("scenes", "\n".join(lines))
 
 
@@ -207,7 +253,7 @@ def main():
     p.add_argument("--ppm-passes", default=None)
     p.add_argument("--ppm-photons", default="1e6", help="scenes: photons per progressive pass")
     p.add_argument("--sweep", default="1e5,3e5,1e6", help="scenes: photon counts")
-    p.add_argument("--reuse", action="store_true", help="table1: rewrite the section from the last run's CSV")
+    p.add_argument("--reuse", action="store_true", help="rewrite the section from the last run's CSV, no new run")
     a = p.parse_args()
     if a.what == "table1":
         a.ppm_passes = a.ppm_passes or "1,4"

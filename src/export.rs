@@ -56,10 +56,7 @@ pub fn export(map: &PhotonMap, to: ExportFormat, target: &Output) -> Result<()> 
         Output::Path(p) => {
             let file = p.display().to_string();
             let io = |source| ExportError::Io { file: file.clone(), source };
-            let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-            let mut builder = tempfile::Builder::new();
-            builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
-            let tmp = builder.prefix(".export-").suffix(".tmp").tempfile_in(dir).map_err(io)?;
+            let tmp = crate::format::temp_beside(p, ".export-").map_err(io)?;
             let mut out = std::io::BufWriter::new(tmp);
             write(map, to, &mut out, &file)?;
             let tmp = out.into_inner().map_err(|e| io(e.into_error()))?;

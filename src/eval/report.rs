@@ -21,13 +21,7 @@ pub struct Run {
 
 fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CompareError> {
     let io = |e: std::io::Error| CompareError::Io { path: path.display().to_string(), source: e };
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(".photonkit-").suffix(".tmp");
-    // Mode 0666 before the umask, as for any file a command creates (tempfile's default is 0600).
-    #[cfg(unix)]
-    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
-    let mut tmp = builder.tempfile_in(dir).map_err(io)?;
+    let mut tmp = crate::format::temp_beside(path, ".photonkit-").map_err(io)?;
     std::io::Write::write_all(&mut tmp, bytes).map_err(io)?;
     tmp.persist(path).map_err(|e| io(e.error))?;
     Ok(())
@@ -131,8 +125,7 @@ pub fn csv(runs: &[Run]) -> String {
 pub fn error_at_time(points: &[(f64, f64)], t: f64) -> Option<f64> {
     let mut p: Vec<(f64, f64)> = points.iter().copied().filter(|(x, y)| *x > 0.0 && *y > 0.0).collect();
     p.sort_by(|a, b| a.0.total_cmp(&b.0));
-    if let Some(&(x, y)) = p.iter().find(|(x, _)| (*x / t - 1.0).abs() < 1e-9) {
-        let _ = x;
+    if let Some(&(_, y)) = p.iter().find(|(x, _)| (*x / t - 1.0).abs() < 1e-9) {
         return Some(y);
     }
     let i = p.iter().position(|(x, _)| *x > t)?;

@@ -120,15 +120,9 @@ impl PhotonWriter {
             at = align_up(at + e.length);
         }
 
-        // Mode 0666 before the umask, as for any file a command creates (tempfile's default is 0600).
-        let mut builder = tempfile::Builder::new();
-        builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
         let tmp = match &target {
-            Output::Path(p) => {
-                let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-                builder.prefix(".phm-").suffix(".tmp").tempfile_in(dir)
-            }
-            Output::Stdout => builder.prefix("photonkit-").suffix(".phm").tempfile(),
+            Output::Path(p) => temp_beside(p, ".phm-"),
+            Output::Stdout => new_file_builder("photonkit-", ".phm").tempfile(),
         }
         .map_err(|source| FormatError::Io { file: tname.clone(), source })?;
         // Sizing the file up front makes every padding byte zero without writing it.
@@ -310,6 +304,24 @@ fn metadata(info: &MapInfo, count: u64, columns: Vec<ColumnEntry>, bbox: Option<
 
 /// Photons per chunk when a whole in-memory map is written.
 const CHUNK: usize = 1 << 16;
+
+/// A builder for files a command creates: mode 0666 before the umask, as for any file a
+/// command creates (tempfile's default is 0600).
+fn new_file_builder<'a>(prefix: &'a str, suffix: &'a str) -> tempfile::Builder<'a, 'a> {
+    let mut builder = tempfile::Builder::new();
+    builder.prefix(prefix).suffix(suffix);
+    #[cfg(unix)]
+    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
+    builder
+}
+
+/// A temporary file beside `path` (same directory, so the final rename stays on one disk),
+/// named `<prefix>….tmp`: every output of every stage is written there and renamed into place
+/// only when complete, so a failed run never leaves a damaged file.
+pub fn temp_beside(path: &Path, prefix: &str) -> std::io::Result<tempfile::NamedTempFile> {
+    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+    new_file_builder(prefix, ".tmp").tempfile_in(dir)
+}
 
 /// Writes whole columns held in memory (or mapped from an input file) as one PHM file.
 pub fn write_map(target: Output, info: MapInfo, columns: &[(ColumnSpec, &[u8])]) -> Result<()> {

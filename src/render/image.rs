@@ -50,15 +50,10 @@ fn image_err(path: &Path, message: impl std::fmt::Display) -> RenderError {
     RenderError::Image { file: path.display().to_string(), message: message.to_string() }
 }
 
-/// A temporary file beside `path` (same directory, so the final rename stays on one disk).
+/// A temporary file beside `path` ([`crate::format::temp_beside`]).
 fn temp_beside(path: &Path) -> Result<tempfile::NamedTempFile, RenderError> {
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let mut builder = tempfile::Builder::new();
-    builder.prefix(".photonkit-").suffix(".tmp");
-    // Mode 0666 before the umask, as for any file a command creates (tempfile's default is 0600).
-    #[cfg(unix)]
-    builder.permissions(std::os::unix::fs::PermissionsExt::from_mode(0o666));
-    builder.tempfile_in(dir).map_err(|source| RenderError::Io { file: path.display().to_string(), source })
+    crate::format::temp_beside(path, ".photonkit-")
+        .map_err(|source| RenderError::Io { file: path.display().to_string(), source })
 }
 
 /// The EXR bytes of `img` in a temporary file beside `path`, not yet renamed.

@@ -99,19 +99,6 @@ pub struct Args {
     sweep: Option<String>,
 }
 
-/// A spinner naming the running stage on a terminal, hidden otherwise.
-fn spinner() -> indicatif::ProgressBar {
-    use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
-    use std::io::IsTerminal;
-    if !std::io::stderr().is_terminal() {
-        return ProgressBar::hidden();
-    }
-    let bar = ProgressBar::with_draw_target(None, ProgressDrawTarget::stderr())
-        .with_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
-    bar.enable_steady_tick(std::time::Duration::from_millis(200));
-    bar
-}
-
 /// The runs of a sweep: a label and the options of each.
 fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(String, CompareOptions)>> {
     let Some(spec) = spec else { return Ok(vec![(String::new(), base.clone())]) };
@@ -219,7 +206,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             o.methods.retain(|&m| m != MethodKind::Progressive);
         }
         let o = &o;
-        let bar = spinner();
+        let bar = super::pipeline::spinner("compare");
         let rows = compare::run(&scene, &label, &text, &target, o, &a.out_dir, &|p| match p {
             Progress::Started(what) => bar.set_message(format!("{what}…")),
             Progress::Finished(line) => bar.suspend(|| eprintln!("  {line}")),

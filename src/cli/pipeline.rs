@@ -62,7 +62,7 @@ struct RenderCommand {
 }
 
 /// A spinner on a terminal, nothing otherwise.
-fn spinner(what: &str) -> ProgressBar {
+pub(super) fn spinner(what: &str) -> ProgressBar {
     let target = if std::io::stderr().is_terminal() {
         ProgressDrawTarget::stderr()
     } else {

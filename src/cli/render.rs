@@ -676,7 +676,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         }
         (image, state)
     } else {
-        let state = ReferenceState { passes: 0, initial_radius: 0.0, next_radius2: 0.0, options, settings };
+        let state = ReferenceState::start(options, settings);
         (render::Image::new(render.width, render.height), state)
     };
     let first = state.passes;

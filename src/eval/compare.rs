@@ -237,13 +237,7 @@ impl Target {
         };
         let options =
             ReferenceOptions { photons_per_pass, seed: 1_000_000_007, ..ReferenceOptions::default() };
-        let mut state = ReferenceState {
-            passes: 0,
-            initial_radius: 0.0,
-            next_radius2: 0.0,
-            options,
-            settings: serde_json::Value::Null,
-        };
+        let mut state = ReferenceState::start(options, serde_json::Value::Null);
         let mut image = Image::new(w, h);
         p.run(&mut image, &mut state, passes, &mut |s, _| {
             progress(s.passes);
@@ -287,6 +281,14 @@ pub struct StageTimes {
     pub relax: Option<f64>,
     pub render: Option<f64>,
     pub total: f64,
+}
+
+impl StageTimes {
+    /// The times of a method's stages, the total their sum.
+    fn of(trace: f64, detect: Option<f64>, relax: Option<f64>, render: f64) -> StageTimes {
+        let total = trace + detect.unwrap_or(0.0) + relax.unwrap_or(0.0) + render;
+        StageTimes { trace: Some(trace), detect, relax, render: Some(render), total }
+    }
 }
 
 /// One method's result.
@@ -442,24 +444,14 @@ pub fn run(
         log(Progress::Started(MethodKind::StandardPm.label()));
         let map = PhotonMap::open_path(&file("traced.phm"))?;
         let (img, secs) = render(&map, knn)?;
-        let times = StageTimes {
-            trace: Some(trace_secs),
-            render: Some(secs),
-            total: trace_secs + secs,
-            ..Default::default()
-        };
+        let times = StageTimes::of(trace_secs, None, None, secs);
         push(MethodKind::StandardPm, format!("K = {}", o.k), &map, o.k, times, img);
     }
     if wants(MethodKind::DiffusionPm) {
         log(Progress::Started(MethodKind::DiffusionPm.label()));
         let map = PhotonMap::open_path(&file("traced.phm"))?;
         let (img, secs) = render(&map, Estimator::Diffusion { k: o.diffusion_k, q: o.diffusion_q })?;
-        let times = StageTimes {
-            trace: Some(trace_secs),
-            render: Some(secs),
-            total: trace_secs + secs,
-            ..Default::default()
-        };
+        let times = StageTimes::of(trace_secs, None, None, secs);
         push(
             MethodKind::DiffusionPm,
             format!("{} neighbours, q = {}", o.diffusion_k, o.diffusion_q),
@@ -476,13 +468,7 @@ pub fn run(
         let rel = relax_stage("relax2009-collapsed.phm", "relax2009-relaxed.phm", o.iterations_2009)?;
         let map = PhotonMap::open_path(&file("relax2009-relaxed.phm"))?;
         let (img, secs) = render(&map, knn)?;
-        let times = StageTimes {
-            trace: Some(trace_secs),
-            detect: Some(det),
-            relax: Some(col + rel),
-            render: Some(secs),
-            total: trace_secs + det + col + rel + secs,
-        };
+        let times = StageTimes::of(trace_secs, Some(det), Some(col + rel), secs);
         push(
             MethodKind::Relaxation2009,
             format!("gradient, {} world iterations, K = {}", o.iterations_2009, o.k),
@@ -503,13 +489,7 @@ pub fn run(
         let r2 = relax_stage("ours-collapsed.phm", "ours-relaxed.phm", o.iterations)?;
         let map = PhotonMap::open_path(&file("ours-relaxed.phm"))?;
         let (img, secs) = render(&map, knn)?;
-        let times = StageTimes {
-            trace: Some(trace_secs),
-            detect: Some(det),
-            relax: Some(r1 + col + r2),
-            render: Some(secs),
-            total: trace_secs + det + r1 + col + r2 + secs,
-        };
+        let times = StageTimes::of(trace_secs, Some(det), Some(r1 + col + r2), secs);
         push(
             MethodKind::Ours,
             format!("{}, {} + {} iterations, K = {}", method.name(), o.iterations, o.iterations, o.k),
@@ -541,13 +521,7 @@ pub fn run(
         };
         let options =
             ReferenceOptions { photons_per_pass: per_pass, seed: o.seed, ..ReferenceOptions::default() };
-        let mut state = ReferenceState {
-            passes: 0,
-            initial_radius: 0.0,
-            next_radius2: 0.0,
-            options,
-            settings: serde_json::Value::Null,
-        };
+        let mut state = ReferenceState::start(options, serde_json::Value::Null);
         let mut image = Image::new(w as u32, h as u32);
         let start = Instant::now();
         let mut snapshots = Vec::new();

@@ -65,6 +65,14 @@ pub struct ReferenceState {
     pub settings: serde_json::Value,
 }
 
+impl ReferenceState {
+    /// A run that has made no pass yet (r₁ is chosen by the first pass unless the options
+    /// give it).
+    pub fn start(options: ReferenceOptions, settings: serde_json::Value) -> ReferenceState {
+        ReferenceState { passes: 0, initial_radius: 0.0, next_radius2: 0.0, options, settings }
+    }
+}
+
 /// r² of pass `i` (1-based) from r₁²: r²_{i+1} = r²_i · (i + α)/(i + 1).
 pub fn radius2(r1_2: f64, alpha: f64, i: u64) -> f64 {
     let mut r2 = r1_2;
@@ -227,30 +235,7 @@ mod tests {
     /// through an ideal glass slab onto the floor. Every photon crosses the slab unbent, so
     /// the floor's irradiance under the beam is uniform: 6 W / 1 m² / 3 = 2 W/m² per channel.
     fn slab_scene() -> Scene {
-        let src = r#"
-[materials.floor]
-kind = "diffuse"
-[materials.glass]
-kind = "dielectric"
-ior = 1.5
-ideal = true
-[[emitters]]
-kind = "collimated"
-center = [0, 0, 2]
-size = [1, 1]
-direction = [0, 0, -1]
-power_w = 6
-[[shapes]]
-kind = "plane"
-normal = [0, 0, 1]
-material = "floor"
-[[shapes]]
-kind = "extrusion"
-outline = [[-2, -2], [2, -2], [2, 2], [-2, 2]]
-z_range = [0.5, 0.7]
-material = "glass"
-"#;
-        Scene::parse(src, "slab.toml", Path::new(".")).unwrap()
+        Scene::parse(&crate::trace::tests::slab(true, 1.5), "slab.toml", Path::new(".")).unwrap()
     }
 
     #[test]
@@ -292,13 +277,7 @@ material = "glass"
             initial_radius: Some(r1 as f32),
             ..ReferenceOptions::default()
         };
-        let mut state = ReferenceState {
-            passes: 0,
-            initial_radius: 0.0,
-            next_radius2: 0.0,
-            options,
-            settings: serde_json::Value::Null,
-        };
+        let mut state = ReferenceState::start(options, serde_json::Value::Null);
         let mut image = Image::new(10, 10);
         let mut measured = Vec::new();
         let checkpoints = [4u64, 16, 64, 256];

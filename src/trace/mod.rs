@@ -595,7 +595,7 @@ fn roulette(flux: &mut Vec3, a: Vec3, rng: &mut PhotonRng) -> bool {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use std::path::Path;
 
@@ -630,7 +630,7 @@ mod tests {
     }
 
     /// A glass slab (0.2 m thick) between a collimated beam and the floor, in a closed world.
-    fn slab(ideal: bool, ior: f32) -> String {
+    pub(crate) fn slab(ideal: bool, ior: f32) -> String {
         format!(
             r#"
 [materials.floor]

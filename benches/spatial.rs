@@ -86,19 +86,40 @@ fn kiddo_constrained(
     }
 }
 
+/// Positions and (u, v) parameters of the default scene's caustic photons, about `n` of them.
+fn scene_photons(n: usize) -> photonkit::synthetic::SyntheticMap {
+    use photonkit::trace::{Budget, TraceOptions};
+    let scene = photonkit::scene::Scene::default_scene();
+    let opts = TraceOptions { budget: Budget::Emitted((n as f64 * 1.43) as u64), ..TraceOptions::default() };
+    let t = photonkit::trace::trace(&scene, &opts, &|_, _| {}).unwrap();
+    assert_eq!(t.param_dims, 2, "the default scene's emitter is collimated");
+    let ph = t.photons();
+    photonkit::synthetic::SyntheticMap {
+        position: ph.position.to_vec(),
+        params: ph.params.to_vec(),
+        param_dims: 2,
+        ..Default::default()
+    }
+}
+
 fn main() {
     let n: usize =
         std::env::var("PHOTONKIT_BENCH_PHOTONS").ok().and_then(|s| s.parse().ok()).unwrap_or(1_000_000);
     // PHOTONKIT_BENCH_ONLY=photonkit skips kiddo (for profiling).
     let with_kiddo = std::env::var("PHOTONKIT_BENCH_ONLY").map_or(true, |s| s != "photonkit");
     let (kc, kf, beta) = (50usize, 16usize, 3.0f32);
-    let m = photonkit::synthetic::collimated_cusp(n, 7);
+    // PHOTONKIT_BENCH_SET=scene: the caustic photons of the embedded default scene (traced from
+    // 1.43·N emitted, about N stored) instead of the synthetic set.
+    let from_scene = std::env::var("PHOTONKIT_BENCH_SET").is_ok_and(|s| s == "scene");
+    let m = if from_scene { scene_photons(n) } else { photonkit::synthetic::collimated_cusp(n, 7) };
+    let n = m.position.len();
     let set = PointSet {
         positions: &m.position,
         params: Some(ParamColumn { values: &m.params, stride: 2, dims: &[2] }),
         emitters: None,
     };
-    println!("{n} photons (collimated_cusp); queries: one thread, CPU time; builds: wall clock, rayon pool");
+    let what = if from_scene { "default scene" } else { "collimated_cusp" };
+    println!("{n} photons ({what}); queries: one thread, CPU time; builds: wall clock, rayon pool");
 
     // Builds.
     let t = Instant::now();

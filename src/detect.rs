@@ -503,15 +503,15 @@ pub fn param_radius(
     let mut radius = vec![0f32; points.len()];
     let mut found = vec![0f32; order.len()];
     found.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
-        let mut nb = Neighbours::with_capacity(k_density);
+        let mut nb = Neighbours::unordered(k_density);
         for (o, (r, &i)) in out.iter_mut().zip(ids).enumerate() {
             if let Some(&a) = ids.get(o + crate::spatial::PREFETCH_AHEAD) {
                 points.prefetch(a as usize);
             }
             index.knn(&points.query(i as usize, None), k_density, &mut nb);
-            *r = match nb.last() {
-                Some(last) => {
-                    let rk = (last.dist2 as f64).sqrt();
+            *r = match nb.max_dist2() {
+                Some(d2) => {
+                    let rk = (d2 as f64).sqrt();
                     (beta as f64 * rk * (kc as f64 / nb.len() as f64).sqrt()) as f32
                 }
                 _ => 0.0,

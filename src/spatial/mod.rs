@@ -238,16 +238,29 @@ impl Neighbour {
 /// coordinates. Reusing one buffer for successive queries over the same index (in the index's
 /// [`SpatialIndex::order`], as every stage does) also speeds the next query: the last result
 /// gives it a starting bound (see [`SpatialIndex::knn`]).
-#[derive(Clone, Debug, Default)]
+#[derive(Clone, Debug)]
 pub struct Neighbours {
     items: Vec<Neighbour>,
     /// The neighbours' coordinates in the tree's distance space, padded to three.
     coords: Vec<[f32; 3]>,
     /// The neighbours' places in the tree that answered, which `tree` identifies (0: none).
     slots: Vec<u32>,
-    tree: usize,
+    /// The tree build that answered (0: none).
+    tree: u64,
     /// Candidate buffer of the search.
     cands: Vec<kdtree::Cand>,
+    /// Candidates gathered for the queries of one leaf.
+    group: kdtree::Group,
+    /// Whether results are sorted (see [`Self::unordered`]).
+    ordered: bool,
+    /// Queries answered from a group's candidates (for tests and tuning).
+    pub(crate) group_answers: u64,
+}
+
+impl Default for Neighbours {
+    fn default() -> Self {
+        Neighbours::with_capacity(0)
+    }
 }
 
 impl Neighbours {
@@ -258,7 +271,22 @@ impl Neighbours {
             slots: Vec::with_capacity(k),
             tree: 0,
             cands: Vec::with_capacity(2 * k),
+            group: Default::default(),
+            ordered: true,
+            group_answers: 0,
         }
+    }
+
+    /// A buffer whose results are the same neighbours in no particular order (deterministic
+    /// for a given sequence of queries on one buffer), which saves sorting them: for callers
+    /// that need only the set or the farthest ([`Self::max_dist2`]).
+    pub fn unordered(k: usize) -> Self {
+        Neighbours { ordered: false, ..Neighbours::with_capacity(k) }
+    }
+
+    /// The largest squared distance found (the k-th nearest's when k were found).
+    pub fn max_dist2(&self) -> Option<f32> {
+        self.items.iter().map(|n| n.dist2).reduce(f32::max)
     }
 
     pub fn as_slice(&self) -> &[Neighbour] {
@@ -285,7 +313,7 @@ impl Neighbours {
         &self.coords
     }
 
-    /// The farthest neighbour found (the k-th when k were found).
+    /// The farthest neighbour found (the k-th when k were found) of an ordered buffer.
     pub fn last(&self) -> Option<Neighbour> {
         self.items.last().copied()
     }

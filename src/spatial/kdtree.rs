@@ -203,16 +203,34 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             return;
         }
         let grouped = tuning().groups && !self.nodes.is_empty();
-        if grouped
-            && out.group.serves(id, k, qw, qp, r2v, ball)
-            && self.answer_from_group(qw, qp, r2v, exclude, k, out)
-        {
-            out.group_answers += 1;
-            return;
+        // Whether the group was gathered for this query, at an estimated reach, in vain.
+        let mut estimated = false;
+        if grouped {
+            let mut serves = out.group.serves(id, k, qw, qp, r2v, ball);
+            // A new leaf: gather its group at the reach of the previous result (a query
+            // nearby, in leaf order), and answer this query from it too when it can.
+            if !serves
+                && tuning().estimate
+                && out.tree == id
+                && out.items.len() == k
+                && let Some(kth) = out.max_dist2()
+            {
+                self.gather(qw, qp, r2v, ball, k, kth, out);
+                serves = out.group.serves(id, k, qw, qp, r2v, ball);
+                estimated = true;
+            }
+            if serves && self.answer_from_group(qw, qp, r2v, exclude, k, out) {
+                out.group_answers += 1;
+                return;
+            }
         }
         self.search(qw, qp, r2v, ball, exclude, k, out);
-        if grouped && !out.group.serves(id, k, qw, qp, r2v, ball) && out.items.len() == k {
-            self.gather(qw, qp, r2v, ball, k, out);
+        if grouped
+            && (estimated || !out.group.serves(id, k, qw, qp, r2v, ball))
+            && out.items.len() == k
+            && let Some(kth) = out.max_dist2()
+        {
+            self.gather(qw, qp, r2v, ball, k, kth, out);
         }
     }
 
@@ -404,15 +422,31 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     /// into `out`'s group: within the query's k-th distance plus a quarter of the leaf's
     /// diagonal of the leaf's box, and within 1.2 times the query's ball radius of the leaf's
     /// parameter box. (On an unconstrained search another query of the leaf has its k-th
-    /// within the first's plus their distance, at most the diagonal; a quarter answered
-    /// 99.9 % of the default scene's queries from their group and was fastest, against
-    /// 0.15, 0.35 and 0.5: `PHOTONKIT_KD=slack=…,ballslack=…` sets both factors.) A query
+    /// within the first's plus their distance, at most the diagonal; with a quarter, 87 % of
+    /// the default scene's queries were answered from a group (the rest started one) and
+    /// under 1 % of those tried fell back to a search; it was fastest, against 0, 0.15,
+    /// 0.35 and 0.5: `PHOTONKIT_KD=slack=…,ballslack=…` sets both factors.) A query
     /// outside the group's reach is searched as before: the reach changes speed, never results.
-    fn gather(&self, qw: &[f32; W], qp: &[f32; P], r2: f32, ball: bool, k: usize, out: &mut Neighbours) {
-        let Some(kth) = out.max_dist2() else { return };
+    #[allow(clippy::too_many_arguments)]
+    fn gather(
+        &self,
+        qw: &[f32; W],
+        qp: &[f32; P],
+        r2: f32,
+        ball: bool,
+        k: usize,
+        kth: f32,
+        out: &mut Neighbours,
+    ) {
         // The leaf the query descends to, and the box of its records and the query.
+        // The internal nodes on the way, to start the gathering at the deepest whose box
+        // holds the whole reach (no record outside a node's subtree lies in its box).
+        let mut path = [(0u32, 0u32, 0u32); 64];
+        let mut depth = 0;
         let (mut node, mut lo, mut hi) = (0usize, 0usize, self.recs.len());
         while hi - lo > LEAF {
+            path[depth] = (node as u32, lo as u32, hi as u32);
+            depth += 1;
             let n = &self.nodes[node];
             let axis = n.axis as usize;
             let q = if axis < W { qw[axis] } else { qp[axis - W] };
@@ -423,6 +457,11 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 (node, lo) = (n.right as usize, mid);
             }
         }
+        let up = (tuning().group_levels as usize).min(depth);
+        (lo, hi) = match up {
+            0 => (lo, hi),
+            u => (path[depth - u].1 as usize, path[depth - u].2 as usize),
+        };
         let g = &mut out.group;
         g.lo_w = [0.0; 3];
         g.hi_w = [0.0; 3];
@@ -455,7 +494,20 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         g.ball = ball;
         g.ids.clear();
         g.slots.clear();
-        self.collect(0, 0, self.recs.len(), g);
+        // Where a record within reach can lie, with a margin for the rounding of distances.
+        let (gw, gp) = (g.g2.sqrt() * 1.001, if ball { g.r2.sqrt() * 1.001 } else { f32::INFINITY });
+        let holds = |n: &Node<W, P>| {
+            (0..W).all(|a| n.lo_w[a] < g.lo_w[a] - gw && g.hi_w[a] + gw < n.hi_w[a])
+                && (P == 0
+                    || (ball && (0..P).all(|a| n.lo_p[a] < g.lo_p[a] - gp && g.hi_p[a] + gp < n.hi_p[a])))
+        };
+        let start = (0..depth).rev().find(|&d| holds(&self.nodes[path[d].0 as usize])).unwrap_or(0);
+        let (node, lo, hi) = if depth == 0 {
+            (0, 0, self.recs.len())
+        } else {
+            (path[start].0 as usize, path[start].1 as usize, path[start].2 as usize)
+        };
+        self.collect(node, lo, hi, g);
         let m = g.ids.len();
         g.stride = m + 4;
         g.lanes.clear();
@@ -579,6 +631,8 @@ struct Tuning {
     groups: bool,
     slack: f32,
     ball_slack: f32,
+    group_levels: u32,
+    estimate: bool,
 }
 
 fn tuning() -> Tuning {
@@ -598,6 +652,8 @@ fn tuning() -> Tuning {
             groups: !s.contains("nogroup"),
             slack: num("slack", 0.25),
             ball_slack: num("ballslack", 1.44),
+            group_levels: num("levels", 0.0) as u32,
+            estimate: !s.contains("noestimate"),
         }
     })
 }

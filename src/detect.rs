@@ -560,7 +560,9 @@ pub fn detect(
     let order: Vec<u32> = index.as_ref().map_or_else(|| (0..n as u32).collect(), |ix| ix.order());
     let mut results = vec![PhotonConstraint::free(DVec3::X, DVec3::Y, Outcome::Unconstrained); n];
     results.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
-        let mut nb = Neighbours::with_capacity(p.kc);
+        // The PCA and the gradient need the neighbours, not their order (one buffer per chunk:
+        // the order is the same whatever the thread count).
+        let mut nb = Neighbours::unordered(p.kc);
         let (mut offsets, mut weights, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
         for (o, (res, &i)) in out.iter_mut().zip(ids).enumerate() {
             let i = i as usize;

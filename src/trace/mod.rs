@@ -26,7 +26,7 @@ use serde_json::json;
 use crate::format::{
     ColumnSpec, DType, FormatError, MapInfo, Output, PhotonWriter, StageRecord, State, name,
 };
-use crate::scene::material::{WAVELENGTH_RANGE_NM, fresnel, reflect, refract, wavelength_rgb};
+use crate::scene::material::{WAVELENGTH_RANGE_NM, fresnel, reflect, refract, wavelength_rgb_tabulated};
 use crate::scene::{Dielectric, Material, Ray, Scene};
 use halton::{Halton, PhotonRng};
 pub use merge::merge;
@@ -529,7 +529,7 @@ impl Tracer<'_> {
                     if di.dispersion.is_some() && wavelength.is_none() {
                         let (lo, hi) = WAVELENGTH_RANGE_NM;
                         let l = lo + (hi - lo) * u3;
-                        flux *= wavelength_rgb(l);
+                        flux *= wavelength_rgb_tabulated(l);
                         wavelength = Some(l);
                     }
                     let n = match ior {

@@ -163,27 +163,26 @@ impl Bvh {
         if self.nodes.is_empty() {
             return None;
         }
-        let inv = ray.dir.recip();
         let lanes = RayLanes {
             o: [Vec4::splat(ray.origin.x), Vec4::splat(ray.origin.y), Vec4::splat(ray.origin.z)],
             d: [Vec4::splat(ray.dir.x), Vec4::splat(ray.dir.y), Vec4::splat(ray.dir.z)],
         };
         let mut best: Option<TriHit> = None;
         let mut t_best = t_max;
+        let mut node = &self.nodes[0];
+        if node.count > 0 {
+            // The whole mesh is one leaf (a small one, such as the prism's 8 triangles): its
+            // box would seldom reject a ray that the packet tests do not, so go straight to them.
+            self.test_leaf(node, &lanes, t_min, &mut t_best, &mut best);
+            return best;
+        }
+        let inv = ray.dir.recip();
         let mut stack = [0u32; 64];
         let mut sp = 0usize;
-        let mut node = &self.nodes[0];
         slab(node, ray.origin, inv, t_min, t_best)?;
         loop {
             if node.count > 0 {
-                let first = node.first as usize;
-                let packets = &self.packets[first..first + (node.count as usize).div_ceil(4)];
-                for (k, packet) in packets.iter().enumerate() {
-                    if let Some((lane, t, b1, b2)) = packet_intersect(packet, &lanes, t_min, t_best) {
-                        t_best = t;
-                        best = Some(TriHit { t, index: self.index[(first + k) * 4 + lane], b1, b2 });
-                    }
-                }
+                self.test_leaf(node, &lanes, t_min, &mut t_best, &mut best);
             } else {
                 let l = node.first as usize;
                 let (a, b) = (&self.nodes[l], &self.nodes[l + 1]);
@@ -221,6 +220,28 @@ impl Bvh {
                     node = n;
                     break;
                 }
+            }
+        }
+    }
+}
+
+impl Bvh {
+    /// Tests the packets of leaf `node` in order, keeping the nearest hit in `best`.
+    #[inline(always)]
+    fn test_leaf(
+        &self,
+        node: &Node,
+        lanes: &RayLanes,
+        t_min: f32,
+        t_best: &mut f32,
+        best: &mut Option<TriHit>,
+    ) {
+        let first = node.first as usize;
+        let packets = &self.packets[first..first + (node.count as usize).div_ceil(4)];
+        for (k, packet) in packets.iter().enumerate() {
+            if let Some((lane, t, b1, b2)) = packet_intersect(packet, lanes, t_min, *t_best) {
+                *t_best = t;
+                *best = Some(TriHit { t, index: self.index[(first + k) * 4 + lane], b1, b2 });
             }
         }
     }

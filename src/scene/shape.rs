@@ -148,23 +148,17 @@ impl Shape {
                 Some((t, (ray.at(t) - center) / radius))
             }
             Shape::Plane { point, normal } => {
-                let t = plane_t(ray, point, normal)?;
-                (t > t_min && t < t_max).then_some((t, normal))
+                let t = plane_t(ray, point, normal, t_min, t_max)?;
+                Some((t, normal))
             }
             Shape::Rectangle { origin, normal, dual_u, dual_v, .. } => {
-                let t = plane_t(ray, origin, normal)?;
-                if !(t > t_min && t < t_max) {
-                    return None;
-                }
+                let t = plane_t(ray, origin, normal, t_min, t_max)?;
                 let q = ray.at(t) - origin;
                 let (a, b) = (q.dot(dual_u), q.dot(dual_v));
                 ((0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b)).then_some((t, normal))
             }
             Shape::Disc { center, normal, radius } => {
-                let t = plane_t(ray, center, normal)?;
-                if !(t > t_min && t < t_max) {
-                    return None;
-                }
+                let t = plane_t(ray, center, normal, t_min, t_max)?;
                 ((ray.at(t) - center).length_squared() <= radius * radius).then_some((t, normal))
             }
             Shape::Cylinder { base, axis, radius, height } => {
@@ -206,12 +200,20 @@ impl Shape {
     }
 }
 
-fn plane_t(ray: &Ray, point: Vec3, normal: Vec3) -> Option<f32> {
+/// Distance along the ray to the plane through `point` with `normal`, if in (`t_min`, `t_max`).
+fn plane_t(ray: &Ray, point: Vec3, normal: Vec3, t_min: f32, t_max: f32) -> Option<f32> {
     let denom = ray.dir.dot(normal);
     if denom == 0.0 {
         return None;
     }
-    Some((point - ray.origin).dot(normal) / denom)
+    let num = (point - ray.origin).dot(normal);
+    // A ray leaving the plane behind it (the quotient ≤ 0) needs no division when t_min ≥ 0:
+    // the case of every photon heading away from the floor.
+    if t_min >= 0.0 && (num > 0.0) != (denom > 0.0) {
+        return None;
+    }
+    let t = num / denom;
+    (t > t_min && t < t_max).then_some(t)
 }
 
 #[cfg(test)]

@@ -84,73 +84,82 @@ impl HaltonRun<'_> {
 /// Most base-B digits a u64 has (B ≥ 3).
 const MAX_DIGITS: usize = 41;
 
-/// An index as its base-B digits, lowest first, with each digit's term of the radical
-/// inverse, d_k·B^−(k+1), kept ready.
+/// The number of base-B digits the radical inverse mirrors: the most whose mirror image,
+/// an integer below B^L, fits a u64 (40 for base 3, 27 for 5, 22 for 7). Higher digits of an
+/// index would add less than B^−L ≤ 2^−63 to the inverse, below an f64's resolution except
+/// for the few indices whose lower L digits are all zero (beyond 10^18: never reached).
+const fn mirrored_digits(b: u64) -> usize {
+    let (mut l, mut p) = (0, 1u64);
+    while let Some(q) = p.checked_mul(b) {
+        p = q;
+        l += 1;
+    }
+    l
+}
+
+/// B^L for L = [`mirrored_digits`] of B.
+const fn mirror_span(b: u64) -> u64 {
+    b.pow(mirrored_digits(b) as u32)
+}
+
+/// An index's lowest L base-B digits (L = [`mirrored_digits`]) and their mirror image
+/// M = Σ d_k B^(L−1−k), kept up to date by integer steps as the index is incremented.
 struct Digits {
-    base: u8,
-    /// Digits in use: the highest non-zero one and those below.
+    base: u64,
+    /// L.
     len: usize,
+    /// Digits, lowest first; L of them are used.
     digits: [u8; MAX_DIGITS],
-    /// B^−(k+1), by repeated multiplication as in [`radical_inverse`].
-    weight: [f64; MAX_DIGITS],
-    term: [f64; MAX_DIGITS],
+    /// B^(L−1−k): what digit k adds to the mirror image.
+    place: [u64; MAX_DIGITS],
+    mirror: u64,
+    /// 1 / B^L.
+    scale: f64,
 }
 
 impl Digits {
-    fn new(base: u8, mut i: u64) -> Self {
-        let inv = 1.0 / base as f64;
-        let mut weight = [0.0; MAX_DIGITS];
-        let mut f = inv;
-        for w in &mut weight {
-            *w = f;
-            f *= inv;
+    fn new(base: u64, mut i: u64) -> Self {
+        let l = mirrored_digits(base);
+        let mut place = [0; MAX_DIGITS];
+        let mut digits = [0; MAX_DIGITS];
+        let mut mirror = 0;
+        for (k, (p, d)) in place.iter_mut().zip(&mut digits).take(l).enumerate() {
+            *p = base.pow((l - 1 - k) as u32);
+            *d = (i % base) as u8;
+            mirror += *d as u64 * *p;
+            i /= base;
         }
-        let mut d = Digits { base, len: 0, digits: [0; MAX_DIGITS], weight, term: [0.0; MAX_DIGITS] };
-        while i > 0 {
-            d.set(d.len, (i % base as u64) as u8);
-            d.len += 1;
-            i /= base as u64;
-        }
-        d
-    }
-
-    fn set(&mut self, k: usize, digit: u8) {
-        self.digits[k] = digit;
-        self.term[k] = digit as f64 * self.weight[k];
+        Digits { base, len: l, digits, place, mirror, scale: 1.0 / mirror_span(base) as f64 }
     }
 
     fn increment(&mut self) {
-        let mut k = 0;
-        while k < MAX_DIGITS {
-            let d = self.digits[k] + 1;
-            if d < self.base {
-                self.set(k, d);
-                self.len = self.len.max(k + 1);
+        for k in 0..self.len {
+            if (self.digits[k] as u64) < self.base - 1 {
+                self.digits[k] += 1;
+                self.mirror += self.place[k];
                 return;
             }
-            self.set(k, 0);
-            k += 1;
+            self.mirror -= (self.base - 1) * self.place[k];
+            self.digits[k] = 0;
         }
     }
 
-    /// The radical inverse: the terms summed lowest digit first, the order of
-    /// [`radical_inverse`], so the same rounding. (Terms of zero digits add exact zeros.)
+    /// The radical inverse, as [`radical_inverse`] computes it.
     fn value(&self) -> f64 {
-        self.term[..self.len].iter().fold(0.0, |r, &t| r + t)
+        self.mirror as f64 * self.scale
     }
 }
 
-/// The base-B radical inverse: index's base-B digits mirrored about the radix point.
+/// The base-B radical inverse: the index's base-B digits mirrored about the radix point.
+/// Computed as the mirror image of its lowest L digits as an integer M < B^L (exact), times
+/// 1/B^L: two roundings, so within a few f64 ulps of the exact value.
 fn radical_inverse<const B: u64>(mut i: u64) -> f64 {
-    let inv = 1.0 / B as f64;
-    let mut f = inv;
-    let mut r = 0.0;
-    while i > 0 {
-        r += (i % B) as f64 * f;
+    let mut m = 0u64;
+    for _ in 0..mirrored_digits(B) {
+        m = m * B + i % B;
         i /= B;
-        f *= inv;
     }
-    r
+    m as f64 * (1.0 / mirror_span(B) as f64)
 }
 
 fn splitmix64(state: &mut u64) -> u64 {
@@ -182,8 +191,29 @@ mod tests {
 
     #[test]
     fn radical_inverse_mirrors_digits() {
-        assert_eq!(radical_inverse::<3>(1), 1.0 / 3.0);
-        assert_eq!(radical_inverse::<3>(5), 2.0 / 3.0 + 1.0 / 9.0); // 5 = 12₃ → 0.21₃
+        let close = |a: f64, b: f64| (a - b).abs() <= 4.0 * f64::EPSILON * b;
+        assert!(close(radical_inverse::<3>(1), 1.0 / 3.0));
+        assert!(close(radical_inverse::<3>(5), 2.0 / 3.0 + 1.0 / 9.0)); // 5 = 12₃ → 0.21₃
+        assert!(close(radical_inverse::<7>(50), 1.0 / 7.0 + 1.0 / 343.0)); // 50 = 101₇ → 0.101₇
+        // Against the digits summed in f64, on indices of every length.
+        let summed = |mut i: u64, b: u64| {
+            let (mut r, mut f) = (0.0, 1.0 / b as f64);
+            while i > 0 {
+                r += (i % b) as f64 * f;
+                i /= b;
+                f /= b as f64;
+            }
+            r
+        };
+        let mut i = 1u64;
+        while i < u64::MAX / 3 {
+            for j in [i, i + 1, i * 2 + 1] {
+                assert!((radical_inverse::<3>(j) - summed(j, 3)).abs() < 1e-15, "{j}");
+                assert!((radical_inverse::<5>(j) - summed(j, 5)).abs() < 1e-15, "{j}");
+                assert!((radical_inverse::<7>(j) - summed(j, 7)).abs() < 1e-15, "{j}");
+            }
+            i = i * 3 + 1;
+        }
         let h = Halton { offsets: [0.0; 4] };
         assert_eq!(h.point(6)[0], 0.375); // 6 = 110₂ → 0.011₂
         assert_eq!(h.point(0), [0.0; 4]);

@@ -26,7 +26,7 @@ use serde_json::json;
 use crate::format::{
     ColumnSpec, DType, FormatError, MapInfo, Output, PhotonWriter, StageRecord, State, name,
 };
-use crate::scene::material::{WAVELENGTH_RANGE_NM, fresnel, reflect, refract, wavelength_rgb};
+use crate::scene::material::{WAVELENGTH_RANGE_NM, fresnel, reflect, refract, wavelength_rgb_tabulated};
 use crate::scene::{Dielectric, Material, Ray, Scene};
 use halton::{Halton, PhotonRng};
 pub use merge::merge;
@@ -133,6 +133,35 @@ impl Photons {
 
     pub fn is_empty(&self) -> bool {
         self.position.is_empty()
+    }
+
+    /// Empty columns with room for `n` photons of `dims` trajectory parameters.
+    fn with_capacity(n: usize, dims: usize) -> Photons {
+        Photons {
+            position: Vec::with_capacity(n),
+            normal: Vec::with_capacity(n),
+            flux: Vec::with_capacity(n),
+            incident: Vec::with_capacity(n),
+            emitter: Vec::with_capacity(n),
+            params: Vec::with_capacity(n * dims),
+            path_length: Vec::with_capacity(n),
+            bounces: Vec::with_capacity(n),
+            emission_index: Vec::with_capacity(n),
+            surface: Vec::with_capacity(n),
+        }
+    }
+
+    fn shrink_to_fit(&mut self) {
+        self.position.shrink_to_fit();
+        self.normal.shrink_to_fit();
+        self.flux.shrink_to_fit();
+        self.incident.shrink_to_fit();
+        self.emitter.shrink_to_fit();
+        self.params.shrink_to_fit();
+        self.path_length.shrink_to_fit();
+        self.bounces.shrink_to_fit();
+        self.emission_index.shrink_to_fit();
+        self.surface.shrink_to_fit();
     }
 
     fn truncate(&mut self, n: usize, dims: usize) {
@@ -464,7 +493,9 @@ impl Tracer<'_> {
     }
 
     fn chunk(&self, range: Range<u64>) -> (Photons, u64) {
-        let mut out = Photons::default();
+        // Room for every photon of the chunk, so the columns never grow by copying; the unused
+        // tail is returned at the end (in place: a shrink moves nothing).
+        let mut out = Photons::with_capacity((range.end - range.start) as usize, self.dims);
         let mut limited = 0;
         let mut halton = self.halton.run(range.start);
         for i in range {
@@ -472,6 +503,7 @@ impl Tracer<'_> {
                 limited += 1;
             }
         }
+        out.shrink_to_fit();
         (out, limited)
     }
 
@@ -529,7 +561,7 @@ impl Tracer<'_> {
                     if di.dispersion.is_some() && wavelength.is_none() {
                         let (lo, hi) = WAVELENGTH_RANGE_NM;
                         let l = lo + (hi - lo) * u3;
-                        flux *= wavelength_rgb(l);
+                        flux *= wavelength_rgb_tabulated(l);
                         wavelength = Some(l);
                     }
                     let n = match ior {

@@ -104,8 +104,10 @@ pub trait NeighbourSearch: Sync {
     /// counting `i` itself, nearest first, as the current space defines them.
     fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>);
 
-    /// [`Self::neighbours`], and their positions in `xs`: by default read from `positions`
-    /// (the snapshot the index was built over).
+    /// The same neighbours as [`Self::neighbours`], and their positions in `xs` (by default
+    /// read from `positions`, the snapshot the index was built over), in an order that may
+    /// differ from nearest first but depends only on the queries made since the last
+    /// [`Self::start_chunk`] on this thread (so results never depend on the thread count).
     fn neighbours_at(
         &self,
         i: usize,
@@ -121,6 +123,10 @@ pub trait NeighbourSearch: Sync {
 
     /// Starts loading what a search for photon `i` will read (a hint; no effect by default).
     fn prefetch(&self, _i: usize) {}
+
+    /// Marks the start of a chunk of queries: forgets what earlier queries on this thread
+    /// left that could change the order [`Self::neighbours_at`] returns.
+    fn start_chunk(&self) {}
 
     /// An order to visit photons in that keeps successive queries in nearby memory (every
     /// photon once); `None` for index order.
@@ -195,6 +201,7 @@ pub fn iterate(
         .for_each(|(c, (((steps, nns), ratios), spacings))| {
             let mut ids = Vec::with_capacity(p.kf);
             let mut xs = Vec::with_capacity(p.kf);
+            index.start_chunk();
             for (o, (((s, d1), q), sp)) in steps
                 .iter_mut()
                 .zip(nns.iter_mut())
@@ -220,8 +227,13 @@ pub fn iterate(
                 }
                 index.neighbours_at(i, p.kf, snapshot, &mut ids, &mut xs);
                 let xi = Vec3::from(snapshot[i]);
-                let r_k = xs.last().map_or(0.0, |&x| xi.distance(x));
-                *d1 = xs.first().map_or(0.0, |&x| xi.distance(x));
+                // The farthest and nearest neighbour (the search need not sort them).
+                let (near, far) = xs.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &x| {
+                    let d = xi.distance_squared(x);
+                    (lo.min(d), hi.max(d))
+                });
+                let r_k = far.sqrt();
+                *d1 = if xs.is_empty() { 0.0 } else { near.sqrt() };
                 if r_k > 0.0 {
                     *q = *d1 / r_k;
                 }
@@ -319,6 +331,10 @@ pub struct IndexSearch<'a> {
 
 thread_local! {
     static FOUND: std::cell::RefCell<crate::spatial::Neighbours> = Default::default();
+    /// The buffer of [`NeighbourSearch::neighbours_at`], which needs the neighbours but not
+    /// their order (no sort per photon).
+    static SET: std::cell::RefCell<crate::spatial::Neighbours> =
+        std::cell::RefCell::new(crate::spatial::Neighbours::unordered(0));
 }
 
 impl IndexSearch<'_> {
@@ -336,6 +352,29 @@ impl IndexSearch<'_> {
                 if n.index as usize != i && kept < k {
                     each(n.index, *x);
                     kept += 1;
+                }
+            }
+        });
+    }
+
+    /// [`Self::search`] through the unordered buffer: the same k photons, in the buffer's
+    /// order. Of the k + 1 found, `i` is dropped if present, else the last by (distance²,
+    /// index).
+    fn search_set(&self, i: usize, k: usize, mut each: impl FnMut(u32, [f32; 3])) {
+        let q = self.points.query(i, self.radius.map(|r| r[i]));
+        SET.with_borrow_mut(|found| {
+            self.index.knn(&q, k + 1, found);
+            let items = found.as_slice();
+            let drop = if items.len() <= k {
+                items.iter().position(|n| n.index as usize == i)
+            } else {
+                items.iter().position(|n| n.index as usize == i).or_else(|| {
+                    (0..items.len()).reduce(|a, b| if items[a].before(&items[b]) { b } else { a })
+                })
+            };
+            for (at, (n, x)) in items.iter().zip(found.coords()).enumerate() {
+                if Some(at) != drop {
+                    each(n.index, *x);
                 }
             }
         });
@@ -358,10 +397,14 @@ impl NeighbourSearch for IndexSearch<'_> {
     fn neighbours_at(&self, i: usize, k: usize, _: &[[f32; 3]], ids: &mut Vec<u32>, xs: &mut Vec<Vec3>) {
         ids.clear();
         xs.clear();
-        self.search(i, k, |j, x| {
+        self.search_set(i, k, |j, x| {
             ids.push(j);
             xs.push(Vec3::from(x));
         });
+    }
+
+    fn start_chunk(&self) {
+        SET.with_borrow_mut(|found| found.forget());
     }
 
     fn order(&self) -> Option<Vec<u32>> {
@@ -996,6 +1039,36 @@ mod tests {
         assert!(cv1 < 0.75 * cv0, "params stage cv {cv1} vs input {cv0}");
         assert!(cv2 < 0.75 * cv1, "collapse + world cv {cv2} vs params stage {cv1}");
         assert!(all_finite(r2.positions()) && r2.positions().iter().all(|q| q[2] == 0.0));
+    }
+
+    /// Detect and relax (both spaces) give the same bits on one thread and on three: the
+    /// k-NN buffers are reused across queries (their gathered candidates and bounds change
+    /// the order neighbours come in), so this holds only because each chunk starts afresh.
+    #[test]
+    fn detect_and_relax_are_the_same_on_one_and_three_threads() {
+        let dir = tempfile::tempdir().unwrap();
+        // Several chunks of photons, so that threads interleave chunks differently.
+        let input = map_in(dir.path(), "in.phm", &fig3(5 * CHUNK + 123, 60));
+        let p = RelaxParams { iterations: 2, ..RelaxParams::default() };
+        let run = |threads: usize, tag: &str| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
+            pool.install(|| {
+                let d = detect_to(&input, dir.path(), &format!("d{tag}.phm"));
+                let dp = crate::detect::detect_map(&input, &Default::default(), &|_| {}).unwrap();
+                let r1 = relax_map(&d, &p, |_| {}).unwrap();
+                let r1_file = relax_to(&d, &p, dir.path(), &format!("r{tag}.phm"));
+                let c_path = dir.path().join(format!("c{tag}.phm"));
+                collapse(&r1_file, crate::format::Output::Path(c_path.clone())).unwrap();
+                let c = crate::format::PhotonMap::open_path(&c_path).unwrap();
+                let r2 = relax_map(&c, &p, |_| {}).unwrap();
+                (dp.basis_u, dp.basis_v, dp.lambda2, dp.r_param, r1.positions, r2.positions)
+            })
+        };
+        let (one, three) = (run(1, "1"), run(3, "3"));
+        assert!(one.0 == three.0 && one.1 == three.1 && one.2 == three.2 && one.3 == three.3, "detect");
+        assert!(one.4 == three.4, "relax in world + params");
+        assert!(one.5 == three.5, "relax in world");
+        assert!(one.4 != input.positions(), "the photons moved");
     }
 
     /// `m` with every position scaled by `s`.

@@ -363,6 +363,11 @@ pub(crate) struct Group {
 }
 
 impl Group {
+    /// Drops the candidates (keeping the allocations).
+    pub(crate) fn forget(&mut self) {
+        self.build = 0;
+    }
+
     /// Whether a query may be answered from these candidates.
     #[inline]
     fn serves<const W: usize, const P: usize>(

@@ -318,6 +318,13 @@ impl Neighbours {
         self.items.last().copied()
     }
 
+    /// Forgets the last result and any gathered candidates: the next queries then run as on a
+    /// fresh buffer (the same results, in the same order, whatever came before).
+    pub fn forget(&mut self) {
+        self.clear();
+        self.group.forget();
+    }
+
     /// Empties the buffer and forgets the last result.
     fn clear(&mut self) {
         self.items.clear();

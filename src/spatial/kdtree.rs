@@ -355,9 +355,8 @@ pub(crate) struct Group {
     g2: f32,
     r2: f32,
     /// The candidates by coordinate: axis `a` (distance axes, then ball axes) at
-    /// `lanes[a·stride ..]`, each run padded with NaN so that scans read four at a time.
-    lanes: Vec<f32>,
-    stride: usize,
+    /// `lanes[a]`, each padded with NaN so that scans read four at a time.
+    lanes: [Vec<f32>; 6],
     ids: Vec<u32>,
     slots: Vec<u32>,
 }
@@ -512,19 +511,12 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         } else {
             (path[start].0 as usize, path[start].1 as usize, path[start].2 as usize)
         };
+        for lane in &mut g.lanes[..W + P] {
+            lane.clear();
+        }
         self.collect(node, lo, hi, g);
-        let m = g.ids.len();
-        g.stride = m + 4;
-        g.lanes.clear();
-        g.lanes.resize((W + P) * g.stride, f32::NAN);
-        for (c, &slot) in g.slots.iter().enumerate() {
-            let r = &self.recs[slot as usize];
-            for a in 0..W {
-                g.lanes[a * g.stride + c] = r.w[a];
-            }
-            for a in 0..P {
-                g.lanes[(W + a) * g.stride + c] = r.p[a];
-            }
+        for lane in &mut g.lanes[..W + P] {
+            lane.extend([f32::NAN; 4]);
         }
     }
 
@@ -537,6 +529,12 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 {
                     g.ids.push(r.idx);
                     g.slots.push((lo + slot) as u32);
+                    for a in 0..W {
+                        g.lanes[a].push(r.w[a]);
+                    }
+                    for a in 0..P {
+                        g.lanes[W + a].push(r.p[a]);
+                    }
                 }
             }
             return;
@@ -572,7 +570,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         let m = g.ids.len();
         let mut at = 0;
         while at < m {
-            let load = |a: usize| Vec4::from_slice(&g.lanes[a * g.stride + at..a * g.stride + at + 4]);
+            let load = |a: usize| Vec4::from_slice(&g.lanes[a][at..at + 4]);
             let mut d = Vec4::ZERO;
             for (a, q) in qwv.iter().enumerate() {
                 let o = load(a) - *q;
@@ -654,7 +652,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         for c in cands.iter() {
             let at = c.slot as usize;
             out.items.push(Neighbour { dist2: c.dist2(), index: g.ids[at] });
-            out.coords.push(std::array::from_fn(|a| if a < W { g.lanes[a * g.stride + at] } else { 0.0 }));
+            out.coords.push(std::array::from_fn(|a| if a < W { g.lanes[a][at] } else { 0.0 }));
             out.slots.push(g.slots[at]);
         }
         true

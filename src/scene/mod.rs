@@ -33,6 +33,8 @@ pub const DEFAULT_SCENE_NAME: &str = "<default scene: glass-sphere.toml>";
 pub const RAY_OFFSET_REL: f32 = 2.5e-5;
 /// The ray offset of a scene with no extent (a single point), metres.
 const RAY_OFFSET_FALLBACK_M: f32 = 1e-4;
+/// Meshes up to this size are checked for convexity ([`Scene::leaves_convex_mesh`]).
+const CONVEX_CHECK_MAX_TRIANGLES: usize = 1024;
 
 /// Everything that can be wrong with a scene file.
 #[derive(Debug, thiserror::Error)]
@@ -89,6 +91,9 @@ pub struct Scene {
     bvh: bvh::Bvh,
     /// See [`Scene::ray_offset`].
     ray_offset: f32,
+    /// When every triangle belongs to one surface and that mesh is convex: the surface and
+    /// the centroid of its vertices (see [`Scene::leaves_convex_mesh`]).
+    convex_mesh: Option<(u32, Vec3)>,
 }
 
 impl Scene {
@@ -106,6 +111,7 @@ impl Scene {
             tri_info: Vec::new(),
             bvh: bvh::Bvh::default(),
             ray_offset: RAY_OFFSET_FALLBACK_M,
+            convex_mesh: None,
         }
     }
 
@@ -164,6 +170,55 @@ impl Scene {
     fn finish(&mut self) {
         self.bvh = bvh::Bvh::build(&self.triangles);
         self.ray_offset = self.compute_ray_offset();
+        self.convex_mesh = self.find_convex_mesh();
+    }
+
+    /// The scene's only mesh surface and its vertices' centroid, if the mesh is convex: each
+    /// triangle has every vertex of the mesh on one side of its plane (within a few f32 ulps,
+    /// far below the ray offset). Meshes of more than [`CONVEX_CHECK_MAX_TRIANGLES`]
+    /// triangles are not checked (the check compares every triangle with every vertex).
+    fn find_convex_mesh(&self) -> Option<(u32, Vec3)> {
+        let surface = self.tri_info.first()?.surface;
+        if self.triangles.len() > CONVEX_CHECK_MAX_TRIANGLES
+            || self.tri_info.iter().any(|t| t.surface != surface)
+        {
+            return None;
+        }
+        let vertices: Vec<Vec3> = self.triangles.iter().flatten().copied().collect();
+        let far = vertices.iter().map(|v| v.abs().max_element()).fold(0.0f32, f32::max);
+        let tol = 16.0 * f32::EPSILON * far;
+        if !tol.is_finite() || 4.0 * tol >= self.ray_offset {
+            return None;
+        }
+        for (tri, info) in self.triangles.iter().zip(&self.tri_info) {
+            if info.normal == Vec3::ZERO {
+                return None;
+            }
+            let (mut below, mut above) = (false, false);
+            for v in &vertices {
+                let d = (*v - tri[0]).dot(info.normal);
+                below |= d < -tol;
+                above |= d > tol;
+                if below && above {
+                    return None;
+                }
+            }
+        }
+        let centroid = vertices.iter().copied().sum::<Vec3>() / vertices.len() as f32;
+        Some((surface, centroid))
+    }
+
+    /// Whether `ray`, continuing from `p` on surface `surface` and started off it along
+    /// `offset_dir` (± the unit geometric normal there), can meet no triangle of the scene:
+    /// the surface is the scene's convex mesh, the ray starts on the side of the hit
+    /// triangle's plane away from the mesh (every vertex lies on the other side, the
+    /// centroid by more than the ray offset) and does not turn back towards that plane. Then
+    /// [`Scene::intersect_analytic`] finds the same hit as [`Scene::intersect`]: a ray that
+    /// leaves a convex body cannot meet it again.
+    pub fn leaves_convex_mesh(&self, surface: u32, p: Vec3, offset_dir: Vec3, ray: &Ray) -> bool {
+        self.convex_mesh.is_some_and(|(s, c)| {
+            s == surface && (c - p).dot(offset_dir) < -self.ray_offset && ray.dir.dot(offset_dir) >= 0.0
+        })
     }
 
     /// The scene with every length multiplied by `f` (finite, > 0) about the origin: shapes,
@@ -256,14 +311,8 @@ impl Scene {
 
     /// The nearest surface the ray meets with `t` in (`t_min`, `t_max`).
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
-        let mut best: Option<Hit> = None;
-        let mut t_best = t_max;
-        for (s, id) in &self.analytic {
-            if let Some((t, n)) = s.intersect(ray, t_min, t_best) {
-                t_best = t;
-                best = Some(Hit { t, normal: n, shading: n, shape: *id });
-            }
-        }
+        let mut best = self.intersect_analytic(ray, t_min, t_max);
+        let t_best = best.map_or(t_max, |h| h.t);
         if let Some(h) = self.bvh.intersect(ray, t_min, t_best) {
             let info = &self.tri_info[h.index as usize];
             let shading = match &info.vertex_normals {
@@ -273,6 +322,20 @@ impl Scene {
                 None => info.normal,
             };
             best = Some(Hit { t: h.t, normal: info.normal, shading, shape: info.surface });
+        }
+        best
+    }
+
+    /// The nearest hit on the analytic shapes alone (the mesh triangles skipped).
+    #[inline]
+    pub fn intersect_analytic(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut t_best = t_max;
+        for (s, id) in &self.analytic {
+            if let Some((t, n)) = s.intersect(ray, t_min, t_best) {
+                t_best = t;
+                best = Some(Hit { t, normal: n, shading: n, shape: *id });
+            }
         }
         best
     }
@@ -409,5 +472,58 @@ material = "floor"
                 (s.intersect(&r, 1e-4, f32::INFINITY), s.intersect_brute_force(&r, 1e-4, f32::INFINITY));
             assert_eq!(a.map(|h| (h.shape, h.t)), b.map(|h| (h.shape, h.t)));
         }
+    }
+
+    #[test]
+    fn rays_leaving_a_convex_mesh_meet_none_of_its_triangles() {
+        use rand::{RngExt, SeedableRng};
+        let prism =
+            Scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes/prism.toml")).unwrap();
+        let Some((surface, _)) = prism.convex_mesh else { panic!("the prism is convex") };
+        // Not convex: an L-shaped extrusion; and a box beside a second mesh.
+        let l_shape = format!(
+            "{BASE}\n[[shapes]]\nkind = \"extrusion\"\nmaterial = \"glass\"\n\
+             outline = [[0,0],[2,0],[2,1],[1,1],[1,2],[0,2]]\nz_range = [1, 1.5]\n"
+        );
+        assert!(parse(&l_shape).unwrap().convex_mesh.is_none());
+        let cube =
+            "[[shapes]]\nkind = \"extrusion\"\nmaterial = \"glass\"\noutline = [[0,0],[1,0],[1,1],[0,1]]\n";
+        let one = format!("{BASE}\n{cube}z_range = [1, 1.5]\n");
+        assert!(parse(&one).unwrap().convex_mesh.is_some());
+        let two = format!("{one}\n{cube}z_range = [2, 2.5]\n");
+        assert!(parse(&two).unwrap().convex_mesh.is_none());
+
+        // Rays from random points of the prism's triangles, on either side, in random
+        // directions (grazing ones included): whenever the skip applies, the full
+        // intersection agrees with the analytic shapes alone and no triangle is met.
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
+        let mut skipped = 0;
+        for _ in 0..200_000 {
+            let k = rng.random_range(0..prism.triangles.len());
+            let [a, b, c] = prism.triangles[k];
+            let (mut u, mut v) = (rng.random::<f32>(), rng.random::<f32>());
+            if u + v > 1.0 {
+                (u, v) = (1.0 - u, 1.0 - v);
+            }
+            let p = a + (b - a) * u + (c - a) * v;
+            let n = prism.tri_info[k].normal;
+            let side = if rng.random::<bool>() { n } else { -n };
+            let w =
+                Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5);
+            let tangent = (w - n * w.dot(n)).normalize_or_zero();
+            let lift = if rng.random::<bool>() { rng.random::<f32>() } else { rng.random::<f32>() * 1e-3 };
+            let Some(dir) = (tangent + side * lift).try_normalize() else { continue };
+            let ray = Ray::new(p + side * prism.ray_offset(), dir);
+            if prism.leaves_convex_mesh(surface, p, side, &ray) {
+                skipped += 1;
+                assert!(bvh::brute_force(&prism.triangles, &ray, 0.0, f32::INFINITY).is_none());
+                assert_eq!(
+                    prism.intersect(&ray, 0.0, f32::INFINITY),
+                    prism.intersect_analytic(&ray, 0.0, f32::INFINITY)
+                );
+            }
+        }
+        // About half the rays start outside.
+        assert!((80_000..120_000).contains(&skipped), "{skipped}");
     }
 }

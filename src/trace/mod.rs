@@ -522,8 +522,15 @@ impl Tracer<'_> {
         let mut ior: Option<(&Dielectric, f32)> = None;
         let mut specular = 0u32;
         let mut path = 0.0f32;
+        // The ray has just left the scene's convex mesh, which it cannot meet again.
+        let mut outside_mesh = false;
         loop {
-            let Some(hit) = scene.intersect(&ray, 0.0, f32::INFINITY) else { return false };
+            let found = if outside_mesh {
+                scene.intersect_analytic(&ray, 0.0, f32::INFINITY)
+            } else {
+                scene.intersect(&ray, 0.0, f32::INFINITY)
+            };
+            let Some(hit) = found else { return false };
             path += hit.t;
             let p = ray.at(hit.t);
             let front = ray.dir.dot(hit.normal) < 0.0;
@@ -556,6 +563,7 @@ impl Tracer<'_> {
                         d = reflect(ray.dir, ng); // the shading normal would send it into the surface
                     }
                     ray = Ray::new(p + ng * scene.ray_offset(), d);
+                    outside_mesh = scene.leaves_convex_mesh(hit.shape, p, ng, &ray);
                 }
                 Material::Dielectric(di) => {
                     if di.dispersion.is_some() && wavelength.is_none() {
@@ -591,6 +599,7 @@ impl Tracer<'_> {
                                 return false;
                             }
                             ray = Ray::new(p - ng * scene.ray_offset(), t);
+                            outside_mesh = scene.leaves_convex_mesh(hit.shape, p, -ng, &ray);
                         }
                         _ => {
                             let mut d = reflect(ray.dir, normal);
@@ -598,6 +607,7 @@ impl Tracer<'_> {
                                 d = reflect(ray.dir, ng);
                             }
                             ray = Ray::new(p + ng * scene.ray_offset(), d);
+                            outside_mesh = scene.leaves_convex_mesh(hit.shape, p, ng, &ray);
                         }
                     }
                 }

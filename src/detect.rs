@@ -303,12 +303,14 @@ fn normalised_pca(pts: &[DVec2], r2: f64) -> Option<Eigen2> {
     let mean = pts.iter().sum::<DVec2>() / m;
     let (mut a, mut b, mut c) = (0.0, 0.0, 0.0);
     for p in pts {
-        let d = (*p - mean) / r2.sqrt();
+        let d = *p - mean;
         a += d.x * d.x;
         b += d.x * d.y;
         c += d.y * d.y;
     }
-    let e = eigen2(a / m, b / m, c / m);
+    // Normalised by r² once, not each offset by r (a division per offset).
+    let norm = m * r2;
+    let e = eigen2(a / norm, b / norm, c / norm);
     // Relative to r², an extent below 1e-12 is rounding of offsets along the normal.
     (e.lambda1 > 1e-12 && e.lambda1.is_finite()).then_some(e)
 }

@@ -1,7 +1,9 @@
 //! The spatial index: photonkit's kd-tree over {x, y, z, params} with the parameter range test
 //! inside the traversal, against kiddo 6 with over-fetch and filter (issue 4's decision).
 //!
-//! `cargo bench --bench spatial` (PHOTONKIT_BENCH_PHOTONS=N changes the size; default 1 M).
+//! `cargo bench --bench spatial` (PHOTONKIT_BENCH_PHOTONS=N changes the size; default 1 M;
+//! PHOTONKIT_BENCH_SET=scene takes the default scene's caustic photons instead of the
+//! synthetic set; PHOTONKIT_BENCH_ONLY=photonkit skips kiddo).
 //!
 //! The photons: `synthetic::collimated_cusp` (one collimated emitter, (u, v) parameters, three
 //! overlapping filaments between two folds). Each query workload runs on one thread over

@@ -338,7 +338,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
 
 /// Candidates gathered once for the queries of one leaf (module docs): every record within
 /// distance² `g2` of the box `lo_w..hi_w` and, on a constrained search, within ball
-/// distance² `r2` of the box `lo_p..hi_p`. A query inside both boxes, with a ball no larger
+/// distance² `r2` of the box `lo_p..hi_p` (with the rest of their leaves). A query inside both boxes, with a ball no larger
 /// and the same k, finds among them every record within `g2` of itself that its ball admits
 /// (each axis's offset to a box that holds the query is at most its offset to the query, and
 /// rounding keeps that order): when at least k are, its k nearest are exact.
@@ -396,23 +396,6 @@ fn box_box_dist2<const N: usize>(lo: &[f32; N], hi: &[f32; N], glo: &[f32], ghi:
             glo[i] - hi[i]
         } else if lo[i] > ghi[i] {
             lo[i] - ghi[i]
-        } else {
-            0.0
-        };
-        s += d * d;
-    }
-    s
-}
-
-/// [`box_dist2`] against a box given as slices (a group's, padded to three axes).
-#[inline(always)]
-fn point_box_dist2<const N: usize>(q: &[f32; N], lo: &[f32], hi: &[f32]) -> f32 {
-    let mut s = 0.0f32;
-    for i in 0..N {
-        let d = if q[i] < lo[i] {
-            lo[i] - q[i]
-        } else if q[i] > hi[i] {
-            q[i] - hi[i]
         } else {
             0.0
         };
@@ -520,22 +503,20 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         }
     }
 
-    /// Appends to `g` every record below `node` within its reach.
+    /// Appends to `g` every record below `node` within its reach (and some beyond it).
     fn collect(&self, node: usize, lo: usize, hi: usize, g: &mut Group) {
+        // A leaf under a node within reach is taken whole: testing its records one by one
+        // here cost more than scanning the few beyond reach with every query of the group
+        // (constrained k = 17 1.55 → 1.37 µs, world k = 17 1.10 → 1.00 µs in the probe).
         if hi - lo <= LEAF {
-            for (slot, r) in self.recs[lo..hi].iter().enumerate() {
-                if point_box_dist2(&r.w, &g.lo_w, &g.hi_w) <= g.g2
-                    && (!g.ball || point_box_dist2(&r.p, &g.lo_p, &g.hi_p) <= g.r2)
-                {
-                    g.ids.push(r.idx);
-                    g.slots.push((lo + slot) as u32);
-                    for a in 0..W {
-                        g.lanes[a].push(r.w[a]);
-                    }
-                    for a in 0..P {
-                        g.lanes[W + a].push(r.p[a]);
-                    }
-                }
+            let recs = &self.recs[lo..hi];
+            g.ids.extend(recs.iter().map(|r| r.idx));
+            g.slots.extend(lo as u32..hi as u32);
+            for a in 0..W {
+                g.lanes[a].extend(recs.iter().map(|r| r.w[a]));
+            }
+            for a in 0..P {
+                g.lanes[W + a].extend(recs.iter().map(|r| r.p[a]));
             }
             return;
         }

@@ -342,14 +342,8 @@ impl Scene {
 
     /// The nearest hit by testing every shape and triangle in turn (the oracle for tests).
     pub fn intersect_brute_force(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
-        let mut best: Option<Hit> = None;
-        let mut t_best = t_max;
-        for (s, id) in &self.analytic {
-            if let Some((t, n)) = s.intersect(ray, t_min, t_best) {
-                t_best = t;
-                best = Some(Hit { t, normal: n, shading: n, shape: *id });
-            }
-        }
+        let mut best = self.intersect_analytic(ray, t_min, t_max);
+        let t_best = best.map_or(t_max, |h| h.t);
         if let Some(h) = bvh::brute_force(&self.triangles, ray, t_min, t_best) {
             let info = &self.tri_info[h.index as usize];
             best = Some(Hit { t: h.t, normal: info.normal, shading: info.normal, shape: info.surface });

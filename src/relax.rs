@@ -338,40 +338,29 @@ thread_local! {
 }
 
 impl IndexSearch<'_> {
-    /// The k nearest photons other than `i`, and their positions, through `found`. The search
-    /// asks for k + 1 *including* `i` and drops it: the same k photons in the same order
-    /// (i is either among the k + 1, or ranks after all of them), and the previous query's
-    /// result then holds k + 1 candidates of this one, which gives the search its starting
-    /// bound ([`crate::spatial::SpatialIndex::knn`]).
-    fn search(&self, i: usize, k: usize, mut each: impl FnMut(u32, [f32; 3])) {
+    /// The k nearest photons other than `i`, and their positions, through the thread's
+    /// buffer `buf` (ordered, [`FOUND`], or unordered, [`SET`]; in that buffer's order). The
+    /// search asks for k + 1 *including* `i` and drops `i` if present, else the last of the
+    /// k + 1 by (distance², index): the same k photons (i is either among the k + 1, or ranks
+    /// after all of them), and the previous query's result then holds k + 1 candidates of
+    /// this one, which gives the search its starting bound
+    /// ([`crate::spatial::SpatialIndex::knn`]).
+    fn search(
+        &self,
+        buf: &'static std::thread::LocalKey<std::cell::RefCell<crate::spatial::Neighbours>>,
+        i: usize,
+        k: usize,
+        mut each: impl FnMut(u32, [f32; 3]),
+    ) {
         let q = self.points.query(i, self.radius.map(|r| r[i]));
-        FOUND.with_borrow_mut(|found| {
-            self.index.knn(&q, k + 1, found);
-            let mut kept = 0;
-            for (n, x) in found.as_slice().iter().zip(found.coords()) {
-                if n.index as usize != i && kept < k {
-                    each(n.index, *x);
-                    kept += 1;
-                }
-            }
-        });
-    }
-
-    /// [`Self::search`] through the unordered buffer: the same k photons, in the buffer's
-    /// order. Of the k + 1 found, `i` is dropped if present, else the last by (distance²,
-    /// index).
-    fn search_set(&self, i: usize, k: usize, mut each: impl FnMut(u32, [f32; 3])) {
-        let q = self.points.query(i, self.radius.map(|r| r[i]));
-        SET.with_borrow_mut(|found| {
+        buf.with_borrow_mut(|found| {
             self.index.knn(&q, k + 1, found);
             let items = found.as_slice();
-            let drop = if items.len() <= k {
-                items.iter().position(|n| n.index as usize == i)
-            } else {
-                items.iter().position(|n| n.index as usize == i).or_else(|| {
-                    (0..items.len()).reduce(|a, b| if items[a].before(&items[b]) { b } else { a })
-                })
-            };
+            let drop = items.iter().position(|n| n.index as usize == i).or_else(|| {
+                (items.len() > k)
+                    .then(|| (0..items.len()).reduce(|a, b| if items[a].before(&items[b]) { b } else { a }))
+                    .flatten()
+            });
             for (at, (n, x)) in items.iter().zip(found.coords()).enumerate() {
                 if Some(at) != drop {
                     each(n.index, *x);
@@ -391,13 +380,13 @@ impl NeighbourSearch for IndexSearch<'_> {
 
     fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
         out.clear();
-        self.search(i, k, |j, _| out.push(j));
+        self.search(&FOUND, i, k, |j, _| out.push(j));
     }
 
     fn neighbours_at(&self, i: usize, k: usize, _: &[[f32; 3]], ids: &mut Vec<u32>, xs: &mut Vec<Vec3>) {
         ids.clear();
         xs.clear();
-        self.search_set(i, k, |j, x| {
+        self.search(&SET, i, k, |j, x| {
             ids.push(j);
             xs.push(Vec3::from(x));
         });

@@ -425,8 +425,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         kth: f32,
         out: &mut Neighbours,
     ) {
-        // The leaf the query descends to, and the box of its records and the query.
-        // The internal nodes on the way, to start the gathering at the deepest whose box
+        // The leaf the query descends to (its box and the query's make the group's boxes),
+        // and the internal nodes on the way, to start the gathering at the deepest whose box
         // holds the whole reach (no record outside a node's subtree lies in its box).
         let mut path = [(0u32, 0u32, 0u32); 64];
         let mut depth = 0;
@@ -444,11 +444,6 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 (node, lo) = (n.right as usize, mid);
             }
         }
-        let up = (tuning().group_levels as usize).min(depth);
-        (lo, hi) = match up {
-            0 => (lo, hi),
-            u => (path[depth - u].1 as usize, path[depth - u].2 as usize),
-        };
         let g = &mut out.group;
         g.lo_w = [0.0; 3];
         g.hi_w = [0.0; 3];
@@ -650,7 +645,6 @@ struct Tuning {
     groups: bool,
     slack: f32,
     ball_slack: f32,
-    group_levels: u32,
     estimate: bool,
     guess: f32,
 }
@@ -672,7 +666,6 @@ fn tuning() -> Tuning {
             groups: !s.contains("nogroup"),
             slack: num("slack", 0.25),
             ball_slack: num("ballslack", 1.44),
-            group_levels: num("levels", 0.0) as u32,
             estimate: !s.contains("noestimate"),
             guess: num("guess", 1.3),
         }

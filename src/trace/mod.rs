@@ -494,7 +494,7 @@ impl Tracer<'_> {
 
     fn chunk(&self, range: Range<u64>) -> (Photons, u64) {
         // Room for every photon of the chunk, so the columns never grow by copying; the unused
-        // tail is returned at the end (in place: a shrink moves nothing).
+        // tail is returned at the end.
         let mut out = Photons::with_capacity((range.end - range.start) as usize, self.dims);
         let mut limited = 0;
         let mut halton = self.halton.run(range.start);

@@ -1,7 +1,10 @@
 //! Per-photon costs of detect (issue 4) and relax (issue 5) on a traced caustic, per core.
 //!
 //! `cargo bench --bench stages` (PHOTONKIT_BENCH_PHOTONS=N emitted; default 1.43 M, which
-//! stores about 1 M caustic photons from the embedded default scene).
+//! stores about 1 M caustic photons from the embedded default scene). PHOTONKIT_BENCH_ONLY=
+//! a comma list of `detect`, `density`, `world-pca`, `gradient`, `relax-params`, `relax-world`
+//! runs only those rows (for profilers such as `valgrind --tool=callgrind`, which count
+//! instructions repeatably on a shared machine).
 //!
 //! Costs are CPU seconds of the whole process (user + system, /proc/self/stat) divided by the
 //! photons (and iterations): the cost per photon per core, which other processes sharing the
@@ -58,18 +61,30 @@ fn main() {
         params: Some(params),
         emitters: None,
     };
+    let only = std::env::var("PHOTONKIT_BENCH_ONLY").ok();
+    let runs = |what: &str| only.as_deref().is_none_or(|o| o.split(',').any(|x| x == what));
     let p = DetectParams::default();
+    // Relax needs detect's constraint basis and r_param, so detect always runs; its row is
+    // printed only when asked for.
     let (d, c, w) = measure(|| detect::detect(&input, &p, &|_| {}).unwrap());
-    row("detect, param-pca (Kc = 50)", c, w, n as f64, "43", "≤ 4");
+    if runs("detect") {
+        row("detect, param-pca (Kc = 50)", c, w, n as f64, "43", "≤ 4");
+    }
     let points = PointSet { positions: &ph.position, params: Some(params), emitters: None };
-    let (_, c, w) = measure(|| detect::param_radius(&points, 50, 50, 3.0, &|_| {}).unwrap());
-    row("  of which density ρ and r_param (Eq. 1)", c, w, n as f64, "-", "-");
-    let wp = DetectParams { method: detect::Method::WorldPca, ..p };
-    let (_, c, w) = measure(|| detect::detect(&input, &wp, &|_| {}).unwrap());
-    row("detect, world-pca", c, w, n as f64, "-", "-");
-    let gp = DetectParams { method: detect::Method::Gradient, ..p };
-    let (_, c, w) = measure(|| detect::detect(&input, &gp, &|_| {}).unwrap());
-    row("detect, gradient (2009 baseline)", c, w, n as f64, "≈ 74", "-");
+    if runs("density") {
+        let (_, c, w) = measure(|| detect::param_radius(&points, 50, 50, 3.0, &|_| {}).unwrap());
+        row("  of which density ρ and r_param (Eq. 1)", c, w, n as f64, "-", "-");
+    }
+    if runs("world-pca") {
+        let wp = DetectParams { method: detect::Method::WorldPca, ..p };
+        let (_, c, w) = measure(|| detect::detect(&input, &wp, &|_| {}).unwrap());
+        row("detect, world-pca", c, w, n as f64, "-", "-");
+    }
+    if runs("gradient") {
+        let gp = DetectParams { method: detect::Method::Gradient, ..p };
+        let (_, c, w) = measure(|| detect::detect(&input, &gp, &|_| {}).unwrap());
+        row("detect, gradient (2009 baseline)", c, w, n as f64, "≈ 74", "-");
+    }
 
     // Relaxation, 7 iterations in each space, as relax_map runs them.
     let rp = RelaxParams::default();
@@ -77,6 +92,8 @@ fn main() {
     let constraint = Constraint::Basis { u: &d.basis_u, v: &d.basis_v };
     for (label, space) in
         [("relax, world+params (Kf = 16)", Space::WorldParams), ("relax, world", Space::World)]
+            .into_iter()
+            .filter(|(_, s)| runs(if *s == Space::WorldParams { "relax-params" } else { "relax-world" }))
     {
         let mut pos = ph.position.clone();
         let mut snapshot = pos.clone();

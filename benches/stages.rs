@@ -2,7 +2,7 @@
 //!
 //! `cargo bench --bench stages` (PHOTONKIT_BENCH_PHOTONS=N emitted; default 1.43 M, which
 //! stores about 1 M caustic photons from the embedded default scene). PHOTONKIT_BENCH_ONLY=
-//! a comma list of `detect`, `density`, `world-pca`, `gradient`, `relax-params`, `relax-world`
+//! `trace` (only), or a comma list of `detect`, `density`, `world-pca`, `gradient`, `relax-params`, `relax-world`
 //! runs only those rows (for profilers such as `valgrind --tool=callgrind`, which count
 //! instructions repeatably on a shared machine).
 //!
@@ -42,8 +42,17 @@ fn main() {
     let scene = Scene::default_scene();
     let opts = TraceOptions { budget: Budget::Emitted(emitted), ..TraceOptions::default() };
     let (traced, c, w) = measure(|| trace::trace(&scene, &opts, &|_, _| {}).unwrap());
-    let ph = traced.photons();
+    let mut ph = traced.photons();
     let n = ph.len();
+    if std::env::var("PHOTONKIT_BENCH_SORT").is_ok() {
+        // Experiment: photons relabelled in a world-space index's leaf order.
+        let order = SpatialIndex::build(&PointSet::world(&ph.position), Space::World).unwrap().order();
+        let d = traced.param_dims as usize;
+        ph.position = order.iter().map(|&i| ph.position[i as usize]).collect();
+        ph.normal = order.iter().map(|&i| ph.normal[i as usize]).collect();
+        ph.flux = order.iter().map(|&i| ph.flux[i as usize]).collect();
+        ph.params = order.iter().flat_map(|&i| ph.params[i as usize * d..][..d].to_vec()).collect();
+    }
     println!("default scene: {emitted} emitted, {n} stored; {threads} threads");
     println!("\n| stage | CPU s | wall s | µs per photon (per iteration) per core | paper | goal |");
     println!("| --- | --- | --- | --- | --- | --- |");
@@ -51,6 +60,10 @@ fn main() {
         println!("| {stage} | {c:.2} | {w:.2} | {:.2} | {paper} | {goal} |", c / per * 1e6);
     };
     row("trace", c, w, emitted as f64, "-", "-");
+    let only = std::env::var("PHOTONKIT_BENCH_ONLY").ok();
+    if only.as_deref() == Some("trace") {
+        return;
+    }
 
     let dims = [traced.param_dims];
     let params = ParamColumn { values: &ph.params, stride: traced.param_dims as usize, dims: &dims };
@@ -61,7 +74,6 @@ fn main() {
         params: Some(params),
         emitters: None,
     };
-    let only = std::env::var("PHOTONKIT_BENCH_ONLY").ok();
     let runs = |what: &str| only.as_deref().is_none_or(|o| o.split(',').any(|x| x == what));
     let p = DetectParams::default();
     // Relax needs detect's constraint basis and r_param, so detect always runs; its row is

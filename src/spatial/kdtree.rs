@@ -21,17 +21,20 @@
 //! candidates that the previous result of the same buffer holds (see `KdTree::seed`).
 //!
 //! Stages query every photon in leaf order, so successive queries come from one leaf. The
-//! first query of a leaf is searched; then the buffer gathers, in one traversal, every record
-//! within the first query's k-th distance (plus a margin) of the leaf's box and within a
-//! slightly larger ball of the leaf's parameter box ([`Group`]). The leaf's other queries scan
-//! those candidates four at a time instead of descending the tree; a query that finds fewer
-//! than k of them within the gathered reach is searched. Results are exact either way.
+//! first query of a leaf is searched; then the buffer gathers, in one traversal, the leaves
+//! that may hold a record within the first query's k-th distance (plus a margin) of the
+//! leaf's box and within a slightly larger ball of the leaf's parameter box ([`Group`]). The
+//! leaf's other queries scan those leaves instead of descending the tree: each leaf's box is
+//! tested first, then its records four at a time from a block that holds them by axis; a
+//! query that finds fewer than k within the gathered reach is searched. Results are exact
+//! either way.
 
 use super::{Neighbour, Neighbours};
 
 use std::sync::atomic::Ordering;
 
 use glam::Vec4;
+use rayon::prelude::*;
 
 /// Records per leaf; chosen by measurement (BENCHMARKS.md, "Spatial index").
 pub(crate) const LEAF: usize = 12;
@@ -63,6 +66,9 @@ struct Node<const W: usize, const P: usize> {
     split: f32,
     axis: u32,
     right: u32,
+    /// The first leaf of the right child's subtree (leaves are numbered in leaf order; the
+    /// left child's first leaf is this node's).
+    right_leaf: u32,
     lo_w: [f32; W],
     hi_w: [f32; W],
     lo_p: [f32; P],
@@ -71,27 +77,49 @@ struct Node<const W: usize, const P: usize> {
 
 impl<const W: usize, const P: usize> Default for Node<W, P> {
     fn default() -> Self {
-        Node { split: 0.0, axis: 0, right: 0, lo_w: [0.0; W], hi_w: [0.0; W], lo_p: [0.0; P], hi_p: [0.0; P] }
+        Node {
+            split: 0.0,
+            axis: 0,
+            right: 0,
+            right_leaf: 0,
+            lo_w: [0.0; W],
+            hi_w: [0.0; W],
+            lo_p: [0.0; P],
+            hi_p: [0.0; P],
+        }
     }
+}
+
+/// A leaf: its records `lo..hi` and their bounding box.
+#[derive(Clone, Copy, Debug)]
+struct Leaf<const W: usize, const P: usize> {
+    lo: u32,
+    hi: u32,
+    lo_w: [f32; W],
+    hi_w: [f32; W],
+    lo_p: [f32; P],
+    hi_p: [f32; P],
 }
 
 /// Squared distance from `q` to the box [lo, hi], summed in axis order: for any point x in the
 /// box each axis's offset is at most |x − q| (rounding is monotone), so in floating point the
-/// bound never exceeds the distance of a record inside.
+/// bound never exceeds the distance of a record inside. Each axis's offset is the largest of
+/// lo − q, q − hi and 0 (at most one is positive), without branches: whether a query lies
+/// inside a box is not predictable.
 #[inline(always)]
 fn box_dist2<const N: usize>(q: &[f32; N], lo: &[f32; N], hi: &[f32; N]) -> f32 {
     let mut s = 0.0f32;
     for i in 0..N {
-        let d = if q[i] < lo[i] {
-            lo[i] - q[i]
-        } else if q[i] > hi[i] {
-            q[i] - hi[i]
-        } else {
-            0.0
-        };
+        let d = larger(larger(lo[i] - q[i], q[i] - hi[i]), 0.0);
         s += d * d;
     }
     s
+}
+
+/// The larger of two numbers that are not NaN (one `maxss`; `f32::max` also handles NaN).
+#[inline(always)]
+fn larger(a: f32, b: f32) -> f32 {
+    if a > b { a } else { b }
 }
 
 /// Per-axis factors applied to extents when choosing a split axis (never to distances).
@@ -150,6 +178,16 @@ fn count_nodes(m: usize) -> usize {
 pub(crate) struct KdTree<const W: usize, const P: usize> {
     recs: Vec<Rec<W, P>>,
     nodes: Vec<Node<W, P>>,
+    /// The leaves in leaf order, with their boxes.
+    leaves: Vec<Leaf<W, P>>,
+    /// Each leaf's records again, by axis, in one block of `(W + P + 1) · cap` values: axis
+    /// `a` (distance axes, then ball axes) of the leaf's i-th record at `a · cap + i`, then
+    /// the records' indices; `cap` is the largest leaf rounded up to four, and the
+    /// coordinates beyond a leaf's records are NaN, so that a scan reads four records at a
+    /// time from memory that is contiguous per leaf. Stored as bits (coordinates are read
+    /// as f32).
+    blocks: Vec<u32>,
+    cap: usize,
     /// Which build this is: unique across every tree and rebuild of the process, so that a
     /// result buffer never takes a bound or a group from another tree or an older build.
     build: u64,
@@ -167,12 +205,36 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         let n = self.recs.len();
         self.nodes.clear();
         self.nodes.resize(count_nodes(n), Node::default());
-        if n <= LEAF {
-            return;
+        if n > LEAF {
+            let weights = weights.unwrap_or_else(|| default_weights(&self.recs));
+            let per_axis: Vec<f32> = (0..W + P).map(|a| if a < W { weights.w } else { weights.p }).collect();
+            build_node(&mut self.recs, &mut self.nodes, 0, 0, &per_axis);
         }
-        let weights = weights.unwrap_or_else(|| default_weights(&self.recs));
-        let per_axis: Vec<f32> = (0..W + P).map(|a| if a < W { weights.w } else { weights.p }).collect();
-        build_node(&mut self.recs, &mut self.nodes, 0, &per_axis);
+        // The leaves and the records by axis, which groups scan (module docs).
+        self.leaves.clear();
+        leaf_ranges(0, n, &mut self.leaves);
+        let recs = &self.recs;
+        self.leaves.par_iter_mut().for_each(|l| {
+            let (lo, hi) = bounds(&recs[l.lo as usize..l.hi as usize]);
+            l.lo_w = std::array::from_fn(|a| lo[a]);
+            l.hi_w = std::array::from_fn(|a| hi[a]);
+            l.lo_p = std::array::from_fn(|a| lo[W + a]);
+            l.hi_p = std::array::from_fn(|a| hi[W + a]);
+        });
+        let cap = self.leaves.iter().map(|l| (l.hi - l.lo) as usize).max().unwrap_or(0).next_multiple_of(4);
+        self.cap = cap;
+        self.blocks.clear();
+        self.blocks.resize(self.leaves.len() * (W + P + 1) * cap, f32::NAN.to_bits());
+        if cap > 0 {
+            self.blocks.par_chunks_mut((W + P + 1) * cap).zip(&self.leaves).for_each(|(b, l)| {
+                for (i, r) in recs[l.lo as usize..l.hi as usize].iter().enumerate() {
+                    for a in 0..W + P {
+                        b[a * cap + i] = r.coord(a).to_bits();
+                    }
+                    b[(W + P) * cap + i] = r.idx;
+                }
+            });
+        }
     }
 
     /// The records' indices in leaf order.
@@ -336,9 +398,9 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     }
 }
 
-/// Candidates gathered once for the queries of one leaf (module docs): every record within
-/// distance² `g2` of the box `lo_w..hi_w` and, on a constrained search, within ball
-/// distance² `r2` of the box `lo_p..hi_p` (with the rest of their leaves). A query inside both boxes, with a ball no larger
+/// Candidates gathered once for the queries of one leaf (module docs): the leaves that hold
+/// every record within distance² `g2` of the box `lo_w..hi_w` and, on a constrained search,
+/// within ball distance² `r2` of the box `lo_p..hi_p`. A query inside both boxes, with a ball no larger
 /// and the same k, finds among them every record within `g2` of itself that its ball admits
 /// (each axis's offset to a box that holds the query is at most its offset to the query, and
 /// rounding keeps that order): when at least k are, its k nearest are exact.
@@ -354,11 +416,8 @@ pub(crate) struct Group {
     hi_p: [f32; 3],
     g2: f32,
     r2: f32,
-    /// The candidates by coordinate: axis `a` (distance axes, then ball axes) at
-    /// `lanes[a]`, each padded with NaN so that scans read four at a time.
-    lanes: [Vec<f32>; 6],
-    ids: Vec<u32>,
-    slots: Vec<u32>,
+    /// The leaves that may hold candidates (their records are scanned from the tree).
+    leaves: Vec<u32>,
 }
 
 impl Group {
@@ -392,13 +451,7 @@ impl Group {
 fn box_box_dist2<const N: usize>(lo: &[f32; N], hi: &[f32; N], glo: &[f32], ghi: &[f32]) -> f32 {
     let mut s = 0.0f32;
     for i in 0..N {
-        let d = if hi[i] < glo[i] {
-            glo[i] - hi[i]
-        } else if lo[i] > ghi[i] {
-            lo[i] - ghi[i]
-        } else {
-            0.0
-        };
+        let d = larger(larger(glo[i] - hi[i], lo[i] - ghi[i]), 0.0);
         s += d * d;
     }
     s
@@ -428,11 +481,12 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         // The leaf the query descends to (its box and the query's make the group's boxes),
         // and the internal nodes on the way, to start the gathering at the deepest whose box
         // holds the whole reach (no record outside a node's subtree lies in its box).
-        let mut path = [(0u32, 0u32, 0u32); 64];
+        let mut path = [(0u32, 0u32, 0u32, 0u32); 64];
         let mut depth = 0;
-        let (mut node, mut lo, mut hi) = (0usize, 0usize, self.recs.len());
-        while hi - lo > LEAF {
-            path[depth] = (node as u32, lo as u32, hi as u32);
+        let (mut node, mut lo, mut hi, mut leaf) = (0usize, 0usize, self.recs.len(), 0u32);
+        let size = tuning().group_size.max(LEAF);
+        while hi - lo > size {
+            path[depth] = (node as u32, lo as u32, hi as u32, leaf);
             depth += 1;
             let n = &self.nodes[node];
             let axis = n.axis as usize;
@@ -441,27 +495,25 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             if q - n.split < 0.0 {
                 (node, hi) = (node + 1, mid);
             } else {
-                (node, lo) = (n.right as usize, mid);
+                (node, lo, leaf) = (n.right as usize, mid, n.right_leaf);
             }
         }
         let g = &mut out.group;
+        let l = if hi - lo <= LEAF {
+            self.leaves[leaf as usize]
+        } else {
+            let n = &self.nodes[node];
+            Leaf { lo: 0, hi: 0, lo_w: n.lo_w, hi_w: n.hi_w, lo_p: n.lo_p, hi_p: n.hi_p }
+        };
         g.lo_w = [0.0; 3];
         g.hi_w = [0.0; 3];
         g.lo_p = [0.0; 3];
         g.hi_p = [0.0; 3];
-        g.lo_w[..W].copy_from_slice(qw);
-        g.hi_w[..W].copy_from_slice(qw);
-        g.lo_p[..P].copy_from_slice(qp);
-        g.hi_p[..P].copy_from_slice(qp);
-        for r in &self.recs[lo..hi] {
-            for a in 0..W {
-                g.lo_w[a] = g.lo_w[a].min(r.w[a]);
-                g.hi_w[a] = g.hi_w[a].max(r.w[a]);
-            }
-            for a in 0..P {
-                g.lo_p[a] = g.lo_p[a].min(r.p[a]);
-                g.hi_p[a] = g.hi_p[a].max(r.p[a]);
-            }
+        for (a, &q) in qw.iter().enumerate() {
+            (g.lo_w[a], g.hi_w[a]) = (l.lo_w[a].min(q), l.hi_w[a].max(q));
+        }
+        for (a, &q) in qp.iter().enumerate() {
+            (g.lo_p[a], g.hi_p[a]) = (l.lo_p[a].min(q), l.hi_p[a].max(q));
         }
         let diag2: f32 = (0..W).map(|a| (g.hi_w[a] - g.lo_w[a]).powi(2)).sum();
         let reach = kth.sqrt() + tuning().slack * diag2.sqrt();
@@ -474,8 +526,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         g.build = self.build;
         g.k = k;
         g.ball = ball;
-        g.ids.clear();
-        g.slots.clear();
+        g.leaves.clear();
         // Where a record within reach can lie, with a margin for the rounding of distances.
         let (gw, gp) = (g.g2.sqrt() * 1.001, if ball { g.r2.sqrt() * 1.001 } else { f32::INFINITY });
         let holds = |n: &Node<W, P>| {
@@ -484,35 +535,22 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                     || (ball && (0..P).all(|a| n.lo_p[a] < g.lo_p[a] - gp && g.hi_p[a] + gp < n.hi_p[a])))
         };
         let start = (0..depth).rev().find(|&d| holds(&self.nodes[path[d].0 as usize])).unwrap_or(0);
-        let (node, lo, hi) = if depth == 0 {
-            (0, 0, self.recs.len())
+        let (node, lo, hi, leaf) = if depth == 0 {
+            (0, 0, self.recs.len(), 0)
         } else {
-            (path[start].0 as usize, path[start].1 as usize, path[start].2 as usize)
+            let (node, lo, hi, leaf) = path[start];
+            (node as usize, lo as usize, hi as usize, leaf)
         };
-        for lane in &mut g.lanes[..W + P] {
-            lane.clear();
-        }
-        self.collect(node, lo, hi, g);
-        for lane in &mut g.lanes[..W + P] {
-            lane.extend([f32::NAN; 4]);
-        }
+        self.collect(node, lo, hi, leaf, g);
     }
 
-    /// Appends to `g` every record below `node` within its reach (and some beyond it).
-    fn collect(&self, node: usize, lo: usize, hi: usize, g: &mut Group) {
-        // A leaf under a node within reach is taken whole: testing its records one by one
-        // here cost more than scanning the few beyond reach with every query of the group
-        // (constrained k = 17 1.55 → 1.37 µs, world k = 17 1.10 → 1.00 µs in the probe).
+    /// Appends to `g` every leaf below `node` (whose first leaf is `leaf`) that may hold a
+    /// record within its reach.
+    fn collect(&self, node: usize, lo: usize, hi: usize, leaf: u32, g: &mut Group) {
+        // A leaf under a node within reach is taken whole: its box is tested by each query
+        // that scans the group instead.
         if hi - lo <= LEAF {
-            let recs = &self.recs[lo..hi];
-            g.ids.extend(recs.iter().map(|r| r.idx));
-            g.slots.extend(lo as u32..hi as u32);
-            for a in 0..W {
-                g.lanes[a].extend(recs.iter().map(|r| r.w[a]));
-            }
-            for a in 0..P {
-                g.lanes[W + a].extend(recs.iter().map(|r| r.p[a]));
-            }
+            g.leaves.push(leaf);
             return;
         }
         let n = &self.nodes[node];
@@ -522,13 +560,14 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             return;
         }
         let mid = lo + (hi - lo) / 2;
-        self.collect(node + 1, lo, mid, g);
-        self.collect(n.right as usize, mid, hi, g);
+        self.collect(node + 1, lo, mid, leaf, g);
+        self.collect(n.right as usize, mid, hi, n.right_leaf, g);
     }
 
     /// Appends to `cands` the group's candidates within distance² `reach` of `qw` that the
-    /// ball of radius² `r2` about `qp` admits, except `exclude`: four at a time, distances
-    /// summed in axis order as [`dist2`] sums them.
+    /// ball of radius² `r2` about `qp` admits, except `exclude`: leaf by leaf, skipping a leaf
+    /// whose box lies beyond either (its box distance is at most any record's), four records
+    /// at a time, distances summed in axis order as [`dist2`] sums them.
     #[allow(clippy::too_many_arguments)]
     fn scan_group(
         &self,
@@ -542,37 +581,48 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     ) {
         let qwv: [Vec4; W] = std::array::from_fn(|a| Vec4::splat(qw[a]));
         let qpv: [Vec4; P] = std::array::from_fn(|a| Vec4::splat(qp[a]));
-        let (reach, r2v) = (Vec4::splat(reach), Vec4::splat(r2));
-        let m = g.ids.len();
-        let mut at = 0;
-        while at < m {
-            let load = |a: usize| Vec4::from_slice(&g.lanes[a][at..at + 4]);
-            let mut d = Vec4::ZERO;
-            for (a, q) in qwv.iter().enumerate() {
-                let o = load(a) - *q;
-                d += o * o;
+        let (reachv, r2v) = (Vec4::splat(reach), Vec4::splat(r2));
+        let cap = self.cap;
+        for &leaf in &g.leaves {
+            let l = &self.leaves[leaf as usize];
+            if box_dist2(qw, &l.lo_w, &l.hi_w) > reach || (g.ball && box_dist2(qp, &l.lo_p, &l.hi_p) > r2) {
+                continue;
             }
-            let mut pass = d.cmple(reach).bitmask();
-            if g.ball {
-                let mut e = Vec4::ZERO;
-                for (a, q) in qpv.iter().enumerate() {
-                    let o = load(W + a) - *q;
-                    e += o * o;
+            let block = &self.blocks[leaf as usize * (W + P + 1) * cap..][..(W + P + 1) * cap];
+            let (coords, ids) = block.split_at((W + P) * cap);
+            let coords: &[f32] = bytemuck::cast_slice(coords);
+            let m = (l.hi - l.lo) as usize;
+            let mut at = 0;
+            while at < m {
+                let load = |a: usize| Vec4::from_slice(&coords[a * cap + at..a * cap + at + 4]);
+                let mut d = Vec4::ZERO;
+                for (a, q) in qwv.iter().enumerate() {
+                    let o = load(a) - *q;
+                    d += o * o;
                 }
-                pass &= e.cmple(r2v).bitmask();
-            }
-            if pass != 0 {
-                let d = d.to_array();
-                while pass != 0 {
-                    let j = pass.trailing_zeros() as usize;
-                    pass &= pass - 1;
-                    let idx = g.ids[at + j];
-                    if idx != exclude {
-                        cands.push(Cand { key: rank(d[j], idx), slot: (at + j) as u32 });
+                // Past the leaf's records the coordinates are NaN, which never pass.
+                let mut pass = d.cmple(reachv).bitmask();
+                if g.ball {
+                    let mut e = Vec4::ZERO;
+                    for (a, q) in qpv.iter().enumerate() {
+                        let o = load(W + a) - *q;
+                        e += o * o;
+                    }
+                    pass &= e.cmple(r2v).bitmask();
+                }
+                if pass != 0 {
+                    let d = d.to_array();
+                    while pass != 0 {
+                        let j = pass.trailing_zeros() as usize;
+                        pass &= pass - 1;
+                        let idx = ids[at + j];
+                        if idx != exclude {
+                            cands.push(Cand { key: rank(d[j], idx), slot: l.lo + (at + j) as u32 });
+                        }
                     }
                 }
+                at += 4;
             }
-            at += 4;
         }
     }
 
@@ -626,17 +676,18 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         out.slots.clear();
         out.tree = self.build;
         for c in cands.iter() {
-            let at = c.slot as usize;
-            out.items.push(Neighbour { dist2: c.dist2(), index: g.ids[at] });
-            out.coords.push(std::array::from_fn(|a| if a < W { g.lanes[a][at] } else { 0.0 }));
-            out.slots.push(g.slots[at]);
+            let r = &self.recs[c.slot as usize];
+            out.items.push(Neighbour { dist2: c.dist2(), index: r.idx });
+            out.coords.push(std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 }));
+            out.slots.push(c.slot);
         }
         true
     }
 }
 
-/// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox`):
-/// seeding on, boxes on constrained trees only, by default. Results are the same either way.
+/// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox,
+/// nogroup,noestimate,slack=…,ballslack=…,guess=…,group=…`): seeding on, boxes on constrained
+/// trees only, groups of one leaf, by default. Results are the same either way.
 #[derive(Clone, Copy, Debug)]
 struct Tuning {
     seed: bool,
@@ -647,6 +698,7 @@ struct Tuning {
     ball_slack: f32,
     estimate: bool,
     guess: f32,
+    group_size: usize,
 }
 
 fn tuning() -> Tuning {
@@ -668,6 +720,7 @@ fn tuning() -> Tuning {
             ball_slack: num("ballslack", 1.44),
             estimate: !s.contains("noestimate"),
             guess: num("guess", 1.3),
+            group_size: num("group", LEAF as f32) as usize,
         }
     })
 }
@@ -697,10 +750,12 @@ fn bounds<const W: usize, const P: usize>(recs: &[Rec<W, P>]) -> (Vec<f32>, Vec<
     (lo, hi)
 }
 
+/// Builds the subtree over `recs`, whose first node is `base` and first leaf `leaf`.
 fn build_node<const W: usize, const P: usize>(
     recs: &mut [Rec<W, P>],
     nodes: &mut [Node<W, P>],
     base: usize,
+    leaf: usize,
     weights: &[f32],
 ) {
     let m = recs.len();
@@ -726,6 +781,8 @@ fn build_node<const W: usize, const P: usize>(
         split,
         axis: axis as u32,
         right: (base + 1 + left_nodes) as u32,
+        // A subtree has one leaf more than it has internal nodes.
+        right_leaf: (leaf + left_nodes + 1) as u32,
         lo_w: std::array::from_fn(|a| lo[a]),
         hi_w: std::array::from_fn(|a| hi[a]),
         lo_p: std::array::from_fn(|a| lo[W + a]),
@@ -735,13 +792,33 @@ fn build_node<const W: usize, const P: usize>(
     let (lnodes, rnodes) = rest.split_at_mut(left_nodes);
     if m >= PARALLEL_BUILD {
         rayon::join(
-            || build_node(lrecs, lnodes, base + 1, weights),
-            || build_node(rrecs, rnodes, base + 1 + left_nodes, weights),
+            || build_node(lrecs, lnodes, base + 1, leaf, weights),
+            || build_node(rrecs, rnodes, base + 1 + left_nodes, leaf + left_nodes + 1, weights),
         );
     } else {
-        build_node(lrecs, lnodes, base + 1, weights);
-        build_node(rrecs, rnodes, base + 1 + left_nodes, weights);
+        build_node(lrecs, lnodes, base + 1, leaf, weights);
+        build_node(rrecs, rnodes, base + 1 + left_nodes, leaf + left_nodes + 1, weights);
     }
+}
+
+/// Appends the leaves of a subtree over records `lo..hi` in leaf order (boxes unset), split
+/// as [`build_node`] splits.
+fn leaf_ranges<const W: usize, const P: usize>(lo: usize, hi: usize, out: &mut Vec<Leaf<W, P>>) {
+    if hi - lo <= LEAF {
+        let z = Leaf {
+            lo: lo as u32,
+            hi: hi as u32,
+            lo_w: [0.0; W],
+            hi_w: [0.0; W],
+            lo_p: [0.0; P],
+            hi_p: [0.0; P],
+        };
+        out.push(z);
+        return;
+    }
+    let mid = lo + (hi - lo) / 2;
+    leaf_ranges(lo, mid, out);
+    leaf_ranges(mid, hi, out);
 }
 
 struct Search<'a, const W: usize, const P: usize> {

@@ -528,13 +528,47 @@ pub fn param_radius(
 }
 
 /// Runs feature detection over `input` (see the module docs). `progress` receives increments
-/// summing to [`work_units`].
+/// summing to [`work_units`]. The photons are worked on in spatial order
+/// ([`crate::spatial::order`]); the results come back in `input`'s order.
 pub fn detect(
     input: &DetectInput,
     p: &DetectParams,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Detection, DetectError> {
+    use crate::spatial::order::{locality_order, permuted, unpermuted};
     check_params(p)?;
+    let order = locality_order(input.positions);
+    let positions = permuted(input.positions, &order, 1);
+    let normals = input.normals.map(|v| permuted(v, &order, 1));
+    let flux = input.flux.map(|v| permuted(v, &order, 1));
+    let emitters = input.emitters.map(|v| permuted(v, &order, 1));
+    let values = input.params.map(|c| permuted(c.values, &order, c.stride));
+    let sorted = DetectInput {
+        positions: &positions,
+        normals: normals.as_deref(),
+        flux: flux.as_deref(),
+        params: input.params.zip(values.as_deref()).map(|(c, values)| ParamColumn { values, ..c }),
+        emitters: emitters.as_deref(),
+    };
+    let d = detect_in_order(&sorted, p, progress).map_err(|e| match e {
+        DetectError::Spatial(e) => DetectError::Spatial(e.in_file_order(&order)),
+        e => e,
+    })?;
+    Ok(Detection {
+        basis_u: unpermuted(&d.basis_u, &order),
+        basis_v: unpermuted(&d.basis_v, &order),
+        lambda2: unpermuted(&d.lambda2, &order),
+        r_param: d.r_param.map(|r| unpermuted(&r, &order)),
+        summary: d.summary,
+    })
+}
+
+/// [`detect`] on photons in the order given.
+fn detect_in_order(
+    input: &DetectInput,
+    p: &DetectParams,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Detection, DetectError> {
     let n = input.positions.len();
     let has_params = input.has_params();
     if p.method == Method::ParamPca && !has_params {

@@ -40,9 +40,11 @@
 pub mod boxtree;
 mod brute;
 mod kdtree;
+pub mod order;
 
 pub use boxtree::BoxTree;
 pub use brute::brute_force_knn;
+pub use order::locality_order;
 
 use kdtree::{KdTree, Rec};
 

@@ -418,6 +418,10 @@ pub(crate) struct Group {
     r2: f32,
     /// The leaves that may hold candidates (their records are scanned from the tree).
     leaves: Vec<u32>,
+    /// Their boxes, four leaves at a time and by axis: per four leaves, the low then high
+    /// corner of each distance axis, then of each ball axis (lanes past the last leaf empty:
+    /// low +∞, high −∞), so a query tests four leaf boxes at once.
+    boxes: Vec<Vec4>,
 }
 
 impl Group {
@@ -542,6 +546,22 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             (node as usize, lo as usize, hi as usize, leaf)
         };
         self.collect(node, lo, hi, leaf, g);
+        g.boxes.clear();
+        for four in g.leaves.chunks(4) {
+            let lane = |f: &dyn Fn(&Leaf<W, P>) -> f32, empty: f32| {
+                Vec4::from_array(std::array::from_fn(|j| {
+                    four.get(j).map_or(empty, |&l| f(&self.leaves[l as usize]))
+                }))
+            };
+            for a in 0..W {
+                g.boxes.push(lane(&|l| l.lo_w[a], f32::INFINITY));
+                g.boxes.push(lane(&|l| l.hi_w[a], f32::NEG_INFINITY));
+            }
+            for a in 0..P {
+                g.boxes.push(lane(&|l| l.lo_p[a], f32::INFINITY));
+                g.boxes.push(lane(&|l| l.hi_p[a], f32::NEG_INFINITY));
+            }
+        }
     }
 
     /// Appends to `g` every leaf below `node` (whose first leaf is `leaf`) that may hold a
@@ -582,12 +602,48 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         let qwv: [Vec4; W] = std::array::from_fn(|a| Vec4::splat(qw[a]));
         let qpv: [Vec4; P] = std::array::from_fn(|a| Vec4::splat(qp[a]));
         let (reachv, r2v) = (Vec4::splat(reach), Vec4::splat(r2));
-        let cap = self.cap;
-        for &leaf in &g.leaves {
-            let l = &self.leaves[leaf as usize];
-            if box_dist2(qw, &l.lo_w, &l.hi_w) > reach || (g.ball && box_dist2(qp, &l.lo_p, &l.hi_p) > r2) {
-                continue;
+        // Four leaf boxes at a time: the lanes compute what [`box_dist2`] computes for each.
+        let box_dist2v = |q: &[Vec4], b: &[Vec4]| {
+            let mut s = Vec4::ZERO;
+            for (a, q) in q.iter().enumerate() {
+                let d = (b[2 * a] - *q).max(*q - b[2 * a + 1]).max(Vec4::ZERO);
+                s += d * d;
             }
+            s
+        };
+        for (four, b) in g.leaves.chunks(4).zip(g.boxes.chunks_exact(2 * (W + P))) {
+            let mut pass = box_dist2v(&qwv, &b[..2 * W]).cmple(reachv).bitmask();
+            if g.ball {
+                pass &= box_dist2v(&qpv, &b[2 * W..]).cmple(r2v).bitmask();
+            }
+            while pass != 0 {
+                let j = pass.trailing_zeros() as usize;
+                pass &= pass - 1;
+                if let Some(&leaf) = four.get(j) {
+                    self.scan_leaf(leaf, &qwv, &qpv, g.ball, reachv, r2v, exclude, cands);
+                }
+            }
+        }
+    }
+
+    /// The records of leaf `leaf` within distance² `reachv` (splatted) of `qwv` that the
+    /// ball `r2v` about `qpv` admits (when `ball`), except `exclude`, into `cands`.
+    #[allow(clippy::too_many_arguments)]
+    #[inline(always)]
+    fn scan_leaf(
+        &self,
+        leaf: u32,
+        qwv: &[Vec4; W],
+        qpv: &[Vec4; P],
+        ball: bool,
+        reachv: Vec4,
+        r2v: Vec4,
+        exclude: u32,
+        cands: &mut Vec<Cand>,
+    ) {
+        let cap = self.cap;
+        {
+            let l = &self.leaves[leaf as usize];
             let block = &self.blocks[leaf as usize * (W + P + 1) * cap..][..(W + P + 1) * cap];
             let (coords, ids) = block.split_at((W + P) * cap);
             let coords: &[f32] = bytemuck::cast_slice(coords);
@@ -602,7 +658,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 }
                 // Past the leaf's records the coordinates are NaN, which never pass.
                 let mut pass = d.cmple(reachv).bitmask();
-                if g.ball {
+                if ball {
                     let mut e = Vec4::ZERO;
                     for (a, q) in qpv.iter().enumerate() {
                         let o = load(W + a) - *q;
@@ -734,21 +790,24 @@ fn default_weights<const W: usize, const P: usize>(recs: &[Rec<W, P>]) -> Weight
     Weights { w: inv(ext(0..W)), p: inv(ext(W..W + P)) }
 }
 
-fn bounds<const W: usize, const P: usize>(recs: &[Rec<W, P>]) -> (Vec<f32>, Vec<f32>) {
-    let mut lo = vec![f32::INFINITY; W + P];
-    let mut hi = vec![f32::NEG_INFINITY; W + P];
+/// The records' bounding box, axis by axis (distance axes, then ball axes; the first W + P
+/// entries are used): called for every node of every build, so without allocation, and with
+/// one `minss`/`maxss` per coordinate (the records are finite).
+fn bounds<const W: usize, const P: usize>(recs: &[Rec<W, P>]) -> ([f32; AXES], [f32; AXES]) {
+    let mut lo = [f32::INFINITY; AXES];
+    let mut hi = [f32::NEG_INFINITY; AXES];
     for r in recs {
-        for a in 0..W {
-            lo[a] = lo[a].min(r.w[a]);
-            hi[a] = hi[a].max(r.w[a]);
-        }
-        for a in 0..P {
-            lo[W + a] = lo[W + a].min(r.p[a]);
-            hi[W + a] = hi[W + a].max(r.p[a]);
+        for a in 0..W + P {
+            let c = r.coord(a);
+            lo[a] = if c < lo[a] { c } else { lo[a] };
+            hi[a] = larger(c, hi[a]);
         }
     }
     (lo, hi)
 }
+
+/// Room for every axis of a tree: three distance axes and at most three ball axes.
+const AXES: usize = 3 + super::MAX_PARAM_DIMS;
 
 /// Builds the subtree over `recs`, whose first node is `base` and first leaf `leaf`.
 fn build_node<const W: usize, const P: usize>(

@@ -540,7 +540,8 @@ pub fn detect(
     let order = locality_order(input.positions);
     let positions = permuted(input.positions, &order, 1);
     let normals = input.normals.map(|v| permuted(v, &order, 1));
-    let flux = input.flux.map(|v| permuted(v, &order, 1));
+    // Only the gradient method weighs neighbours by their flux.
+    let flux = input.flux.filter(|_| p.method == Method::Gradient).map(|v| permuted(v, &order, 1));
     let emitters = input.emitters.map(|v| permuted(v, &order, 1));
     let values = input.params.map(|c| permuted(c.values, &order, c.stride));
     let sorted = DetectInput {

@@ -57,11 +57,14 @@ fn spread(x: u64) -> u64 {
 }
 
 /// `values` in `order` (`values[order[k]]` at k), `stride` values per photon.
-pub fn permuted<T: Copy + Send + Sync>(values: &[T], order: &[u32], stride: usize) -> Vec<T> {
-    let mut out = Vec::with_capacity(order.len() * stride);
-    for &i in order {
-        out.extend_from_slice(&values[i as usize * stride..][..stride]);
+pub fn permuted<T: Copy + Default + Send + Sync>(values: &[T], order: &[u32], stride: usize) -> Vec<T> {
+    if stride == 1 {
+        return order.par_iter().map(|&i| values[i as usize]).collect();
     }
+    let mut out = vec![T::default(); order.len() * stride];
+    out.par_chunks_mut(stride.max(1)).zip(order).for_each(|(o, &i)| {
+        o.copy_from_slice(&values[i as usize * stride..][..stride]);
+    });
     out
 }
 

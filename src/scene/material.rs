@@ -75,13 +75,21 @@ pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
 /// Snell refraction of unit `d` through the interface with unit normal `n` facing the incoming
 /// side (d·n < 0), with `eta` = n_incident / n_transmitted; `None` on total internal reflection.
 pub fn refract(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
+    refract_unnormalised(d, n, eta).map(Vec3::normalize)
+}
+
+/// [`refract`] without the final normalisation (the tracer's): the vector is unit in exact
+/// arithmetic (|t|² = sin²θt + cos²θt = 1), so this skips only a rounding-level correction,
+/// and with it a square root and a division on each photon's chain of dependent operations.
+#[inline]
+pub fn refract_unnormalised(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
     let cos_i = -d.dot(n);
     let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
     if sin2_t >= 1.0 {
         return None;
     }
     let cos_t = (1.0 - sin2_t).sqrt();
-    Some((eta * d + (eta * cos_i - cos_t) * n).normalize())
+    Some(eta * d + (eta * cos_i - cos_t) * n)
 }
 
 /// Fresnel reflectance of unpolarised light at a dielectric interface (the mean of the s and p

@@ -26,7 +26,9 @@ use serde_json::json;
 use crate::format::{
     ColumnSpec, DType, FormatError, MapInfo, Output, PhotonWriter, StageRecord, State, name,
 };
-use crate::scene::material::{WAVELENGTH_RANGE_NM, fresnel, reflect, refract, wavelength_rgb_tabulated};
+use crate::scene::material::{
+    WAVELENGTH_RANGE_NM, fresnel, reflect, refract_unnormalised, wavelength_rgb_tabulated,
+};
 use crate::scene::{Dielectric, Material, Ray, Scene};
 use halton::{Halton, PhotonRng};
 pub use merge::merge;
@@ -639,11 +641,11 @@ impl Tracer<'_> {
                     };
                     let eta = if front { 1.0 / n } else { n };
                     let mut normal = ns;
-                    let mut refracted = refract(ray.dir, normal, eta);
+                    let mut refracted = refract_unnormalised(ray.dir, normal, eta);
                     if refracted.is_some_and(|t| t.dot(ng) >= 0.0) || ray.dir.dot(normal) >= 0.0 {
                         // The shading normal disagrees with the geometry: use the facet's.
                         normal = ng;
-                        refracted = refract(ray.dir, normal, eta);
+                        refracted = refract_unnormalised(ray.dir, normal, eta);
                     }
                     let reflects = match refracted {
                         None => true,

@@ -95,6 +95,16 @@ struct RayLanes {
     d: [Vec4; 3],
 }
 
+impl RayLanes {
+    #[inline(always)]
+    fn new(ray: &Ray) -> RayLanes {
+        RayLanes {
+            o: [Vec4::splat(ray.origin.x), Vec4::splat(ray.origin.y), Vec4::splat(ray.origin.z)],
+            d: [Vec4::splat(ray.dir.x), Vec4::splat(ray.dir.y), Vec4::splat(ray.dir.z)],
+        }
+    }
+}
+
 /// A ray's nearest hit on the triangles: distance, the triangle's index in the input list and
 /// barycentric coordinates (b1, b2) of the hit (weights of the second and third vertices).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -186,23 +196,32 @@ impl Bvh {
     }
 
     /// The nearest triangle hit with `t` in (`t_min`, `t_max`).
+    #[inline]
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
-        if self.nodes.is_empty() {
-            return None;
+        match self.nodes.first() {
+            None => None,
+            // The whole mesh is one leaf (a small one, such as the prism's 8 triangles): its box
+            // would seldom reject a ray that the packet tests do not, so go straight to them, in
+            // a function of their own that does not pay for the traversal's registers and stack.
+            Some(root) if root.count > 0 => self.intersect_root_leaf(root, ray, t_min, t_max),
+            Some(_) => self.traverse(ray, t_min, t_max),
         }
-        let lanes = RayLanes {
-            o: [Vec4::splat(ray.origin.x), Vec4::splat(ray.origin.y), Vec4::splat(ray.origin.z)],
-            d: [Vec4::splat(ray.dir.x), Vec4::splat(ray.dir.y), Vec4::splat(ray.dir.z)],
-        };
+    }
+
+    fn intersect_root_leaf(&self, root: &Node, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
+        let mut best: Option<TriHit> = None;
+        let mut t_best = t_max;
+        self.test_leaf(root, &RayLanes::new(ray), t_min, &mut t_best, &mut best);
+        best
+    }
+
+    /// [`Bvh::intersect`] through the hierarchy, nearest child first.
+    #[inline(never)]
+    fn traverse(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
+        let lanes = RayLanes::new(ray);
         let mut best: Option<TriHit> = None;
         let mut t_best = t_max;
         let mut node = &self.nodes[0];
-        if node.count > 0 {
-            // The whole mesh is one leaf (a small one, such as the prism's 8 triangles): its
-            // box would seldom reject a ray that the packet tests do not, so go straight to them.
-            self.test_leaf(node, &lanes, t_min, &mut t_best, &mut best);
-            return best;
-        }
         let inv = ray.dir.recip();
         let mut stack = [0u32; 64];
         let mut sp = 0usize;

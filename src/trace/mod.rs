@@ -27,7 +27,7 @@ use crate::format::{
     ColumnSpec, DType, FormatError, MapInfo, Output, PhotonWriter, StageRecord, State, name,
 };
 use crate::scene::material::{
-    WAVELENGTH_RANGE_NM, fresnel, reflect, refract_unnormalised, wavelength_rgb_tabulated,
+    WAVELENGTH_RANGE_NM, fresnel_cosines, reflect, refract_unnormalised, wavelength_rgb_tabulated,
 };
 use crate::scene::{Dielectric, Material, Ray, Scene};
 use halton::{Halton, PhotonRng};
@@ -642,7 +642,7 @@ impl Tracer<'_> {
                     let eta = if front { 1.0 / n } else { n };
                     let mut normal = ns;
                     let mut refracted = refract_unnormalised(ray.dir, normal, eta);
-                    if refracted.is_some_and(|t| t.dot(ng) >= 0.0) || ray.dir.dot(normal) >= 0.0 {
+                    if refracted.is_some_and(|r| r.dir.dot(ng) >= 0.0) || ray.dir.dot(normal) >= 0.0 {
                         // The shading normal disagrees with the geometry: use the facet's.
                         normal = ng;
                         refracted = refract_unnormalised(ray.dir, normal, eta);
@@ -650,14 +650,14 @@ impl Tracer<'_> {
                     let reflects = match refracted {
                         None => true,
                         Some(_) if di.ideal => false,
-                        Some(_) => rng.next_f32() < fresnel(-ray.dir.dot(normal), eta),
+                        Some(r) => rng.next_f32() < fresnel_cosines(r.cos_i, r.cos_t, eta),
                     };
                     match refracted {
-                        Some(t) if !reflects => {
+                        Some(r) if !reflects => {
                             if !roulette(&mut flux, di.tint, &mut rng) {
                                 return false;
                             }
-                            ray = Ray::new(p - ng * scene.ray_offset(), t);
+                            ray = Ray::new(p - ng * scene.ray_offset(), r.dir);
                             outside_mesh = scene.leaves_convex_mesh(hit.shape, p, -ng, &ray);
                         }
                         _ => {

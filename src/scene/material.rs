@@ -156,9 +156,12 @@ pub fn wavelength_rgb_tabulated(wavelength_nm: f32) -> Vec3 {
     if !(x >= 0.0 && x < RGB_TABLE_INTERVALS as f64) {
         return wavelength_rgb(wavelength_nm);
     }
-    let i = x as usize;
+    // Through i64, whose conversions to and from f64 are single instructions (usize's are
+    // not); x is in [0, 8192), so the value is the same.
+    let i = x as i64;
     let f = glam::Vec4::splat((x - i as f64) as f32);
-    let (a, b) = (RGB_TABLE[i], RGB_TABLE[i + 1]);
+    let table: &[glam::Vec4] = &RGB_TABLE;
+    let (a, b) = (table[i as usize], table[i as usize + 1]);
     (a + (b - a) * f).truncate().max(Vec3::ZERO)
 }
 

@@ -7,8 +7,8 @@
 //! Both hierarchies are built over the same triangles and shoot the same rays (origins on a
 //! sphere around the mesh's bounding box, aimed at points inside it), on one thread; times are this
 //! thread's CPU time (user + system, /proc/thread-self/stat). Every ray's nearest hit is the
-//! same Möller–Trumbore test (two-sided, as the tracer uses) over the candidates each
-//! hierarchy hands out, so the hits must agree exactly: the bench checks triangle and
+//! same triangle test (the tracer's two-sided test in each triangle's precomputed frame,
+//! `bvh::Tri`) over the candidates each hierarchy hands out, so the hits must agree exactly: the bench checks triangle and
 //! distance for every ray.
 //!
 //! The crate offers two ways to a nearest hit: `traverse_iterator` (every triangle whose box
@@ -21,7 +21,7 @@ use bvh::aabb::{Aabb, Bounded};
 use bvh::bounding_hierarchy::BHShape;
 use glam::Vec3;
 use nalgebra::{Point3, Vector3};
-use photonkit::scene::bvh::{Bvh, TriHit};
+use photonkit::scene::bvh::{Bvh, Tri, TriHit};
 use photonkit::scene::{Ray, Scene, SurfaceGeometry};
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
@@ -54,6 +54,8 @@ fn env_count(name: &str, default: usize) -> usize {
 /// A triangle as the `bvh` crate wants it.
 struct CrateTri {
     v: [Vec3; 3],
+    /// The triangle as the tracer's test wants it, computed once as our hierarchy does.
+    frame: Tri,
     /// Place in the input list.
     index: u32,
     node: usize,
@@ -79,36 +81,12 @@ impl BHShape<f32, 3> for CrateTri {
     }
 }
 
-/// The tracer's Möller–Trumbore test (two-sided): (t, b1, b2) with t in (t_min, t_max).
-#[inline(always)]
-fn tri_intersect(v: &[Vec3; 3], ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
-    let (e1, e2) = (v[1] - v[0], v[2] - v[0]);
-    let p = ray.dir.cross(e2);
-    let det = e1.dot(p);
-    if det == 0.0 {
-        return None;
-    }
-    let inv = 1.0 / det;
-    let s = ray.origin - v[0];
-    let b1 = s.dot(p) * inv;
-    if !(0.0..=1.0).contains(&b1) {
-        return None;
-    }
-    let q = s.cross(e1);
-    let b2 = ray.dir.dot(q) * inv;
-    if b2 < 0.0 || b1 + b2 > 1.0 {
-        return None;
-    }
-    let t = e2.dot(q) * inv;
-    (t > t_min && t < t_max).then_some((t, b1, b2))
-}
-
 /// The nearest hit among `candidates`: (input index, distance).
 fn nearest<'a>(ray: &Ray, candidates: impl Iterator<Item = &'a CrateTri>) -> Option<(u32, f32)> {
     let mut best: Option<(u32, f32)> = None;
     let mut t_best = f32::INFINITY;
     for c in candidates {
-        if let Some((t, _, _)) = tri_intersect(&c.v, ray, 1e-4, t_best) {
+        if let Some((t, _, _)) = c.frame.intersect(ray, 1e-4, t_best) {
             t_best = t;
             best = Some((c.index, t));
         }
@@ -148,8 +126,11 @@ fn rays(tris: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
 fn row(label: &str, tris: &[[Vec3; 3]], n_rays: usize) {
     let rays = rays(tris, n_rays, 11);
     let (ours, ours_build) = timed(|| Bvh::build(tris));
-    let mut shapes: Vec<CrateTri> =
-        tris.iter().enumerate().map(|(i, &v)| CrateTri { v, index: i as u32, node: 0 }).collect();
+    let mut shapes: Vec<CrateTri> = tris
+        .iter()
+        .enumerate()
+        .map(|(i, &v)| CrateTri { v, frame: Tri::new(v[0], v[1], v[2]), index: i as u32, node: 0 })
+        .collect();
     let (theirs, theirs_build) = timed(|| bvh::bvh::Bvh::build(&mut shapes));
     let crate_rays: Vec<bvh::ray::Ray<f32, 3>> = rays
         .iter()
@@ -177,7 +158,7 @@ fn row(label: &str, tris: &[[Vec3; 3]], n_rays: usize) {
                         Some((t0, _)) if t0 <= t_best => {}
                         _ => break,
                     }
-                    if let Some((t, _, _)) = tri_intersect(&s.v, r, 1e-4, t_best) {
+                    if let Some((t, _, _)) = s.frame.intersect(r, 1e-4, t_best) {
                         t_best = t;
                         best = Some((s.index, t));
                     }

@@ -4,6 +4,8 @@
 //! with 20 M emitted photons (PHOTONKIT_BENCH_PHOTONS=N changes it), then every other sample
 //! scene with 2 M each (PHOTONKIT_BENCH_OTHERS=N), through `photonkit::trace::trace` with the
 //! default options (seed 1, caustic photons, 64 bounces) on rayon's pool.
+//! PHOTONKIT_BENCH_ONLY=NAME,… traces only the scenes of those file stems (e.g. `prism`), so a
+//! profiler such as `valgrind --tool=callgrind` counts no other scene's loading.
 //!
 //! Rates are photons per CPU second of the whole process (user + system, /proc/self/stat),
 //! i.e. per core: other jobs sharing the machine inflate wall-clock time but not this. The
@@ -42,6 +44,10 @@ fn main() {
         .filter(|p| p.extension().is_some_and(|x| x == "toml"))
         .collect();
     files.sort();
+    if let Ok(only) = std::env::var("PHOTONKIT_BENCH_ONLY") {
+        let only: Vec<&str> = only.split(',').collect();
+        files.retain(|p| p.file_stem().is_some_and(|s| only.iter().any(|o| s == *o)));
+    }
     // The prism first: it is the headline figure.
     files.sort_by_key(|p| p.file_stem().is_none_or(|s| s != "prism"));
 

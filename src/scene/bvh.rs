@@ -34,31 +34,58 @@ struct Node {
     count: u32,
 }
 
-/// A triangle in the form the intersection test wants.
+/// A triangle in the form the intersection test wants: the affine map taking world space to
+/// the triangle's own frame (Baldwin & Weber, "Fast ray-triangle intersections by coordinate
+/// transformation", JCGT 2016), three rows (x, y, z, w) applied as `row · (p, 1)`. It sends
+/// the vertices to (0, 0, 0), (1, 0, 0) and (0, 1, 0) and the normal e1 × e2 to (0, 0, 1), so a
+/// ray meets the triangle's plane where the frame's z is zero and the frame's x and y there are
+/// the barycentric weights (b1, b2) of the second and third vertices. Precomputed once, it
+/// saves the edge cross products of Möller–Trumbore at every test. A degenerate triangle gets
+/// zero rows, which give t = NaN: never a hit.
 #[derive(Clone, Copy, Debug)]
-struct Tri {
-    v0: Vec3,
-    e1: Vec3,
-    e2: Vec3,
+pub struct Tri {
+    rows: [[f32; 4]; 3],
 }
 
-/// Four triangles of a leaf side by side (x, y and z of each vector as four lanes), tested at
-/// once by [`packet_intersect`]. Lanes past the leaf's end hold a degenerate triangle (zero
-/// edges) that nothing hits.
+impl Tri {
+    /// The frame of the triangle with vertices `a`, `b`, `c`.
+    pub fn new(a: Vec3, b: Vec3, c: Vec3) -> Tri {
+        // In f64, so each entry is the exact map's rounded once.
+        let (a, b, c) = (a.as_dvec3(), b.as_dvec3(), c.as_dvec3());
+        let (e1, e2) = (b - a, c - a);
+        let n = e1.cross(e2);
+        let n2 = n.length_squared();
+        if !(n2 > 0.0 && n2.is_finite()) {
+            return Tri { rows: [[0.0; 4]; 3] };
+        }
+        // The inverse of the matrix with columns e1, e2, n, whose determinant is n · n.
+        let row = |r: glam::DVec3| {
+            let r = r / n2;
+            [r.x as f32, r.y as f32, r.z as f32, -r.dot(a) as f32]
+        };
+        Tri { rows: [row(e2.cross(n)), row(n.cross(e1)), row(n)] }
+    }
+
+    /// The ray's hit with `t` in (`t_min`, `t_max`) as (t, b1, b2): the test the hierarchy's
+    /// leaves do (for comparisons such as `benches/bvh.rs`).
+    pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
+        tri_intersect(self, ray, t_min, t_max)
+    }
+}
+
+/// Four triangles of a leaf side by side (each row entry as four lanes), tested at once by
+/// [`packet_intersect`]. Lanes past the leaf's end hold zero rows, which nothing hits.
 #[derive(Clone, Copy, Debug)]
 struct Packet {
-    v0: [Vec4; 3],
-    e1: [Vec4; 3],
-    e2: [Vec4; 3],
+    rows: [[Vec4; 4]; 3],
 }
 
 impl Packet {
     fn new(tris: &[Tri]) -> Packet {
-        let lane = |f: &dyn Fn(&Tri) -> Vec3, axis: usize| {
-            Vec4::from_array(std::array::from_fn(|k| tris.get(k).map_or(0.0, |t| f(t)[axis])))
+        let lane = |r: usize, k: usize| {
+            Vec4::from_array(std::array::from_fn(|l| tris.get(l).map_or(0.0, |t| t.rows[r][k])))
         };
-        let soa = |f: &dyn Fn(&Tri) -> Vec3| [lane(f, 0), lane(f, 1), lane(f, 2)];
-        Packet { v0: soa(&|t| t.v0), e1: soa(&|t| t.e1), e2: soa(&|t| t.e2) }
+        Packet { rows: std::array::from_fn(|r| std::array::from_fn(|k| lane(r, k))) }
     }
 }
 
@@ -66,6 +93,16 @@ impl Packet {
 struct RayLanes {
     o: [Vec4; 3],
     d: [Vec4; 3],
+}
+
+impl RayLanes {
+    #[inline(always)]
+    fn new(ray: &Ray) -> RayLanes {
+        RayLanes {
+            o: [Vec4::splat(ray.origin.x), Vec4::splat(ray.origin.y), Vec4::splat(ray.origin.z)],
+            d: [Vec4::splat(ray.dir.x), Vec4::splat(ray.dir.y), Vec4::splat(ray.dir.z)],
+        }
+    }
 }
 
 /// A ray's nearest hit on the triangles: distance, the triangle's index in the input list and
@@ -136,7 +173,7 @@ impl Bvh {
             .iter()
             .map(|&i| {
                 let [a, b, c] = triangles[i as usize];
-                Tri { v0: a, e1: b - a, e2: c - a }
+                Tri::new(a, b, c)
             })
             .collect();
         // Each leaf's triangles, in the same order, go into packets of their own.
@@ -159,23 +196,32 @@ impl Bvh {
     }
 
     /// The nearest triangle hit with `t` in (`t_min`, `t_max`).
+    #[inline]
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
-        if self.nodes.is_empty() {
-            return None;
+        match self.nodes.first() {
+            None => None,
+            // The whole mesh is one leaf (a small one, such as the prism's 8 triangles): its box
+            // would seldom reject a ray that the packet tests do not, so go straight to them, in
+            // a function of their own that does not pay for the traversal's registers and stack.
+            Some(root) if root.count > 0 => self.intersect_root_leaf(root, ray, t_min, t_max),
+            Some(_) => self.traverse(ray, t_min, t_max),
         }
-        let lanes = RayLanes {
-            o: [Vec4::splat(ray.origin.x), Vec4::splat(ray.origin.y), Vec4::splat(ray.origin.z)],
-            d: [Vec4::splat(ray.dir.x), Vec4::splat(ray.dir.y), Vec4::splat(ray.dir.z)],
-        };
+    }
+
+    fn intersect_root_leaf(&self, root: &Node, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
+        let mut best: Option<TriHit> = None;
+        let mut t_best = t_max;
+        self.test_leaf(root, &RayLanes::new(ray), t_min, &mut t_best, &mut best);
+        best
+    }
+
+    /// [`Bvh::intersect`] through the hierarchy, nearest child first.
+    #[inline(never)]
+    fn traverse(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
+        let lanes = RayLanes::new(ray);
         let mut best: Option<TriHit> = None;
         let mut t_best = t_max;
         let mut node = &self.nodes[0];
-        if node.count > 0 {
-            // The whole mesh is one leaf (a small one, such as the prism's 8 triangles): its
-            // box would seldom reject a ray that the packet tests do not, so go straight to them.
-            self.test_leaf(node, &lanes, t_min, &mut t_best, &mut best);
-            return best;
-        }
         let inv = ray.dir.recip();
         let mut stack = [0u32; 64];
         let mut sp = 0usize;
@@ -360,27 +406,20 @@ fn slab(n: &Node, o: Vec3, inv: Vec3, t_min: f32, t_max: f32) -> Option<f32> {
     (near <= far).then_some(near)
 }
 
-/// Möller–Trumbore ray–triangle intersection: (t, b1, b2).
+/// Ray–triangle intersection in the triangle's frame ([`Tri`]): (t, b1, b2), two-sided.
 #[inline(always)]
 fn tri_intersect(tri: &Tri, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f32, f32)> {
-    let p = ray.dir.cross(tri.e2);
-    let det = tri.e1.dot(p);
-    if det == 0.0 {
+    let (o, d) = (ray.origin, ray.dir);
+    let point = |r: &[f32; 4]| r[0] * o.x + r[1] * o.y + r[2] * o.z + r[3];
+    let dir = |r: &[f32; 4]| r[0] * d.x + r[1] * d.y + r[2] * d.z;
+    let [rx, ry, rz] = &tri.rows;
+    let t = -(point(rz) / dir(rz));
+    if !(t > t_min && t < t_max) {
         return None;
     }
-    let inv = 1.0 / det;
-    let s = ray.origin - tri.v0;
-    let b1 = s.dot(p) * inv;
-    if !(0.0..=1.0).contains(&b1) {
-        return None;
-    }
-    let q = s.cross(tri.e1);
-    let b2 = ray.dir.dot(q) * inv;
-    if b2 < 0.0 || b1 + b2 > 1.0 {
-        return None;
-    }
-    let t = tri.e2.dot(q) * inv;
-    (t > t_min && t < t_max).then_some((t, b1, b2))
+    let b1 = point(rx) + t * dir(rx);
+    let b2 = point(ry) + t * dir(ry);
+    (b1 >= 0.0 && b2 >= 0.0 && b1 + b2 <= 1.0).then_some((t, b1, b2))
 }
 
 /// [`tri_intersect`] on the four triangles of a packet at once, with the same operations in
@@ -389,26 +428,18 @@ fn tri_intersect(tri: &Tri, ray: &Ray, t_min: f32, t_max: f32) -> Option<(f32, f
 /// testing the triangles in turn would find).
 #[inline(always)]
 fn packet_intersect(p: &Packet, r: &RayLanes, t_min: f32, t_max: f32) -> Option<(usize, f32, f32, f32)> {
-    let cross = |a: &[Vec4; 3], b: &[Vec4; 3]| {
-        [a[1] * b[2] - b[1] * a[2], a[2] * b[0] - b[2] * a[0], a[0] * b[1] - b[0] * a[1]]
-    };
-    let dot = |a: &[Vec4; 3], b: &[Vec4; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let pv = cross(&r.d, &p.e2);
-    let det = dot(&p.e1, &pv);
-    let inv = Vec4::ONE / det;
-    let s = [r.o[0] - p.v0[0], r.o[1] - p.v0[1], r.o[2] - p.v0[2]];
-    let b1 = dot(&s, &pv) * inv;
-    let q = cross(&s, &p.e1);
-    let b2 = dot(&r.d, &q) * inv;
-    let t = dot(&p.e2, &q) * inv;
-    // The scalar test's conditions, NaN included: `b2 < 0 || b1 + b2 > 1` rejects.
-    let hit = det.cmpne(Vec4::ZERO)
-        & b1.cmpge(Vec4::ZERO)
-        & b1.cmple(Vec4::ONE)
-        & !b2.cmplt(Vec4::ZERO)
-        & !(b1 + b2).cmpgt(Vec4::ONE)
-        & t.cmpgt(Vec4::splat(t_min))
-        & t.cmplt(Vec4::splat(t_max));
+    let point = |w: &[Vec4; 4]| w[0] * r.o[0] + w[1] * r.o[1] + w[2] * r.o[2] + w[3];
+    let dir = |w: &[Vec4; 4]| w[0] * r.d[0] + w[1] * r.d[1] + w[2] * r.d[2];
+    let [rx, ry, rz] = &p.rows;
+    let t = -(point(rz) / dir(rz));
+    // NaN (a degenerate or padding lane, a ray in the plane) fails both comparisons.
+    let in_range = t.cmpgt(Vec4::splat(t_min)) & t.cmplt(Vec4::splat(t_max));
+    if in_range.bitmask() == 0 {
+        return None;
+    }
+    let b1 = point(rx) + t * dir(rx);
+    let b2 = point(ry) + t * dir(ry);
+    let hit = in_range & b1.cmpge(Vec4::ZERO) & b2.cmpge(Vec4::ZERO) & (b1 + b2).cmple(Vec4::ONE);
     let mask = hit.bitmask();
     if mask == 0 {
         return None;
@@ -428,8 +459,7 @@ pub fn brute_force(triangles: &[[Vec3; 3]], ray: &Ray, t_min: f32, t_max: f32) -
     let mut best: Option<TriHit> = None;
     let mut t_best = t_max;
     for (i, [a, b, c]) in triangles.iter().enumerate() {
-        let tri = Tri { v0: *a, e1: *b - *a, e2: *c - *a };
-        if let Some((t, b1, b2)) = tri_intersect(&tri, ray, t_min, t_best) {
+        if let Some((t, b1, b2)) = tri_intersect(&Tri::new(*a, *b, *c), ray, t_min, t_best) {
             t_best = t;
             best = Some(TriHit { t, index: i as u32, b1, b2 });
         }
@@ -470,9 +500,9 @@ mod tests {
                 // Now and then a degenerate triangle, or a copy of the previous one (equal t:
                 // the first lane must win, as the first tested does).
                 let tri = match (rng.random::<u32>() % 8, tris.last()) {
-                    (0, _) => Tri { v0: c, e1: Vec3::ZERO, e2: v(&mut rng, 1.0) },
+                    (0, _) => Tri::new(c, c, c + v(&mut rng, 1.0)),
                     (1, Some(&prev)) => prev,
-                    _ => Tri { v0: c, e1: v(&mut rng, 1.0), e2: v(&mut rng, 1.0) },
+                    _ => Tri::new(c, c + v(&mut rng, 1.0), c + v(&mut rng, 1.0)),
                 };
                 tris.push(tri);
             }

@@ -75,13 +75,30 @@ pub fn reflect(d: Vec3, n: Vec3) -> Vec3 {
 /// Snell refraction of unit `d` through the interface with unit normal `n` facing the incoming
 /// side (d·n < 0), with `eta` = n_incident / n_transmitted; `None` on total internal reflection.
 pub fn refract(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
+    refract_unnormalised(d, n, eta).map(|r| r.dir.normalize())
+}
+
+/// A refracted direction with the cosines of incidence and transmission that gave it (the
+/// Fresnel reflectance at the same interface needs them too: [`fresnel_cosines`]).
+#[derive(Clone, Copy, Debug)]
+pub struct Refraction {
+    pub dir: Vec3,
+    pub cos_i: f32,
+    pub cos_t: f32,
+}
+
+/// [`refract`] without the final normalisation (the tracer's): the vector is unit in exact
+/// arithmetic (|t|² = sin²θt + cos²θt = 1), so this skips only a rounding-level correction,
+/// and with it a square root and a division on each photon's chain of dependent operations.
+#[inline]
+pub fn refract_unnormalised(d: Vec3, n: Vec3, eta: f32) -> Option<Refraction> {
     let cos_i = -d.dot(n);
     let sin2_t = eta * eta * (1.0 - cos_i * cos_i).max(0.0);
     if sin2_t >= 1.0 {
         return None;
     }
     let cos_t = (1.0 - sin2_t).sqrt();
-    Some((eta * d + (eta * cos_i - cos_t) * n).normalize())
+    Some(Refraction { dir: eta * d + (eta * cos_i - cos_t) * n, cos_i, cos_t })
 }
 
 /// Fresnel reflectance of unpolarised light at a dielectric interface (the mean of the s and p
@@ -92,7 +109,13 @@ pub fn fresnel(cos_i: f32, eta: f32) -> f32 {
     if sin2_t >= 1.0 {
         return 1.0;
     }
-    let cos_t = (1.0 - sin2_t).sqrt();
+    fresnel_cosines(cos_i, (1.0 - sin2_t).sqrt(), eta)
+}
+
+/// [`fresnel`] from both cosines, as a [`Refraction`] carries them: the same value without
+/// computing the transmission cosine again.
+#[inline]
+pub fn fresnel_cosines(cos_i: f32, cos_t: f32, eta: f32) -> f32 {
     let rs = (eta * cos_i - cos_t) / (eta * cos_i + cos_t);
     let rp = (cos_i - eta * cos_t) / (cos_i + eta * cos_t);
     0.5 * (rs * rs + rp * rp)
@@ -133,9 +156,12 @@ pub fn wavelength_rgb_tabulated(wavelength_nm: f32) -> Vec3 {
     if !(x >= 0.0 && x < RGB_TABLE_INTERVALS as f64) {
         return wavelength_rgb(wavelength_nm);
     }
-    let i = x as usize;
+    // Through i64, whose conversions to and from f64 are single instructions (usize's are
+    // not); x is in [0, 8192), so the value is the same.
+    let i = x as i64;
     let f = glam::Vec4::splat((x - i as f64) as f32);
-    let (a, b) = (RGB_TABLE[i], RGB_TABLE[i + 1]);
+    let table: &[glam::Vec4] = &RGB_TABLE;
+    let (a, b) = (table[i as usize], table[i as usize + 1]);
     (a + (b - a) * f).truncate().max(Vec3::ZERO)
 }
 

@@ -122,6 +122,9 @@ pub struct Bvh {
     packets: Vec<Packet>,
     /// Input index of the triangle in each lane of each packet (`u32::MAX` for padding).
     index: Vec<u32>,
+    /// Whether the processor has AVX, so a leaf's two packets are tested at once
+    /// ([`packet_pair_intersect`]).
+    avx: bool,
 }
 
 #[derive(Clone, Copy)]
@@ -188,7 +191,7 @@ impl Bvh {
                 index.extend((k..k + 4).map(|j| if j < end { order[j] } else { u32::MAX }));
             }
         }
-        Bvh { nodes, packets, index }
+        Bvh { nodes, packets, index, avx: avx_available() }
     }
 
     pub fn is_empty(&self) -> bool {
@@ -284,11 +287,19 @@ impl Bvh {
     ) {
         let first = node.first as usize;
         let packets = &self.packets[first..first + (node.count as usize).div_ceil(4)];
-        for (k, packet) in packets.iter().enumerate() {
-            if let Some((lane, t, b1, b2)) = packet_intersect(packet, lanes, t_min, *t_best) {
+        let mut k = 0;
+        while k < packets.len() {
+            let found = match packets.get(k..k + 2) {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: `avx` says the processor has AVX.
+                Some([a, b]) if self.avx => unsafe { packet_pair_intersect(a, b, lanes, t_min, *t_best) },
+                _ => packet_intersect(&packets[k], lanes, t_min, *t_best),
+            };
+            if let Some((lane, t, b1, b2)) = found {
                 *t_best = t;
                 *best = Some(TriHit { t, index: self.index[(first + k) * 4 + lane], b1, b2 });
             }
+            k += if self.avx { 2 } else { 1 };
         }
     }
 }
@@ -454,6 +465,81 @@ fn packet_intersect(p: &Packet, r: &RayLanes, t_min: f32, t_max: f32) -> Option<
     best.map(|k| (k, t[k], b1[k], b2[k]))
 }
 
+/// Whether [`packet_pair_intersect`] may run (`PHOTONKIT_NO_AVX` set turns it off, to measure).
+fn avx_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx") && std::env::var_os("PHOTONKIT_NO_AVX").is_none()
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// [`packet_intersect`] on two packets (eight triangles) at once, in the 256-bit registers of
+/// AVX: the same operations in the same order on each lane (no fused multiply-add), so the
+/// same roundings; lanes 4–7 are the second packet's, and the nearest hit, the first lane
+/// among equally near ones, is what testing the first packet and then the second with the
+/// first's hit as `t_max` finds.
+///
+/// # Safety
+/// The processor must have AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+unsafe fn packet_pair_intersect(
+    a: &Packet,
+    b: &Packet,
+    r: &RayLanes,
+    t_min: f32,
+    t_max: f32,
+) -> Option<(usize, f32, f32, f32)> {
+    use std::arch::x86_64::*;
+    let row = |k: usize, e: usize| _mm256_set_m128(b.rows[k][e].into(), a.rows[k][e].into());
+    let o = [_mm256_set1_ps(r.o[0].x), _mm256_set1_ps(r.o[1].x), _mm256_set1_ps(r.o[2].x)];
+    let d = [_mm256_set1_ps(r.d[0].x), _mm256_set1_ps(r.d[1].x), _mm256_set1_ps(r.d[2].x)];
+    let (mul, add) = (|x, y| _mm256_mul_ps(x, y), |x, y| _mm256_add_ps(x, y));
+    let point =
+        |k: usize| add(add(add(mul(row(k, 0), o[0]), mul(row(k, 1), o[1])), mul(row(k, 2), o[2])), row(k, 3));
+    let dir = |k: usize| add(add(mul(row(k, 0), d[0]), mul(row(k, 1), d[1])), mul(row(k, 2), d[2]));
+    let t = _mm256_xor_ps(_mm256_div_ps(point(2), dir(2)), _mm256_set1_ps(-0.0));
+    let in_range = _mm256_and_ps(
+        _mm256_cmp_ps::<_CMP_GT_OQ>(t, _mm256_set1_ps(t_min)),
+        _mm256_cmp_ps::<_CMP_LT_OQ>(t, _mm256_set1_ps(t_max)),
+    );
+    if _mm256_movemask_ps(in_range) == 0 {
+        return None;
+    }
+    let b1 = add(point(0), mul(t, dir(0)));
+    let b2 = add(point(1), mul(t, dir(1)));
+    let zero = _mm256_setzero_ps();
+    let hit = _mm256_and_ps(
+        _mm256_and_ps(in_range, _mm256_cmp_ps::<_CMP_GE_OQ>(b1, zero)),
+        _mm256_and_ps(
+            _mm256_cmp_ps::<_CMP_GE_OQ>(b2, zero),
+            _mm256_cmp_ps::<_CMP_LE_OQ>(add(b1, b2), _mm256_set1_ps(1.0)),
+        ),
+    );
+    let mask = _mm256_movemask_ps(hit);
+    if mask == 0 {
+        return None;
+    }
+    let lanes = |v: __m256| {
+        let mut out = [0f32; 8];
+        // SAFETY: `out` holds eight f32.
+        unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) };
+        out
+    };
+    let (t, b1, b2) = (lanes(t), lanes(b1), lanes(b2));
+    let mut best: Option<usize> = None;
+    for lane in 0..8 {
+        if mask & (1 << lane) != 0 && best.is_none_or(|k| t[lane] < t[k]) {
+            best = Some(lane);
+        }
+    }
+    best.map(|k| (k, t[k], b1[k], b2[k]))
+}
+
 /// Every triangle tested in turn: the oracle the hierarchy is checked against.
 pub fn brute_force(triangles: &[[Vec3; 3]], ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
     let mut best: Option<TriHit> = None;
@@ -529,6 +615,54 @@ mod tests {
             hits += want.is_some() as u32;
         }
         assert!(hits > 1000, "{hits}");
+    }
+
+    /// The AVX test of two packets finds what the scalar test of the eight triangles in turn
+    /// finds, bit for bit (ties between equal triangles included); skipped without AVX.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn packet_pair_test_equals_the_scalar_test_bit_for_bit() {
+        if !std::arch::is_x86_feature_detected!("avx") {
+            eprintln!("no AVX: packet_pair_intersect not tested");
+            return;
+        }
+        let mut rng = Pcg64Mcg::seed_from_u64(5);
+        let mut hits = [0u32; 2];
+        for _ in 0..20_000 {
+            let n = 5 + (rng.random::<u32>() % 4) as usize;
+            let mut tris: Vec<Tri> = Vec::new();
+            for _ in 0..n {
+                let c = v(&mut rng, 1.0);
+                let tri = match (rng.random::<u32>() % 8, tris.last()) {
+                    (0, _) => Tri::new(c, c, c + v(&mut rng, 1.0)),
+                    (1, Some(&prev)) => prev,
+                    _ => Tri::new(c, c + v(&mut rng, 1.0), c + v(&mut rng, 1.0)),
+                };
+                tris.push(tri);
+            }
+            let o = v(&mut rng, 4.0);
+            let ray = Ray::new(o, (v(&mut rng, 0.5) - o).normalize());
+            let t_max = if rng.random::<bool>() { f32::INFINITY } else { 3.0 };
+            let mut want = None;
+            let mut t_best = t_max;
+            for (k, tri) in tris.iter().enumerate() {
+                if let Some((t, b1, b2)) = tri_intersect(tri, &ray, 1e-4, t_best) {
+                    t_best = t;
+                    want = Some((k, t, b1, b2));
+                }
+            }
+            let (a, b) = (Packet::new(&tris[..4]), Packet::new(&tris[4..]));
+            // SAFETY: AVX was detected above.
+            let got = unsafe { packet_pair_intersect(&a, &b, &RayLanes::new(&ray), 1e-4, t_max) };
+            let bits = |h: Option<(usize, f32, f32, f32)>| {
+                h.map(|(k, t, b1, b2)| (k, t.to_bits(), b1.to_bits(), b2.to_bits()))
+            };
+            assert_eq!(bits(got), bits(want), "{tris:?} {ray:?}");
+            if let Some((k, ..)) = want {
+                hits[(k >= 4) as usize] += 1;
+            }
+        }
+        assert!(hits[0] > 1000 && hits[1] > 1000, "hits in the first and second packet: {hits:?}");
     }
 
     #[test]

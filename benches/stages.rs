@@ -6,6 +6,9 @@
 //! runs only those rows (for profilers such as `valgrind --tool=callgrind`, which count
 //! instructions repeatably on a shared machine).
 //!
+//! Detect relabels the photons in spatial order inside (`spatial::order`); relax does it once
+//! per run, which the bench does as `relax::relax_map_on` does and reports as a row.
+//!
 //! Costs are CPU seconds of the whole process (user + system, /proc/self/stat) divided by the
 //! photons (and iterations): the cost per photon per core, which other processes sharing the
 //! machine do not inflate the way they inflate wall-clock time. Wall time is printed beside.

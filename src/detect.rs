@@ -603,8 +603,8 @@ fn detect_in_order(
         let (mut offsets, mut weights, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
         for (o, (res, &i)) in out.iter_mut().zip(ids).enumerate() {
             let i = i as usize;
-            // The photon arrays are in emission order: start loading a photon a few places
-            // ahead, whose data would otherwise be a cache miss when its turn comes.
+            // The photon arrays are in Z-order, not the index's: start loading a photon a few
+            // places ahead, whose data could otherwise be a cache miss when its turn comes.
             if let Some(&a) = ids.get(o + crate::spatial::PREFETCH_AHEAD) {
                 let a = a as usize;
                 points.prefetch(a);
@@ -625,8 +625,7 @@ fn detect_in_order(
             index.knn(&points.query(i, radius), p.kc, &mut nb);
             let xi = input.positions[i];
             offsets.clear();
-            // The index's copy of the neighbours' positions, in cache (the photon arrays are
-            // in emission order, where each neighbour would be a cache miss).
+            // The index's copy of the neighbours' positions, already in cache from the search.
             offsets.extend(nb.coords().iter().map(|xj| {
                 DVec3::new((xj[0] - xi[0]) as f64, (xj[1] - xi[1]) as f64, (xj[2] - xi[2]) as f64)
             }));

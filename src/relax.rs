@@ -210,8 +210,8 @@ pub fn iterate(
                 .enumerate()
             {
                 let i = order[c * CHUNK + o] as usize;
-                // The photon arrays are in emission order: start loading a photon a few
-                // places ahead, whose data would otherwise be a cache miss when its turn comes.
+                // The photon arrays are in Z-order, not the index's: start loading a photon a
+                // few places ahead, whose data could otherwise be a cache miss when its turn comes.
                 if let Some(&a) = order.get(c * CHUNK + o + crate::spatial::PREFETCH_AHEAD) {
                     let a = a as usize;
                     index.prefetch(a);

@@ -574,44 +574,57 @@ mod tests {
         assert!(brute_force(&[t], &miss, 0.0, f32::INFINITY).is_none());
     }
 
+    /// `n` random triangles about the origin; now and then a degenerate one, or a copy of the
+    /// previous one (equal t: the first lane must win, as the first tested does).
+    fn random_leaf(rng: &mut Pcg64Mcg, n: usize) -> Vec<Tri> {
+        let mut tris: Vec<Tri> = Vec::new();
+        for _ in 0..n {
+            let c = v(rng, 1.0);
+            let tri = match (rng.random::<u32>() % 8, tris.last()) {
+                (0, _) => Tri::new(c, c, c + v(rng, 1.0)),
+                (1, Some(&prev)) => prev,
+                _ => Tri::new(c, c + v(rng, 1.0), c + v(rng, 1.0)),
+            };
+            tris.push(tri);
+        }
+        tris
+    }
+
+    /// A random ray towards the origin's neighbourhood and a `t_max` (∞ or 3).
+    fn random_ray(rng: &mut Pcg64Mcg) -> (Ray, f32) {
+        let o = v(rng, 4.0);
+        let ray = Ray::new(o, (v(rng, 0.5) - o).normalize());
+        (ray, if rng.random::<bool>() { f32::INFINITY } else { 3.0 })
+    }
+
+    /// The scalar test on each triangle in turn, as (triangle, t, b1, b2) bits.
+    fn scalar_nearest(tris: &[Tri], ray: &Ray, t_max: f32) -> Option<(usize, u32, u32, u32)> {
+        let mut want = None;
+        let mut t_best = t_max;
+        for (k, tri) in tris.iter().enumerate() {
+            if let Some((t, b1, b2)) = tri_intersect(tri, ray, 1e-4, t_best) {
+                t_best = t;
+                want = Some((k, t, b1, b2));
+            }
+        }
+        bits(want)
+    }
+
+    fn bits(h: Option<(usize, f32, f32, f32)>) -> Option<(usize, u32, u32, u32)> {
+        h.map(|(k, t, b1, b2)| (k, t.to_bits(), b1.to_bits(), b2.to_bits()))
+    }
+
     #[test]
     fn packet_test_equals_the_scalar_test_bit_for_bit() {
         let mut rng = Pcg64Mcg::seed_from_u64(3);
         let mut hits = 0;
         for _ in 0..20_000 {
             let n = 1 + (rng.random::<u32>() % 4) as usize;
-            let mut tris: Vec<Tri> = Vec::new();
-            for _ in 0..n {
-                let c = v(&mut rng, 1.0);
-                // Now and then a degenerate triangle, or a copy of the previous one (equal t:
-                // the first lane must win, as the first tested does).
-                let tri = match (rng.random::<u32>() % 8, tris.last()) {
-                    (0, _) => Tri::new(c, c, c + v(&mut rng, 1.0)),
-                    (1, Some(&prev)) => prev,
-                    _ => Tri::new(c, c + v(&mut rng, 1.0), c + v(&mut rng, 1.0)),
-                };
-                tris.push(tri);
-            }
-            let o = v(&mut rng, 4.0);
-            let ray = Ray::new(o, (v(&mut rng, 0.5) - o).normalize());
-            let lanes = RayLanes {
-                o: [Vec4::splat(o.x), Vec4::splat(o.y), Vec4::splat(o.z)],
-                d: [Vec4::splat(ray.dir.x), Vec4::splat(ray.dir.y), Vec4::splat(ray.dir.z)],
-            };
-            let t_max = if rng.random::<bool>() { f32::INFINITY } else { 3.0 };
-            let mut want = None;
-            let mut t_best = t_max;
-            for (k, tri) in tris.iter().enumerate() {
-                if let Some((t, b1, b2)) = tri_intersect(tri, &ray, 1e-4, t_best) {
-                    t_best = t;
-                    want = Some((k, t, b1, b2));
-                }
-            }
-            let got = packet_intersect(&Packet::new(&tris), &lanes, 1e-4, t_max);
-            let bits = |h: Option<(usize, f32, f32, f32)>| {
-                h.map(|(k, t, b1, b2)| (k, t.to_bits(), b1.to_bits(), b2.to_bits()))
-            };
-            assert_eq!(bits(got), bits(want), "{tris:?} {ray:?}");
+            let tris = random_leaf(&mut rng, n);
+            let (ray, t_max) = random_ray(&mut rng);
+            let want = scalar_nearest(&tris, &ray, t_max);
+            let got = packet_intersect(&Packet::new(&tris), &RayLanes::new(&ray), 1e-4, t_max);
+            assert_eq!(bits(got), want, "{tris:?} {ray:?}");
             hits += want.is_some() as u32;
         }
         assert!(hits > 1000, "{hits}");
@@ -630,34 +643,13 @@ mod tests {
         let mut hits = [0u32; 2];
         for _ in 0..20_000 {
             let n = 5 + (rng.random::<u32>() % 4) as usize;
-            let mut tris: Vec<Tri> = Vec::new();
-            for _ in 0..n {
-                let c = v(&mut rng, 1.0);
-                let tri = match (rng.random::<u32>() % 8, tris.last()) {
-                    (0, _) => Tri::new(c, c, c + v(&mut rng, 1.0)),
-                    (1, Some(&prev)) => prev,
-                    _ => Tri::new(c, c + v(&mut rng, 1.0), c + v(&mut rng, 1.0)),
-                };
-                tris.push(tri);
-            }
-            let o = v(&mut rng, 4.0);
-            let ray = Ray::new(o, (v(&mut rng, 0.5) - o).normalize());
-            let t_max = if rng.random::<bool>() { f32::INFINITY } else { 3.0 };
-            let mut want = None;
-            let mut t_best = t_max;
-            for (k, tri) in tris.iter().enumerate() {
-                if let Some((t, b1, b2)) = tri_intersect(tri, &ray, 1e-4, t_best) {
-                    t_best = t;
-                    want = Some((k, t, b1, b2));
-                }
-            }
+            let tris = random_leaf(&mut rng, n);
+            let (ray, t_max) = random_ray(&mut rng);
+            let want = scalar_nearest(&tris, &ray, t_max);
             let (a, b) = (Packet::new(&tris[..4]), Packet::new(&tris[4..]));
             // SAFETY: AVX was detected above.
             let got = unsafe { packet_pair_intersect(&a, &b, &RayLanes::new(&ray), 1e-4, t_max) };
-            let bits = |h: Option<(usize, f32, f32, f32)>| {
-                h.map(|(k, t, b1, b2)| (k, t.to_bits(), b1.to_bits(), b2.to_bits()))
-            };
-            assert_eq!(bits(got), bits(want), "{tris:?} {ray:?}");
+            assert_eq!(bits(got), want, "{tris:?} {ray:?}");
             if let Some((k, ..)) = want {
                 hits[(k >= 4) as usize] += 1;
             }

@@ -642,43 +642,41 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         cands: &mut Vec<Cand>,
     ) {
         let cap = self.cap;
-        {
-            let l = &self.leaves[leaf as usize];
-            let block = &self.blocks[leaf as usize * (W + P + 1) * cap..][..(W + P + 1) * cap];
-            let (coords, ids) = block.split_at((W + P) * cap);
-            let coords: &[f32] = bytemuck::cast_slice(coords);
-            let m = (l.hi - l.lo) as usize;
-            let mut at = 0;
-            while at < m {
-                let load = |a: usize| Vec4::from_slice(&coords[a * cap + at..a * cap + at + 4]);
-                let mut d = Vec4::ZERO;
-                for (a, q) in qwv.iter().enumerate() {
-                    let o = load(a) - *q;
-                    d += o * o;
-                }
-                // Past the leaf's records the coordinates are NaN, which never pass.
-                let mut pass = d.cmple(reachv).bitmask();
-                if ball {
-                    let mut e = Vec4::ZERO;
-                    for (a, q) in qpv.iter().enumerate() {
-                        let o = load(W + a) - *q;
-                        e += o * o;
-                    }
-                    pass &= e.cmple(r2v).bitmask();
-                }
-                if pass != 0 {
-                    let d = d.to_array();
-                    while pass != 0 {
-                        let j = pass.trailing_zeros() as usize;
-                        pass &= pass - 1;
-                        let idx = ids[at + j];
-                        if idx != exclude {
-                            cands.push(Cand { key: rank(d[j], idx), slot: l.lo + (at + j) as u32 });
-                        }
-                    }
-                }
-                at += 4;
+        let l = &self.leaves[leaf as usize];
+        let block = &self.blocks[leaf as usize * (W + P + 1) * cap..][..(W + P + 1) * cap];
+        let (coords, ids) = block.split_at((W + P) * cap);
+        let coords: &[f32] = bytemuck::cast_slice(coords);
+        let m = (l.hi - l.lo) as usize;
+        let mut at = 0;
+        while at < m {
+            let load = |a: usize| Vec4::from_slice(&coords[a * cap + at..a * cap + at + 4]);
+            let mut d = Vec4::ZERO;
+            for (a, q) in qwv.iter().enumerate() {
+                let o = load(a) - *q;
+                d += o * o;
             }
+            // Past the leaf's records the coordinates are NaN, which never pass.
+            let mut pass = d.cmple(reachv).bitmask();
+            if ball {
+                let mut e = Vec4::ZERO;
+                for (a, q) in qpv.iter().enumerate() {
+                    let o = load(W + a) - *q;
+                    e += o * o;
+                }
+                pass &= e.cmple(r2v).bitmask();
+            }
+            if pass != 0 {
+                let d = d.to_array();
+                while pass != 0 {
+                    let j = pass.trailing_zeros() as usize;
+                    pass &= pass - 1;
+                    let idx = ids[at + j];
+                    if idx != exclude {
+                        cands.push(Cand { key: rank(d[j], idx), slot: l.lo + (at + j) as u32 });
+                    }
+                }
+            }
+            at += 4;
         }
     }
 

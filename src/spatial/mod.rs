@@ -44,13 +44,13 @@ pub mod order;
 
 pub use boxtree::BoxTree;
 pub use brute::brute_force_knn;
-pub use order::locality_order;
 
 use kdtree::{KdTree, Rec};
 
 /// Asks the CPU to start loading `x` into cache. Stages loop over photons in the index's
-/// order while their per-photon arrays are in emission order, so each photon's own data is a
-/// cache miss; prefetching the photon a few places ahead hides it. A no-op off x86-64.
+/// order while their per-photon arrays are in another (Z-order, [`order`]: near, but not
+/// the same), so a photon's own data can be a cache miss; prefetching the photon a few
+/// places ahead hides it. A no-op off x86-64.
 #[inline(always)]
 pub fn prefetch<T>(x: &T) {
     #[cfg(target_arch = "x86_64")]

@@ -39,6 +39,12 @@ use rayon::prelude::*;
 /// Records per leaf; chosen by measurement (BENCHMARKS.md, "Spatial index").
 pub(crate) const LEAF: usize = 12;
 
+/// Blocks of four records a leaf's scan reads (the last may be partly empty).
+const BLOCKS: usize = LEAF.div_ceil(4);
+
+/// Record lanes per leaf in [`KdTree::axes`].
+const SLOTS: usize = 4 * BLOCKS;
+
 /// Subtrees larger than this are built in parallel.
 const PARALLEL_BUILD: usize = 1 << 14;
 
@@ -180,14 +186,13 @@ pub(crate) struct KdTree<const W: usize, const P: usize> {
     nodes: Vec<Node<W, P>>,
     /// The leaves in leaf order, with their boxes.
     leaves: Vec<Leaf<W, P>>,
-    /// Each leaf's records again, by axis, in one block of `(W + P + 1) · cap` values: axis
-    /// `a` (distance axes, then ball axes) of the leaf's i-th record at `a · cap + i`, then
-    /// the records' indices; `cap` is the largest leaf rounded up to four, and the
-    /// coordinates beyond a leaf's records are NaN, so that a scan reads four records at a
-    /// time from memory that is contiguous per leaf. Stored as bits (coordinates are read
-    /// as f32).
-    blocks: Vec<u32>,
-    cap: usize,
+    /// Each leaf's records again, by axis: `W + P` entries per leaf (distance axes, then
+    /// ball axes), each holding that coordinate of the leaf's records in [`SLOTS`] lanes,
+    /// NaN past the leaf's records, so that a scan reads four records at a time from memory
+    /// that is contiguous per leaf, in fixed-size arrays the compiler sees the bounds of.
+    axes: Vec<[Vec4; BLOCKS]>,
+    /// Each leaf's records' indices, in the lanes of [`Self::axes`].
+    ids: Vec<[u32; SLOTS]>,
     /// Which build this is: unique across every tree and rebuild of the process, so that a
     /// result buffer never takes a bound or a group from another tree or an older build.
     build: u64,
@@ -221,19 +226,22 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             l.lo_p = std::array::from_fn(|a| lo[W + a]);
             l.hi_p = std::array::from_fn(|a| hi[W + a]);
         });
-        let cap = self.leaves.iter().map(|l| (l.hi - l.lo) as usize).max().unwrap_or(0).next_multiple_of(4);
-        self.cap = cap;
-        self.blocks.clear();
-        self.blocks.resize(self.leaves.len() * (W + P + 1) * cap, f32::NAN.to_bits());
-        if cap > 0 {
-            self.blocks.par_chunks_mut((W + P + 1) * cap).zip(&self.leaves).for_each(|(b, l)| {
-                for (i, r) in recs[l.lo as usize..l.hi as usize].iter().enumerate() {
-                    for a in 0..W + P {
-                        b[a * cap + i] = r.coord(a).to_bits();
+        let nan = [Vec4::NAN; BLOCKS];
+        self.axes.clear();
+        self.axes.resize(self.leaves.len() * (W + P), nan);
+        self.ids.clear();
+        self.ids.resize(self.leaves.len(), [u32::MAX; SLOTS]);
+        if W + P > 0 {
+            self.axes.par_chunks_mut(W + P).zip(self.ids.par_iter_mut()).zip(&self.leaves).for_each(
+                |((axes, ids), l)| {
+                    for (i, r) in recs[l.lo as usize..l.hi as usize].iter().enumerate() {
+                        for (a, lanes) in axes.iter_mut().enumerate() {
+                            lanes[i / 4][i % 4] = r.coord(a);
+                        }
+                        ids[i] = r.idx;
                     }
-                    b[(W + P) * cap + i] = r.idx;
-                }
-            });
+                },
+            );
         }
     }
 
@@ -641,18 +649,18 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         exclude: u32,
         cands: &mut Vec<Cand>,
     ) {
-        let cap = self.cap;
         let l = &self.leaves[leaf as usize];
-        let block = &self.blocks[leaf as usize * (W + P + 1) * cap..][..(W + P + 1) * cap];
-        let (coords, ids) = block.split_at((W + P) * cap);
-        let coords: &[f32] = bytemuck::cast_slice(coords);
+        let leaf = leaf as usize;
+        let axes = &self.axes[leaf * (W + P)..][..W + P];
+        let ids = &self.ids[leaf];
         let m = (l.hi - l.lo) as usize;
-        let mut at = 0;
-        while at < m {
-            let load = |a: usize| Vec4::from_slice(&coords[a * cap + at..a * cap + at + 4]);
+        for b in 0..BLOCKS {
+            if 4 * b >= m {
+                break;
+            }
             let mut d = Vec4::ZERO;
             for (a, q) in qwv.iter().enumerate() {
-                let o = load(a) - *q;
+                let o = axes[a][b] - *q;
                 d += o * o;
             }
             // Past the leaf's records the coordinates are NaN, which never pass.
@@ -660,7 +668,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             if ball {
                 let mut e = Vec4::ZERO;
                 for (a, q) in qpv.iter().enumerate() {
-                    let o = load(W + a) - *q;
+                    let o = axes[W + a][b] - *q;
                     e += o * o;
                 }
                 pass &= e.cmple(r2v).bitmask();
@@ -670,13 +678,12 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 while pass != 0 {
                     let j = pass.trailing_zeros() as usize;
                     pass &= pass - 1;
-                    let idx = ids[at + j];
+                    let idx = ids[4 * b + j];
                     if idx != exclude {
-                        cands.push(Cand { key: rank(d[j], idx), slot: l.lo + (at + j) as u32 });
+                        cands.push(Cand { key: rank(d[j], idx), slot: l.lo + (4 * b + j) as u32 });
                     }
                 }
             }
-            at += 4;
         }
     }
 

@@ -106,16 +106,19 @@ pub trait NeighbourSearch: Sync {
 
     /// The same neighbours as [`Self::neighbours`], and their positions in `xs` (by default
     /// read from `positions`, the snapshot the index was built over), in an order that may
-    /// differ from nearest first but depends only on the queries made since the last
-    /// [`Self::start_chunk`] on this thread (so results never depend on the thread count).
+    /// differ from nearest first but depends only on the queries made with `scratch` since
+    /// it was made (so results never depend on the thread count). `scratch` is the search's
+    /// reusable buffer: one per run of queries.
     fn neighbours_at(
         &self,
         i: usize,
         k: usize,
         positions: &[[f32; 3]],
+        scratch: &mut crate::spatial::Neighbours,
         ids: &mut Vec<u32>,
         xs: &mut Vec<Vec3>,
     ) {
+        let _ = scratch;
         self.neighbours(i, k, ids);
         xs.clear();
         xs.extend(ids.iter().map(|&j| Vec3::from(positions[j as usize])));
@@ -123,10 +126,6 @@ pub trait NeighbourSearch: Sync {
 
     /// Starts loading what a search for photon `i` will read (a hint; no effect by default).
     fn prefetch(&self, _i: usize) {}
-
-    /// Marks the start of a chunk of queries: forgets what earlier queries on this thread
-    /// left that could change the order [`Self::neighbours_at`] returns.
-    fn start_chunk(&self) {}
 
     /// An order to visit photons in that keeps successive queries in nearby memory (every
     /// photon once); `None` for index order.
@@ -201,7 +200,8 @@ pub fn iterate(
         .for_each(|(c, (((steps, nns), ratios), spacings))| {
             let mut ids = Vec::with_capacity(p.kf);
             let mut xs = Vec::with_capacity(p.kf);
-            index.start_chunk();
+            // A fresh buffer per chunk: the order neighbours come in depends only on the chunk.
+            let mut found = crate::spatial::Neighbours::unordered(0);
             for (o, (((s, d1), q), sp)) in steps
                 .iter_mut()
                 .zip(nns.iter_mut())
@@ -225,7 +225,7 @@ pub fn iterate(
                         Constraint::Tangent { normal } => crate::spatial::prefetch(&normal[a]),
                     }
                 }
-                index.neighbours_at(i, p.kf, snapshot, &mut ids, &mut xs);
+                index.neighbours_at(i, p.kf, snapshot, &mut found, &mut ids, &mut xs);
                 let xi = Vec3::from(snapshot[i]);
                 // The farthest and nearest neighbour (the search need not sort them).
                 let (near, far) = xs.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &x| {
@@ -331,42 +331,35 @@ pub struct IndexSearch<'a> {
 
 thread_local! {
     static FOUND: std::cell::RefCell<crate::spatial::Neighbours> = Default::default();
-    /// The buffer of [`NeighbourSearch::neighbours_at`], which needs the neighbours but not
-    /// their order (no sort per photon).
-    static SET: std::cell::RefCell<crate::spatial::Neighbours> =
-        std::cell::RefCell::new(crate::spatial::Neighbours::unordered(0));
 }
 
 impl IndexSearch<'_> {
-    /// The k nearest photons other than `i`, and their positions, through the thread's
-    /// buffer `buf` (ordered, [`FOUND`], or unordered, [`SET`]; in that buffer's order). The
-    /// search asks for k + 1 *including* `i` and drops `i` if present, else the last of the
-    /// k + 1 by (distance², index): the same k photons (i is either among the k + 1, or ranks
-    /// after all of them), and the previous query's result then holds k + 1 candidates of
-    /// this one, which gives the search its starting bound
-    /// ([`crate::spatial::SpatialIndex::knn`]).
+    /// The k nearest photons other than `i`, and their positions, through the buffer `found`
+    /// (in its order: nearest first if it is ordered). The search asks for k + 1 *including*
+    /// `i` and drops `i` if present, else the last of the k + 1 by (distance², index): the
+    /// same k photons (i is either among the k + 1, or ranks after all of them), and the
+    /// previous query's result then holds k + 1 candidates of this one, which gives the
+    /// search its starting bound ([`crate::spatial::SpatialIndex::knn`]).
     fn search(
         &self,
-        buf: &'static std::thread::LocalKey<std::cell::RefCell<crate::spatial::Neighbours>>,
+        found: &mut crate::spatial::Neighbours,
         i: usize,
         k: usize,
         mut each: impl FnMut(u32, [f32; 3]),
     ) {
         let q = self.points.query(i, self.radius.map(|r| r[i]));
-        buf.with_borrow_mut(|found| {
-            self.index.knn(&q, k + 1, found);
-            let items = found.as_slice();
-            let drop = items.iter().position(|n| n.index as usize == i).or_else(|| {
-                (items.len() > k)
-                    .then(|| (0..items.len()).reduce(|a, b| if items[a].before(&items[b]) { b } else { a }))
-                    .flatten()
-            });
-            for (at, (n, x)) in items.iter().zip(found.coords()).enumerate() {
-                if Some(at) != drop {
-                    each(n.index, *x);
-                }
-            }
+        self.index.knn(&q, k + 1, found);
+        let items = found.as_slice();
+        let drop = items.iter().position(|n| n.index as usize == i).or_else(|| {
+            (items.len() > k)
+                .then(|| (0..items.len()).reduce(|a, b| if items[a].before(&items[b]) { b } else { a }))
+                .flatten()
         });
+        for (at, (n, x)) in items.iter().zip(found.coords()).enumerate() {
+            if Some(at) != drop {
+                each(n.index, *x);
+            }
+        }
     }
 }
 
@@ -380,20 +373,24 @@ impl NeighbourSearch for IndexSearch<'_> {
 
     fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
         out.clear();
-        self.search(&FOUND, i, k, |j, _| out.push(j));
+        FOUND.with_borrow_mut(|found| self.search(found, i, k, |j, _| out.push(j)));
     }
 
-    fn neighbours_at(&self, i: usize, k: usize, _: &[[f32; 3]], ids: &mut Vec<u32>, xs: &mut Vec<Vec3>) {
+    fn neighbours_at(
+        &self,
+        i: usize,
+        k: usize,
+        _: &[[f32; 3]],
+        found: &mut crate::spatial::Neighbours,
+        ids: &mut Vec<u32>,
+        xs: &mut Vec<Vec3>,
+    ) {
         ids.clear();
         xs.clear();
-        self.search(&SET, i, k, |j, x| {
+        self.search(found, i, k, |j, x| {
             ids.push(j);
             xs.push(Vec3::from(x));
         });
-    }
-
-    fn start_chunk(&self) {
-        SET.with_borrow_mut(|found| found.forget());
     }
 
     fn order(&self) -> Option<Vec<u32>> {

@@ -358,8 +358,10 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         out.coords.clear();
         out.slots.clear();
         out.tree = id;
+        out.far2 = 0.0;
         for c in out.cands.iter() {
             let r = &self.recs[c.slot as usize];
+            out.far2 = out.far2.max(c.dist2());
             out.items.push(Neighbour { dist2: c.dist2(), index: r.idx });
             out.coords.push(std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 }));
             out.slots.push(c.slot);
@@ -740,8 +742,10 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         out.coords.clear();
         out.slots.clear();
         out.tree = self.build;
+        out.far2 = 0.0;
         for c in cands.iter() {
             let r = &self.recs[c.slot as usize];
+            out.far2 = out.far2.max(c.dist2());
             out.items.push(Neighbour { dist2: c.dist2(), index: r.idx });
             out.coords.push(std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 }));
             out.slots.push(c.slot);

@@ -243,6 +243,8 @@ impl Neighbour {
 #[derive(Clone, Debug)]
 pub struct Neighbours {
     items: Vec<Neighbour>,
+    /// The largest distance² in `items` (meaningless when it is empty).
+    far2: f32,
     /// The neighbours' coordinates in the tree's distance space, padded to three.
     coords: Vec<[f32; 3]>,
     /// The neighbours' places in the tree that answered, which `tree` identifies (0: none).
@@ -269,6 +271,7 @@ impl Neighbours {
     pub fn with_capacity(k: usize) -> Self {
         Neighbours {
             items: Vec::with_capacity(k),
+            far2: 0.0,
             coords: Vec::with_capacity(k),
             slots: Vec::with_capacity(k),
             tree: 0,
@@ -288,7 +291,7 @@ impl Neighbours {
 
     /// The largest squared distance found (the k-th nearest's when k were found).
     pub fn max_dist2(&self) -> Option<f32> {
-        self.items.iter().map(|n| n.dist2).reduce(f32::max)
+        (!self.items.is_empty()).then_some(self.far2)
     }
 
     pub fn as_slice(&self) -> &[Neighbour] {

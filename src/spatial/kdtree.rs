@@ -556,20 +556,24 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             (node as usize, lo as usize, hi as usize, leaf)
         };
         self.collect(node, lo, hi, leaf, g);
+        // Empty lanes first (low +∞, high −∞), then each leaf's box in its lane.
+        let per = 2 * (W + P);
         g.boxes.clear();
-        for four in g.leaves.chunks(4) {
-            let lane = |f: &dyn Fn(&Leaf<W, P>) -> f32, empty: f32| {
-                Vec4::from_array(std::array::from_fn(|j| {
-                    four.get(j).map_or(empty, |&l| f(&self.leaves[l as usize]))
-                }))
-            };
+        g.boxes.extend(
+            (0..g.leaves.len().div_ceil(4) * per)
+                .map(|i| if i % 2 == 0 { Vec4::INFINITY } else { Vec4::NEG_INFINITY }),
+        );
+        for (j, &l) in g.leaves.iter().enumerate() {
+            let leaf = &self.leaves[l as usize];
+            let b = &mut g.boxes[j / 4 * per..][..per];
+            let lane = j % 4;
             for a in 0..W {
-                g.boxes.push(lane(&|l| l.lo_w[a], f32::INFINITY));
-                g.boxes.push(lane(&|l| l.hi_w[a], f32::NEG_INFINITY));
+                b[2 * a][lane] = leaf.lo_w[a];
+                b[2 * a + 1][lane] = leaf.hi_w[a];
             }
             for a in 0..P {
-                g.boxes.push(lane(&|l| l.lo_p[a], f32::INFINITY));
-                g.boxes.push(lane(&|l| l.hi_p[a], f32::NEG_INFINITY));
+                b[2 * (W + a)][lane] = leaf.lo_p[a];
+                b[2 * (W + a) + 1][lane] = leaf.hi_p[a];
             }
         }
     }

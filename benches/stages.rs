@@ -131,10 +131,7 @@ fn main() {
                     params: if space == Space::WorldParams { Some(params) } else { None },
                     emitters: None,
                 };
-                let ((), bc, bw) = measure(|| match &mut index {
-                    Some(ix) => ix.rebuild(&pts).unwrap(),
-                    None => index = Some(SpatialIndex::build(&pts, space).unwrap()),
-                });
+                let ((), bc, bw) = measure(|| relax::index_positions(&mut index, &pts, space, it).unwrap());
                 build_c += bc;
                 build_w += bw;
                 let search = relax::IndexSearch {

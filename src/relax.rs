@@ -398,6 +398,36 @@ impl NeighbourSearch for IndexSearch<'_> {
     }
 }
 
+/// Iterations between full rebuilds of relaxation's index; in between, the index is refitted
+/// to the moved photons ([`crate::spatial::SpatialIndex::refit`]), which is exact but lets
+/// boxes overlap as photons drift. With the default 7 iterations per stage, each stage builds
+/// once (BENCHMARKS.md, "Refitting instead of rebuilding": fewer instructions than rebuilding
+/// every 1, 2 or 3 iterations). `PHOTONKIT_REBUILD_EVERY=n` overrides it, for measurement.
+pub const REBUILD_EVERY: usize = 7;
+
+/// Makes `index` hold `points` for relaxation's iteration `it`: built on the first,
+/// rebuilt every [`REBUILD_EVERY`] iterations, refitted in between (photons only move).
+pub fn index_positions(
+    index: &mut Option<crate::spatial::SpatialIndex>,
+    points: &crate::spatial::PointSet,
+    space: crate::spatial::Space,
+    it: usize,
+) -> Result<(), crate::spatial::SpatialError> {
+    static EVERY: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+    let every = *EVERY.get_or_init(|| {
+        std::env::var("PHOTONKIT_REBUILD_EVERY")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(REBUILD_EVERY)
+            .max(1)
+    });
+    match index {
+        Some(ix) if it % every != 0 => ix.refit(points),
+        Some(ix) => ix.rebuild(points),
+        None => crate::spatial::SpatialIndex::build(points, space).map(|ix| *index = Some(ix)),
+    }
+}
+
 /// Relaxes every photon of `map` for `p.iterations` iterations (Eq. 8–9), calling
 /// `on_iteration` after each. The map's state picks the space ([`RelaxSpace`]); its
 /// `basis_u`/`basis_v` columns constrain the motion, or, without them, its `normal` column
@@ -497,11 +527,7 @@ pub fn relax_map_on(
             emitters: if space == RelaxSpace::WorldParams { emitters } else { None },
         };
         let sp = if space == RelaxSpace::WorldParams { Space::WorldParams } else { Space::World };
-        let built = match &mut index {
-            Some(ix) => ix.rebuild(&points),
-            None => SpatialIndex::build(&points, sp).map(|ix| index = Some(ix)),
-        };
-        built.map_err(|e| e.in_file_order(&order))?;
+        index_positions(&mut index, &points, sp, it).map_err(|e| e.in_file_order(&order))?;
         let search = IndexSearch {
             index: index.as_ref().expect("built above"),
             points: &points,

@@ -196,6 +196,10 @@ pub(crate) struct KdTree<const W: usize, const P: usize> {
     /// Which build this is: unique across every tree and rebuild of the process, so that a
     /// result buffer never takes a bound or a group from another tree or an older build.
     build: u64,
+    /// Whether the distance coordinates moved since the build ([`Self::refit`]): the split
+    /// planes of distance axes then no longer separate the records, and searches prune by
+    /// the (refitted) boxes alone on those axes.
+    refitted: bool,
 }
 
 /// The source of [`KdTree::build`] numbers (0 is never a build).
@@ -205,6 +209,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     /// Builds over `recs`, reusing this tree's allocations.
     pub fn rebuild(&mut self, fill: impl FnOnce(&mut Vec<Rec<W, P>>), weights: Option<Weights>) {
         self.build = BUILDS.fetch_add(1, Ordering::Relaxed);
+        self.refitted = false;
         self.recs.clear();
         fill(&mut self.recs);
         let n = self.recs.len();
@@ -242,6 +247,34 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                     }
                 },
             );
+        }
+    }
+
+    /// Moves every record to new distance coordinates, `w_of(index)`, keeping its ball
+    /// coordinates and its place: the leaves keep their records, and every leaf and node box
+    /// is recomputed (a node's from its children's). Much cheaper than a rebuild, and exact
+    /// all the same, since searches then prune distance axes by boxes only; but as records
+    /// drift the boxes overlap more and queries slow down, so callers rebuild now and then.
+    pub fn refit(&mut self, w_of: impl Fn(u32) -> [f32; W] + Sync) {
+        self.build = BUILDS.fetch_add(1, Ordering::Relaxed);
+        self.refitted = true;
+        self.recs.par_iter_mut().for_each(|r| r.w = w_of(r.idx));
+        let recs = &self.recs;
+        if W + P > 0 {
+            self.leaves.par_iter_mut().zip(self.axes.par_chunks_mut(W + P)).for_each(|(l, axes)| {
+                let leaf = &recs[l.lo as usize..l.hi as usize];
+                let (lo, hi) = bounds(leaf);
+                l.lo_w = std::array::from_fn(|a| lo[a]);
+                l.hi_w = std::array::from_fn(|a| hi[a]);
+                for (i, r) in leaf.iter().enumerate() {
+                    for (lanes, &c) in axes.iter_mut().zip(&r.w) {
+                        lanes[i / 4][i % 4] = c;
+                    }
+                }
+            });
+        }
+        if !self.nodes.is_empty() {
+            refit_node(&mut self.nodes, &self.leaves, 0, 0, self.recs.len(), 0);
         }
     }
 
@@ -341,7 +374,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             bound,
             // Boxes pay for themselves on constrained trees, where they bound the parameter
             // ball; on unconstrained ones the split planes prune about as well for less work.
-            boxes: tuning().boxes && (P > 0 || tuning().all_boxes),
+            boxes: (tuning().boxes && (P > 0 || tuning().all_boxes)) || self.refitted,
         };
         let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);
         s.visit(0, 0, self.recs.len(), &mut ow, &mut op);
@@ -548,7 +581,13 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 && (P == 0
                     || (ball && (0..P).all(|a| n.lo_p[a] < g.lo_p[a] - gp && g.hi_p[a] + gp < n.hi_p[a])))
         };
-        let start = (0..depth).rev().find(|&d| holds(&self.nodes[path[d].0 as usize])).unwrap_or(0);
+        // After a refit, sibling boxes overlap and a box may hold another subtree's records:
+        // gather from the root.
+        let start = if self.refitted {
+            0
+        } else {
+            (0..depth).rev().find(|&d| holds(&self.nodes[path[d].0 as usize])).unwrap_or(0)
+        };
         let (node, lo, hi, leaf) = if depth == 0 {
             (0, 0, self.recs.len(), 0)
         } else {
@@ -878,6 +917,30 @@ fn build_node<const W: usize, const P: usize>(
     }
 }
 
+/// Recomputes the distance-axis boxes of the subtree at `node` (records `lo..hi`, first
+/// leaf `leaf`) from its leaves' boxes, and returns its box.
+fn refit_node<const W: usize, const P: usize>(
+    nodes: &mut [Node<W, P>],
+    leaves: &[Leaf<W, P>],
+    node: usize,
+    lo: usize,
+    hi: usize,
+    leaf: usize,
+) -> ([f32; W], [f32; W]) {
+    if hi - lo <= LEAF {
+        let l = &leaves[leaf];
+        return (l.lo_w, l.hi_w);
+    }
+    let (right, right_leaf) = (nodes[node].right as usize, nodes[node].right_leaf as usize);
+    let mid = lo + (hi - lo) / 2;
+    let (alo, ahi) = refit_node(nodes, leaves, node + 1, lo, mid, leaf);
+    let (blo, bhi) = refit_node(nodes, leaves, right, mid, hi, right_leaf);
+    let n = &mut nodes[node];
+    n.lo_w = std::array::from_fn(|a| alo[a].min(blo[a]));
+    n.hi_w = std::array::from_fn(|a| ahi[a].max(bhi[a]));
+    (n.lo_w, n.hi_w)
+}
+
 /// Appends the leaves of a subtree over records `lo..hi` in leaf order (boxes unset), split
 /// as [`build_node`] splits.
 fn leaf_ranges<const W: usize, const P: usize>(lo: usize, hi: usize, out: &mut Vec<Leaf<W, P>>) {
@@ -942,7 +1005,10 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
         };
         self.visit(near, nlo, nhi, ow, op);
         // The far child lies at least |diff| away along `axis`.
-        if axis < W {
+        if axis < W && tree.refitted {
+            // The split no longer separates the children: their boxes prune instead.
+            self.visit(far, flo, fhi, ow, op);
+        } else if axis < W {
             let old = ow[axis];
             ow[axis] = diff.abs();
             if sum_sq(ow) <= self.bound && (!self.ball || sum_sq(op) <= self.r2) {

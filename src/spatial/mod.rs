@@ -449,6 +449,32 @@ impl SpatialIndex {
         Ok(())
     }
 
+    /// Moves the indexed photons to `points`' positions: the same photons (count, emitters,
+    /// parameters) as the last build, with only their positions changed, as relaxation
+    /// changes them. The trees keep their shape and recompute their boxes (cheaper than
+    /// [`Self::rebuild`]; queries stay exact but slow down as photons drift from where the
+    /// trees were built). In [`Space::Params`], where positions are not indexed, nothing changes.
+    pub fn refit(&mut self, points: &PointSet) -> Result<(), SpatialError> {
+        points.check(self.space)?;
+        if points.len() != self.len {
+            return Err(SpatialError::Length { what: "positions", expected: self.len, actual: points.len() });
+        }
+        if self.space == Space::Params {
+            return Ok(());
+        }
+        let pos = points.positions;
+        for t in &mut self.trees {
+            match t {
+                Tree::D3(t) => t.refit(|i| pos[i as usize]),
+                Tree::D3B1(t) => t.refit(|i| pos[i as usize]),
+                Tree::D3B2(t) => t.refit(|i| pos[i as usize]),
+                Tree::D3B3(t) => t.refit(|i| pos[i as usize]),
+                Tree::Empty(_) | Tree::D1(_) | Tree::D2(_) => {}
+            }
+        }
+        Ok(())
+    }
+
     pub fn space(&self) -> Space {
         self.space
     }

@@ -422,7 +422,7 @@ pub fn index_positions(
             .max(1)
     });
     match index {
-        Some(ix) if it % every != 0 => ix.refit(points),
+        Some(ix) if !it.is_multiple_of(every) => ix.refit(points),
         Some(ix) => ix.rebuild(points),
         None => crate::spatial::SpatialIndex::build(points, space).map(|ix| *index = Some(ix)),
     }

@@ -387,18 +387,30 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             s.visit(0, 0, self.recs.len(), &mut ow, &mut op);
         }
         s.finish(out.ordered);
-        out.items.clear();
-        out.coords.clear();
-        out.slots.clear();
         out.tree = id;
-        out.far2 = 0.0;
-        for c in out.cands.iter() {
+        out.far2 = self.emit(&out.cands, &mut out.items, &mut out.coords, &mut out.slots);
+    }
+
+    /// Writes the candidates `cands` as a result, and returns their largest distance². Each
+    /// list is filled in one pass over a slice of known length (no capacity check per item);
+    /// a candidate's photon index is the low half of its rank.
+    fn emit(
+        &self,
+        cands: &[Cand],
+        items: &mut Vec<Neighbour>,
+        coords: &mut Vec<[f32; 3]>,
+        slots: &mut Vec<u32>,
+    ) -> f32 {
+        items.clear();
+        items.extend(cands.iter().map(|c| Neighbour { dist2: c.dist2(), index: c.key as u32 }));
+        coords.clear();
+        coords.extend(cands.iter().map(|c| {
             let r = &self.recs[c.slot as usize];
-            out.far2 = out.far2.max(c.dist2());
-            out.items.push(Neighbour { dist2: c.dist2(), index: r.idx });
-            out.coords.push(std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 }));
-            out.slots.push(c.slot);
-        }
+            std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 })
+        }));
+        slots.clear();
+        slots.extend(cands.iter().map(|c| c.slot));
+        cands.iter().fold(0.0, |m, c| larger(m, c.dist2()))
     }
 
     /// An upper bound on the k-th distance² of a query: the k-th among the records at `slots`
@@ -781,18 +793,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         if out.ordered {
             cands.sort_unstable_by_key(|c| c.key);
         }
-        out.items.clear();
-        out.coords.clear();
-        out.slots.clear();
         out.tree = self.build;
-        out.far2 = 0.0;
-        for c in cands.iter() {
-            let r = &self.recs[c.slot as usize];
-            out.far2 = out.far2.max(c.dist2());
-            out.items.push(Neighbour { dist2: c.dist2(), index: r.idx });
-            out.coords.push(std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 }));
-            out.slots.push(c.slot);
-        }
+        out.far2 = self.emit(cands, &mut out.items, &mut out.coords, &mut out.slots);
         true
     }
 }

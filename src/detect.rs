@@ -296,31 +296,42 @@ impl Neighbourhood<'_> {
     }
 }
 
-/// Normalised PCA of tangent-plane points: (eigen-decomposition with λ divided by `r2`), or
-/// `None` if the points have no extent relative to r.
-fn normalised_pca(pts: &[DVec2], r2: f64) -> Option<Eigen2> {
-    let m = pts.len() as f64;
-    let mean = pts.iter().sum::<DVec2>() / m;
-    let (mut a, mut b, mut c) = (0.0, 0.0, 0.0);
-    for p in pts {
-        let d = *p - mean;
-        a += d.x * d.x;
-        b += d.x * d.y;
-        c += d.y * d.y;
+/// Normalised PCA of the offsets projected into the tangent plane (t1, t2): the eigen-
+/// decomposition with λ divided by `r2`, or `None` if the points have no extent relative to
+/// r. The covariance of the projected points is Tᵀ C T for the offsets' 3×3 covariance C and
+/// T = [t1 t2], so C is summed in one pass over the offsets and projected once.
+fn normalised_pca(offsets: &[DVec3], t1: DVec3, t2: DVec3, r2: f64) -> Option<Eigen2> {
+    let m = offsets.len() as f64;
+    let mean = offsets.iter().sum::<DVec3>() / m;
+    // The upper triangle of C (times m): xx, xy, xz, yy, yz, zz.
+    let mut c = [0.0f64; 6];
+    for o in offsets {
+        let d = *o - mean;
+        c[0] += d.x * d.x;
+        c[1] += d.x * d.y;
+        c[2] += d.x * d.z;
+        c[3] += d.y * d.y;
+        c[4] += d.y * d.z;
+        c[5] += d.z * d.z;
     }
+    let times = |v: DVec3| {
+        DVec3::new(
+            c[0] * v.x + c[1] * v.y + c[2] * v.z,
+            c[1] * v.x + c[3] * v.y + c[4] * v.z,
+            c[2] * v.x + c[4] * v.y + c[5] * v.z,
+        )
+    };
+    let (ct1, ct2) = (times(t1), times(t2));
     // Normalised by r² once, not each offset by r (a division per offset).
     let norm = m * r2;
-    let e = eigen2(a / norm, b / norm, c / norm);
+    let e = eigen2(t1.dot(ct1) / norm, t1.dot(ct2) / norm, t2.dot(ct2) / norm);
     // Relative to r², an extent below 1e-12 is rounding of offsets along the normal.
     (e.lambda1 > 1e-12 && e.lambda1.is_finite()).then_some(e)
 }
 
-/// The tangent basis (t1, t2) and the normalised PCA of the neighbourhood projected into it
-/// (left in `scratch`), or the free constraint of a degenerate neighbourhood (module docs).
-fn tangent_pca(
-    nb: &Neighbourhood,
-    scratch: &mut Vec<DVec2>,
-) -> Result<(DVec3, DVec3, Eigen2), PhotonConstraint> {
+/// The tangent basis (t1, t2) and the normalised PCA of the neighbourhood projected into it,
+/// or the free constraint of a degenerate neighbourhood (module docs).
+fn tangent_pca(nb: &Neighbourhood) -> Result<(DVec3, DVec3, Eigen2), PhotonConstraint> {
     let (_, t1, t2) = nb.frame();
     if nb.offsets.len() < 3 {
         return Err(PhotonConstraint::free(t1, t2, Outcome::TooFew));
@@ -328,16 +339,15 @@ fn tangent_pca(
     if !(nb.r2 > 0.0 && nb.r2.is_finite()) {
         return Err(PhotonConstraint::free(t1, t2, Outcome::Coincident));
     }
-    nb.project(t1, t2, scratch);
-    match normalised_pca(scratch, nb.r2) {
+    match normalised_pca(nb.offsets, t1, t2, nb.r2) {
         Some(e) => Ok((t1, t2, e)),
         None => Err(PhotonConstraint::free(t1, t2, Outcome::Coincident)),
     }
 }
 
 /// Eq. 2–7: the PCA constraint of a photon from its neighbourhood.
-pub fn pca_constraint(nb: &Neighbourhood, noise: NoiseModel, scratch: &mut Vec<DVec2>) -> PhotonConstraint {
-    let (t1, t2, e) = match tangent_pca(nb, scratch) {
+pub fn pca_constraint(nb: &Neighbourhood, noise: NoiseModel) -> PhotonConstraint {
+    let (t1, t2, e) = match tangent_pca(nb) {
         Ok(x) => x,
         Err(free) => return free,
     };
@@ -369,10 +379,11 @@ pub fn gradient_constraint(
     gain: f64,
     scratch: &mut Vec<DVec2>,
 ) -> PhotonConstraint {
-    let (t1, t2, e) = match tangent_pca(nb, scratch) {
+    let (t1, t2, e) = match tangent_pca(nb) {
         Ok(x) => x,
         Err(free) => return free,
     };
+    nb.project(t1, t2, scratch);
     let r = nb.r2.sqrt();
     let (mut grad, mut density) = (DVec2::ZERO, 0.0);
     for ((p, o), &w) in scratch.iter().zip(nb.offsets).zip(weights) {
@@ -633,7 +644,7 @@ fn detect_in_order(
             let hood = Neighbourhood { offsets: &offsets, r2, normal };
             *res =
                 match p.method {
-                    Method::ParamPca | Method::WorldPca => pca_constraint(&hood, p.noise, &mut scratch),
+                    Method::ParamPca | Method::WorldPca => pca_constraint(&hood, p.noise),
                     Method::Gradient => {
                         weights.clear();
                         weights.extend(nb.indices().map(|j| {

@@ -175,19 +175,16 @@ fn flat(p: [f64; 2]) -> DVec3 {
 
 #[test]
 fn pca_holds_a_half_disc_across_its_edge_and_frees_a_full_disc() {
-    let mut scratch = Vec::new();
     let z = Some([0.0f32, 0.0, 1.0]);
     // A photon on the straight edge x = 0 of a lit half-plane x < 0.
     let (o, r2) = hood(&disc_points(49, 5, |p| p[0] < 0.0), flat);
-    let c =
-        pca_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, NoiseModel::Simulated, &mut scratch);
+    let c = pca_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, NoiseModel::Simulated);
     assert_eq!(c.outcome, Outcome::Measured);
     assert!(c.factor < 0.1, "edge factor {}", c.factor);
     assert!(c.u[1].abs() > 0.95, "u_b along the edge: {:?}", c.u);
     // A photon inside a uniform region.
     let (o, r2) = hood(&disc_points(49, 6, |_| true), flat);
-    let c =
-        pca_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, NoiseModel::Simulated, &mut scratch);
+    let c = pca_constraint(&Neighbourhood { offsets: &o, r2, normal: z }, NoiseModel::Simulated);
     assert!(c.factor > 0.8, "uniform factor {} (λ2 {})", c.factor, c.lambda2);
     let v = DVec3::from(c.v.map(|x| x as f64));
     assert!((v.length() - c.factor as f64).abs() < 1e-6, "|v_b| is the factor");
@@ -200,7 +197,7 @@ fn degenerate_neighbourhoods_get_documented_finite_constraints() {
     let z = Some([0.0f32, 0.0, 2.5]);
     let run = |o: &[DVec3], normal: Option<[f32; 3]>, s: &mut Vec<DVec2>| {
         let r2 = o.iter().map(|o| o.length_squared()).fold(0.0, f64::max);
-        let c = pca_constraint(&Neighbourhood { offsets: o, r2, normal }, NoiseModel::Simulated, s);
+        let c = pca_constraint(&Neighbourhood { offsets: o, r2, normal }, NoiseModel::Simulated);
         let g = gradient_constraint(&Neighbourhood { offsets: o, r2, normal }, &vec![1.0; o.len()], 0.6, s);
         for x in [&c, &g] {
             assert!(x.u.iter().chain(&x.v).chain([&x.lambda2, &x.factor]).all(|v| v.is_finite()), "{x:?}");
@@ -232,20 +229,17 @@ fn degenerate_neighbourhoods_get_documented_finite_constraints() {
 
 #[test]
 fn pca_ignores_the_normals_length_and_the_scenes_scale() {
-    let mut s = Vec::new();
     let pts = disc_points(49, 8, |p| p[0] + 0.3 * p[1] < 0.2);
     let (o, r2) = hood(&pts, flat);
     let base = pca_constraint(
         &Neighbourhood { offsets: &o, r2, normal: Some([0.0, 0.0, 1.0]) },
         NoiseModel::Simulated,
-        &mut s,
     );
     for (scale, len) in [(1e-6, 1.0f32), (1e6, 1.0), (1.0, 1e-3), (1.0, 1e4)] {
         let o: Vec<DVec3> = o.iter().map(|x| *x * scale).collect();
         let c = pca_constraint(
             &Neighbourhood { offsets: &o, r2: r2 * scale * scale, normal: Some([0.0, 0.0, len]) },
             NoiseModel::Simulated,
-            &mut s,
         );
         assert!(
             (c.lambda2 - base.lambda2).abs() < 1e-6 && (c.factor - base.factor).abs() < 1e-6,
@@ -335,7 +329,6 @@ fn param_pca_neighbourhoods_equal_a_brute_force_gather() {
     let d = detect(&inp, &p, &|_| {}).unwrap();
     let points = inp.points(true);
     let r = d.r_param.as_ref().unwrap();
-    let mut s = Vec::new();
     for i in (0..m.len()).step_by(37) {
         let nb =
             crate::spatial::brute_force_knn(&points, Space::WorldParams, &points.query(i, Some(r[i])), p.kc);
@@ -348,8 +341,7 @@ fn param_pca_neighbourhoods_equal_a_brute_force_gather() {
             })
             .collect();
         let r2 = o.iter().map(|x| x.length_squared()).fold(0.0, f64::max);
-        let c =
-            pca_constraint(&Neighbourhood { offsets: &o, r2, normal: Some(m.normal[i]) }, p.noise, &mut s);
+        let c = pca_constraint(&Neighbourhood { offsets: &o, r2, normal: Some(m.normal[i]) }, p.noise);
         assert_eq!((c.u, c.v, c.lambda2), (d.basis_u[i], d.basis_v[i], d.lambda2[i]), "photon {i}");
     }
 }

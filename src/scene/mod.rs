@@ -94,6 +94,9 @@ pub struct Scene {
     /// When every triangle belongs to one surface and that mesh is convex: the surface and
     /// the centroid of its vertices (see [`Scene::leaves_convex_mesh`]).
     convex_mesh: Option<(u32, Vec3)>,
+    /// The box around every mirror and dielectric surface, padded by the ray offset; `None`
+    /// when one is unbounded (see [`Scene::may_meet_specular`]).
+    specular_box: Option<(Vec3, Vec3)>,
 }
 
 impl Scene {
@@ -112,6 +115,7 @@ impl Scene {
             bvh: bvh::Bvh::default(),
             ray_offset: RAY_OFFSET_FALLBACK_M,
             convex_mesh: None,
+            specular_box: None,
         }
     }
 
@@ -171,6 +175,52 @@ impl Scene {
         self.bvh = bvh::Bvh::build(&self.triangles);
         self.ray_offset = self.compute_ray_offset();
         self.convex_mesh = self.find_convex_mesh();
+        self.specular_box = self.find_specular_box();
+    }
+
+    /// See [`Self::specular_box`]. With no specular surface the box is empty (every ray
+    /// misses it).
+    fn find_specular_box(&self) -> Option<(Vec3, Vec3)> {
+        let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+        for (shape, id) in &self.analytic {
+            if !self.material(*id).is_specular() {
+                continue;
+            }
+            if matches!(shape, Shape::Plane { .. }) {
+                return None;
+            }
+            for p in shape.extent_points() {
+                (lo, hi) = (lo.min(p), hi.max(p));
+            }
+        }
+        for (tri, info) in self.triangles.iter().zip(&self.tri_info) {
+            if self.material(info.surface).is_specular() {
+                for &p in tri {
+                    (lo, hi) = (lo.min(p), hi.max(p));
+                }
+            }
+        }
+        let pad = Vec3::splat(self.ray_offset);
+        Some((lo - pad, hi + pad))
+    }
+
+    /// Whether the ray (from its origin on) may meet a mirror or dielectric surface: false
+    /// only when it misses the box around all of them. The tracer stops a photon whose
+    /// emission ray cannot meet one: its first hit is diffuse (or nothing), so it can never
+    /// be a caustic photon.
+    pub fn may_meet_specular(&self, ray: &Ray) -> bool {
+        let Some((lo, hi)) = self.specular_box else { return true };
+        if lo.cmpgt(hi).any() {
+            return false; // no specular surface at all
+        }
+        let inv = ray.dir.recip();
+        let (t0, t1) = ((lo - ray.origin) * inv, (hi - ray.origin) * inv);
+        if t0.is_nan() || t1.is_nan() {
+            return true; // a ray in a slab's plane: decide nothing
+        }
+        let enter = t0.min(t1).max_element().max(0.0);
+        let exit = t0.max(t1).min_element();
+        enter <= exit
     }
 
     /// The scene's only mesh surface and its vertices' centroid, if the mesh is convex: each
@@ -466,6 +516,45 @@ material = "floor"
                 (s.intersect(&r, 1e-4, f32::INFINITY), s.intersect_brute_force(&r, 1e-4, f32::INFINITY));
             assert_eq!(a.map(|h| (h.shape, h.t)), b.map(|h| (h.shape, h.t)));
         }
+    }
+
+    /// A ray `may_meet_specular` turns away never has a mirror or dielectric as its first
+    /// hit (the brute-force scan says so), on sample scenes with meshes and analytic
+    /// shapes; rays are turned away and let through, so the check is not vacuous. A scene
+    /// without specular surfaces turns every ray away; one with an infinite mirror, none.
+    #[test]
+    fn rays_that_miss_the_specular_box_never_meet_a_specular_surface_first() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(12);
+        for name in ["prism", "glass-sphere", "ring", "reflector", "point-glass"] {
+            let path = Path::new(env!("CARGO_MANIFEST_DIR")).join(format!("samples/scenes/{name}.toml"));
+            let scene = Scene::load(&path).unwrap();
+            let (lo, hi) = scene.bounds();
+            let (mut away, mut through) = (0, 0);
+            for _ in 0..20_000 {
+                let o = lo + (hi - lo) * Vec3::new(rng.random(), rng.random(), rng.random());
+                let w = Vec3::new(
+                    rng.random::<f32>() - 0.5,
+                    rng.random::<f32>() - 0.5,
+                    rng.random::<f32>() - 0.5,
+                );
+                let Some(dir) = w.try_normalize() else { continue };
+                let ray = Ray::new(o, dir);
+                if scene.may_meet_specular(&ray) {
+                    through += 1;
+                    continue;
+                }
+                away += 1;
+                if let Some(h) = scene.intersect_brute_force(&ray, 0.0, f32::INFINITY) {
+                    assert!(!scene.material(h.shape).is_specular(), "{name}: {ray:?} meets {h:?}");
+                }
+            }
+            assert!(away > 200 && through > 200, "{name}: {away} turned away, {through} let through");
+        }
+        let plain = parse(BASE).unwrap();
+        assert!(!plain.may_meet_specular(&Ray::new(Vec3::new(0.0, 0.0, 2.0), Vec3::NEG_Z)));
+        let mirror = parse(&BASE.replace("material = \"floor\"", "material = \"glass\"")).unwrap();
+        assert!(mirror.may_meet_specular(&Ray::new(Vec3::new(0.0, 0.0, 2.0), Vec3::Z)));
     }
 
     #[test]

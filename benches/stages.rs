@@ -11,9 +11,13 @@
 //!
 //! Costs are CPU seconds of the whole process (user + system, /proc/self/stat) divided by the
 //! photons (and iterations): the cost per photon per core, which other processes sharing the
-//! machine do not inflate the way they inflate wall-clock time. Wall time is printed beside.
+//! machine do not inflate the way they inflate wall-clock time. Wall time is printed beside,
+//! and the clock speed the machine gave one thread before and after (`common/clock.rs`).
 //! The paper's figures (7-core Core i7, 863 k photons): detection 5.3 s (≈ 43 µs per photon
 //! per core), relaxation 28.4 s for 14 iterations (≈ 16.5 µs per photon-iteration per core).
+
+#[path = "common/clock.rs"]
+mod clock;
 
 use std::time::Instant;
 
@@ -49,6 +53,7 @@ fn main() {
     let ph = traced.photons();
     let n = ph.len();
     println!("default scene: {emitted} emitted, {n} stored; {threads} threads");
+    println!("{}", clock::line("before"));
     println!("\n| stage | CPU s | wall s | µs per photon (per iteration) per core | paper | goal |");
     println!("| --- | --- | --- | --- | --- | --- |");
     let row = |stage: &str, c: f64, w: f64, per: f64, paper: &str, goal: &str| {
@@ -150,4 +155,5 @@ fn main() {
         row("  of which index rebuilds", build_c, build_w, per, "-", "-");
         row("  of which iterations (search, force, move)", c - build_c, w - build_w, per, "-", "-");
     }
+    println!("\n{}", clock::line("after"));
 }

@@ -2,7 +2,8 @@
 //! a blue-noise set, each moving only within its constraint basis.
 //!
 //! One iteration is Jacobi style: every photon's force is computed from the same snapshot of
-//! positions, then all photons move, then the neighbour index is rebuilt. Motion lies in the
+//! positions, then all photons move, then the neighbour index is brought up to date (refitted
+//! to the moved photons, rebuilt every [`REBUILD_EVERY`] iterations). Motion lies in the
 //! photon's tangent plane, so photons on planar receivers stay on them; flux never changes, so
 //! the total flux is preserved exactly.
 

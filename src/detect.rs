@@ -516,7 +516,8 @@ pub fn param_radius(
     let mut radius = vec![0f32; points.len()];
     let mut found = vec![0f32; order.len()];
     found.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
-        let mut nb = Neighbours::unordered(k_density);
+        // Only the k-th distance is needed: no coordinates.
+        let mut nb = Neighbours::unordered(k_density).without_coords();
         for (o, (r, &i)) in out.iter_mut().zip(ids).enumerate() {
             if let Some(&a) = ids.get(o + crate::spatial::PREFETCH_AHEAD) {
                 points.prefetch(a as usize);

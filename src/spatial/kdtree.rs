@@ -388,7 +388,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         }
         s.finish(out.ordered);
         out.tree = id;
-        out.far2 = self.emit(&out.cands, &mut out.items, &mut out.coords, &mut out.slots);
+        let coords = out.with_coords.then_some(&mut out.coords);
+        out.far2 = self.emit(&out.cands, &mut out.items, coords, &mut out.slots);
     }
 
     /// Writes the candidates `cands` as a result, and returns their largest distance². Each
@@ -398,16 +399,18 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         &self,
         cands: &[Cand],
         items: &mut Vec<Neighbour>,
-        coords: &mut Vec<[f32; 3]>,
+        coords: Option<&mut Vec<[f32; 3]>>,
         slots: &mut Vec<u32>,
     ) -> f32 {
         items.clear();
         items.extend(cands.iter().map(|c| Neighbour { dist2: c.dist2(), index: c.key as u32 }));
-        coords.clear();
-        coords.extend(cands.iter().map(|c| {
-            let r = &self.recs[c.slot as usize];
-            std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 })
-        }));
+        if let Some(coords) = coords {
+            coords.clear();
+            coords.extend(cands.iter().map(|c| {
+                let r = &self.recs[c.slot as usize];
+                std::array::from_fn(|a| if a < W { r.w[a] } else { 0.0 })
+            }));
+        }
         slots.clear();
         slots.extend(cands.iter().map(|c| c.slot));
         cands.iter().fold(0.0, |m, c| larger(m, c.dist2()))
@@ -794,7 +797,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             cands.sort_unstable_by_key(|c| c.key);
         }
         out.tree = self.build;
-        out.far2 = self.emit(cands, &mut out.items, &mut out.coords, &mut out.slots);
+        let coords = out.with_coords.then_some(&mut out.coords);
+        out.far2 = self.emit(cands, &mut out.items, coords, &mut out.slots);
         true
     }
 }

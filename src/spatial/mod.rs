@@ -257,6 +257,8 @@ pub struct Neighbours {
     group: kdtree::Group,
     /// Whether results are sorted (see [`Self::unordered`]).
     ordered: bool,
+    /// Whether results carry coordinates (see [`Self::without_coords`]).
+    with_coords: bool,
     /// Queries answered from a group's candidates (for tests and tuning).
     pub(crate) group_answers: u64,
 }
@@ -278,6 +280,7 @@ impl Neighbours {
             cands: Vec::with_capacity(2 * k),
             group: Default::default(),
             ordered: true,
+            with_coords: true,
             group_answers: 0,
         }
     }
@@ -287,6 +290,12 @@ impl Neighbours {
     /// that need only the set or the farthest ([`Self::max_dist2`]).
     pub fn unordered(k: usize) -> Self {
         Neighbours { ordered: false, ..Neighbours::with_capacity(k) }
+    }
+
+    /// The same buffer, but its results leave [`Self::coords`] empty: for callers that need
+    /// only the neighbours' distances or indices (it saves copying k coordinates per query).
+    pub fn without_coords(self) -> Self {
+        Neighbours { with_coords: false, ..self }
     }
 
     /// The largest squared distance found (the k-th nearest's when k were found).
@@ -313,7 +322,8 @@ impl Neighbours {
     /// The neighbours' coordinates in the index's distance space, in the order of
     /// [`Self::as_slice`]: their world positions in [`Space::World`] and [`Space::WorldParams`]
     /// (the index's copy, already in cache: cheaper than looking photons up by index), their
-    /// parameters (zero-padded) in [`Space::Params`]. Empty after a [`BoxTree`] query.
+    /// parameters (zero-padded) in [`Space::Params`]. Empty after a [`BoxTree`] query, and
+    /// for a buffer made [`Self::without_coords`].
     pub fn coords(&self) -> &[[f32; 3]] {
         &self.coords
     }

@@ -335,6 +335,7 @@ fn queries_in_leaf_order_with_a_reused_buffer_equal_brute_force_and_return_posit
     {
         let index = SpatialIndex::build(&set, space).unwrap();
         let (mut out, mut set_only) = (Neighbours::default(), Neighbours::unordered(k));
+        let mut bare = Neighbours::unordered(k).without_coords();
         for i in index.order() {
             let i = i as usize;
             let q = set.query(i, Some(radius[i]));
@@ -351,6 +352,10 @@ fn queries_in_leaf_order_with_a_reused_buffer_equal_brute_force_and_return_posit
             got.sort_by(|a, b| a.dist2.total_cmp(&b.dist2).then(a.index.cmp(&b.index)));
             assert_eq!(got, want, "unordered, space {space:?}, k {k}, photon {i}");
             assert_eq!(set_only.max_dist2(), want.last().map(|n| n.dist2));
+            // Without coordinates: the same neighbours in the same order, and no coordinates.
+            index.knn(&q, k, &mut bare);
+            assert_eq!(bare.as_slice(), set_only.as_slice(), "bare, space {space:?}, k {k}, photon {i}");
+            assert!(bare.coords().is_empty());
         }
         // Queries were answered from their leaf's gathered candidates, not a search: most of
         // them where every ball holds k photons; fewer where the random radii (the stages'

@@ -310,6 +310,20 @@ mod props {
     }
 }
 
+/// `n` photons with parameters (u, v) uniform in the unit square, whose two halves land on
+/// overlapping strips of the plane z = 0 (Fig. 3's fold): world and parameter neighbours differ.
+fn folded_sheet(n: usize, rng: &mut Pcg64Mcg) -> Owned {
+    let mut pos = Vec::with_capacity(n);
+    let mut params = Vec::with_capacity(2 * n);
+    for _ in 0..n {
+        let (u, v) = (rng.random::<f32>(), rng.random::<f32>());
+        let x = if u < 0.5 { 1.2 * u } else { 0.4 + 1.2 * (u - 0.5) };
+        pos.push([x, v, 0.0]);
+        params.extend([u, v]);
+    }
+    Owned { pos, params, stride: 2, dims: vec![2], emitters: None }
+}
+
 /// The stages' pattern: one result buffer reused over every photon in the index's order (so
 /// most queries start from the previous result's bound), each photon with its own radius,
 /// on a folded sheet where world neighbours and parameter neighbours differ. Every result
@@ -318,17 +332,8 @@ mod props {
 fn queries_in_leaf_order_with_a_reused_buffer_equal_brute_force_and_return_positions() {
     let mut rng = Pcg64Mcg::seed_from_u64(11);
     let n = 1500;
-    let mut pos = Vec::with_capacity(n);
-    let mut params = Vec::with_capacity(2 * n);
-    for _ in 0..n {
-        let (u, v) = (rng.random::<f32>(), rng.random::<f32>());
-        // Two halves of the parameter square land on overlapping strips (Fig. 3's fold).
-        let x = if u < 0.5 { 1.2 * u } else { 0.4 + 1.2 * (u - 0.5) };
-        pos.push([x, v, 0.0]);
-        params.extend([u, v]);
-    }
+    let o = folded_sheet(n, &mut rng);
     let radius: Vec<f32> = (0..n).map(|_| 0.02 + 0.1 * rng.random::<f32>()).collect();
-    let o = Owned { pos, params, stride: 2, dims: vec![2], emitters: None };
     let set = o.set();
     for (space, k) in
         [(Space::WorldParams, 17), (Space::WorldParams, 50), (Space::Params, 50), (Space::World, 17)]
@@ -458,16 +463,8 @@ fn a_forgotten_buffer_answers_in_the_order_of_a_fresh_one() {
 fn a_refitted_index_equals_brute_force_after_small_and_large_moves() {
     let mut rng = Pcg64Mcg::seed_from_u64(13);
     let n = 2500;
-    let mut pos = Vec::with_capacity(n);
-    let mut params = Vec::with_capacity(2 * n);
-    for _ in 0..n {
-        let (u, v) = (rng.random::<f32>(), rng.random::<f32>());
-        let x = if u < 0.5 { 1.2 * u } else { 0.4 + 1.2 * (u - 0.5) };
-        pos.push([x, v, 0.0]);
-        params.extend([u, v]);
-    }
+    let mut o = folded_sheet(n, &mut rng);
     let radius: Vec<f32> = (0..n).map(|_| 0.03 + 0.1 * rng.random::<f32>()).collect();
-    let mut o = Owned { pos, params, stride: 2, dims: vec![2], emitters: None };
     for (space, k) in [(Space::WorldParams, 17), (Space::WorldParams, 50), (Space::World, 17)] {
         let start = o.pos.clone();
         let mut index = SpatialIndex::build(&o.set(), space).unwrap();

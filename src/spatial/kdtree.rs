@@ -208,6 +208,7 @@ static BUILDS: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(
 impl<const W: usize, const P: usize> KdTree<W, P> {
     /// Builds over `recs`, reusing this tree's allocations.
     pub fn rebuild(&mut self, fill: impl FnOnce(&mut Vec<Rec<W, P>>), weights: Option<Weights>) {
+        const { assert!(W + P > 0, "a tree has at least one axis") };
         self.build = BUILDS.fetch_add(1, Ordering::Relaxed);
         self.refitted = false;
         self.recs.clear();
@@ -223,31 +224,22 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         // The leaves and the records by axis, which groups scan (module docs).
         self.leaves.clear();
         leaf_ranges(0, n, &mut self.leaves);
-        let recs = &self.recs;
-        self.leaves.par_iter_mut().for_each(|l| {
-            let (lo, hi) = bounds(&recs[l.lo as usize..l.hi as usize]);
-            l.lo_w = std::array::from_fn(|a| lo[a]);
-            l.hi_w = std::array::from_fn(|a| hi[a]);
-            l.lo_p = std::array::from_fn(|a| lo[W + a]);
-            l.hi_p = std::array::from_fn(|a| hi[W + a]);
-        });
-        let nan = [Vec4::NAN; BLOCKS];
         self.axes.clear();
-        self.axes.resize(self.leaves.len() * (W + P), nan);
+        self.axes.resize(self.leaves.len() * (W + P), [Vec4::NAN; BLOCKS]);
         self.ids.clear();
         self.ids.resize(self.leaves.len(), [u32::MAX; SLOTS]);
-        if W + P > 0 {
-            self.axes.par_chunks_mut(W + P).zip(self.ids.par_iter_mut()).zip(&self.leaves).for_each(
-                |((axes, ids), l)| {
-                    for (i, r) in recs[l.lo as usize..l.hi as usize].iter().enumerate() {
-                        for (a, lanes) in axes.iter_mut().enumerate() {
-                            lanes[i / 4][i % 4] = r.coord(a);
-                        }
-                        ids[i] = r.idx;
-                    }
-                },
-            );
-        }
+        let recs = &self.recs;
+        self.leaves
+            .par_iter_mut()
+            .zip(self.axes.par_chunks_mut(W + P))
+            .zip(self.ids.par_iter_mut())
+            .for_each(|((l, axes), ids)| {
+                let leaf = &recs[l.lo as usize..l.hi as usize];
+                fit_leaf(l, leaf, axes);
+                for (id, r) in ids.iter_mut().zip(leaf) {
+                    *id = r.idx;
+                }
+            });
     }
 
     /// Moves every record to new distance coordinates, `w_of(index)`, keeping its ball
@@ -260,19 +252,10 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         self.refitted = true;
         self.recs.par_iter_mut().for_each(|r| r.w = w_of(r.idx));
         let recs = &self.recs;
-        if W + P > 0 {
-            self.leaves.par_iter_mut().zip(self.axes.par_chunks_mut(W + P)).for_each(|(l, axes)| {
-                let leaf = &recs[l.lo as usize..l.hi as usize];
-                let (lo, hi) = bounds(leaf);
-                l.lo_w = std::array::from_fn(|a| lo[a]);
-                l.hi_w = std::array::from_fn(|a| hi[a]);
-                for (i, r) in leaf.iter().enumerate() {
-                    for (lanes, &c) in axes.iter_mut().zip(&r.w) {
-                        lanes[i / 4][i % 4] = c;
-                    }
-                }
-            });
-        }
+        self.leaves
+            .par_iter_mut()
+            .zip(self.axes.par_chunks_mut(W + P))
+            .for_each(|(l, axes)| fit_leaf(l, &recs[l.lo as usize..l.hi as usize], axes));
         if !self.nodes.is_empty() {
             refit_node(&mut self.nodes, &self.leaves, 0, 0, self.recs.len(), 0);
         }
@@ -920,6 +903,25 @@ fn build_node<const W: usize, const P: usize>(
     } else {
         build_node(lrecs, lnodes, base + 1, leaf, weights);
         build_node(rrecs, rnodes, base + 1 + left_nodes, leaf + left_nodes + 1, weights);
+    }
+}
+
+/// Sets leaf `l`'s box from its records `recs` and writes their coordinates into the leaf's
+/// lanes `axes` (one entry per axis, [`KdTree::axes`]).
+fn fit_leaf<const W: usize, const P: usize>(
+    l: &mut Leaf<W, P>,
+    recs: &[Rec<W, P>],
+    axes: &mut [[Vec4; BLOCKS]],
+) {
+    let (lo, hi) = bounds(recs);
+    l.lo_w = std::array::from_fn(|a| lo[a]);
+    l.hi_w = std::array::from_fn(|a| hi[a]);
+    l.lo_p = std::array::from_fn(|a| lo[W + a]);
+    l.hi_p = std::array::from_fn(|a| hi[W + a]);
+    for (i, r) in recs.iter().enumerate() {
+        for (a, lanes) in axes.iter_mut().enumerate() {
+            lanes[i / 4][i % 4] = r.coord(a);
+        }
     }
 }
 

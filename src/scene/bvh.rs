@@ -409,8 +409,15 @@ fn partition(v: &mut [u32], pred: impl Fn(u32) -> bool) -> usize {
 /// Entry distance of the ray into the node's box, if it enters within (`t_min`, `t_max`).
 #[inline(always)]
 fn slab(n: &Node, o: Vec3, inv: Vec3, t_min: f32, t_max: f32) -> Option<f32> {
-    let t0 = (n.min - o) * inv;
-    let t1 = (n.max - o) * inv;
+    ray_box(n.min, n.max, o, inv, t_min, t_max)
+}
+
+/// Entry distance of the ray from `o` with inverse direction `inv` into the box
+/// [`min`, `max`], if it enters within (`t_min`, `t_max`).
+#[inline(always)]
+pub(crate) fn ray_box(min: Vec3, max: Vec3, o: Vec3, inv: Vec3, t_min: f32, t_max: f32) -> Option<f32> {
+    let t0 = (min - o) * inv;
+    let t1 = (max - o) * inv;
     // min/max that ignore the NaN of 0·∞ (a ray in a slab's plane).
     let near = t0.min(t1).max_element().max(t_min);
     let far = t0.max(t1).min_element().min(t_max);

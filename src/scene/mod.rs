@@ -213,14 +213,7 @@ impl Scene {
         if lo.cmpgt(hi).any() {
             return false; // no specular surface at all
         }
-        let inv = ray.dir.recip();
-        let (t0, t1) = ((lo - ray.origin) * inv, (hi - ray.origin) * inv);
-        if t0.is_nan() || t1.is_nan() {
-            return true; // a ray in a slab's plane: decide nothing
-        }
-        let enter = t0.min(t1).max_element().max(0.0);
-        let exit = t0.max(t1).min_element();
-        enter <= exit
+        bvh::ray_box(lo, hi, ray.origin, ray.dir.recip(), 0.0, f32::INFINITY).is_some()
     }
 
     /// The scene's only mesh surface and its vertices' centroid, if the mesh is convex: each

@@ -129,7 +129,8 @@ fn main() {
         let (mut build_c, mut build_w) = (0.0, 0.0);
         let (relaxed, c, w) = measure(|| {
             for it in 0..rp.iterations {
-                // As relax_map: the index is rebuilt over the snapshot, reusing its allocations.
+                // As relax_map: the index is brought up to the snapshot (built, refitted, or
+                // rebuilt every `relax::REBUILD_EVERY` iterations; the "index rebuilds" row).
                 snapshot.copy_from_slice(&pos);
                 let pts = PointSet {
                     positions: &snapshot,

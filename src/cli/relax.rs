@@ -13,9 +13,9 @@ use photonkit::scene::{DEFAULT_SCENE, Scene};
 ///
 /// Each iteration pushes every photon away from its Kf nearest neighbours (Eq. 8), projects
 /// the push onto its constraint basis from `detect` (Eq. 9), moves all photons at once and
-/// updates the neighbour index (exact neighbours every iteration). Before `collapse`, neighbours are restricted to the photon's
-/// parameter-space radius exactly as `detect` restricted them; after it, they are found in
-/// world space. Without constraint columns photons move freely in their tangent plane
+/// updates the neighbour index (exact neighbours every iteration). Before `collapse`,
+/// neighbours are restricted to the photon's parameter-space radius exactly as `detect`
+/// restricted them; after it, they are found in world space. Without constraint columns photons move freely in their tangent plane
 /// (the map says so in its history). Flux is never changed: the total is preserved exactly.
 #[derive(clap::Args)]
 pub struct Args {

@@ -198,12 +198,6 @@ impl Chunk {
         self.truncate(0, 0);
     }
 
-    /// A copy of exactly the stored photons: a worker's buffer is reused chunk after chunk, and
-    /// only the copy lands in fresh memory.
-    fn to_exact(&self) -> Chunk {
-        self.clone()
-    }
-
     fn truncate(&mut self, n: usize, dims: usize) {
         self.position.truncate(n);
         self.normal.truncate(n);
@@ -564,7 +558,9 @@ impl Tracer<'_> {
                     let b = (a + CHUNK).min(range.end);
                     let limited = self.chunk(a..b, buffer);
                     progress(b - a, buffer.len() as u64);
-                    (buffer.to_exact(), limited)
+                    // A copy of exactly the stored photons: the worker's buffer is reused
+                    // chunk after chunk, and only the copy lands in fresh memory.
+                    (buffer.clone(), limited)
                 },
             )
             .collect();

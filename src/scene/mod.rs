@@ -33,6 +33,8 @@ pub const DEFAULT_SCENE_NAME: &str = "<default scene: glass-sphere.toml>";
 pub const RAY_OFFSET_REL: f32 = 2.5e-5;
 /// The ray offset of a scene with no extent (a single point), metres.
 const RAY_OFFSET_FALLBACK_M: f32 = 1e-4;
+/// The pad, in ray offsets, of the boxes that must be disjoint for [`Reach::MeshFirst`].
+const MESH_APART_PAD: f32 = 4.0;
 /// Meshes up to this size are checked for convexity ([`Scene::leaves_convex_mesh`]).
 const CONVEX_CHECK_MAX_TRIANGLES: usize = 1024;
 
@@ -97,6 +99,20 @@ pub struct Scene {
     /// The box around every mirror and dielectric surface, padded by the ray offset; `None`
     /// when one is unbounded (see [`Scene::may_meet_specular`]).
     specular_box: Option<(Vec3, Vec3)>,
+    /// Whether no analytic shape comes near the box around the triangles (see
+    /// [`Scene::reach_after`]).
+    mesh_apart: bool,
+}
+
+/// Which shapes a ray continuing from a surface can meet first ([`Scene::reach_after`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Reach {
+    /// Any: [`Scene::intersect`].
+    All,
+    /// A triangle if it meets one, otherwise an analytic shape: [`Scene::intersect_mesh_first`].
+    MeshFirst,
+    /// Analytic shapes only: [`Scene::intersect_analytic`].
+    Analytic,
 }
 
 impl Scene {
@@ -116,6 +132,7 @@ impl Scene {
             ray_offset: RAY_OFFSET_FALLBACK_M,
             convex_mesh: None,
             specular_box: None,
+            mesh_apart: false,
         }
     }
 
@@ -176,6 +193,68 @@ impl Scene {
         self.ray_offset = self.compute_ray_offset();
         self.convex_mesh = self.find_convex_mesh();
         self.specular_box = self.find_specular_box();
+        self.mesh_apart = self.find_mesh_apart();
+    }
+
+    /// Whether the box around every triangle, padded by [`MESH_APART_PAD`] ray offsets, is
+    /// disjoint from the box around each analytic shape (an infinite plane: the plane
+    /// itself). False without triangles.
+    fn find_mesh_apart(&self) -> bool {
+        let Some((lo, hi)) = self.triangles.iter().flatten().fold(None, |b: Option<(Vec3, Vec3)>, &p| {
+            Some(b.map_or((p, p), |(lo, hi)| (lo.min(p), hi.max(p))))
+        }) else {
+            return false;
+        };
+        let pad = Vec3::splat(MESH_APART_PAD * self.ray_offset);
+        let (lo, hi) = (lo - pad, hi + pad);
+        if !(lo.is_finite() && hi.is_finite()) {
+            return false;
+        }
+        self.analytic.iter().all(|(shape, _)| match *shape {
+            Shape::Plane { point, normal } => {
+                // The plane misses the box when every corner is on one side.
+                let centre_side = ((lo + hi) * 0.5 - point).dot(normal);
+                centre_side.abs() > ((hi - lo) * 0.5).dot(normal.abs())
+            }
+            _ => {
+                let pts = shape.extent_points();
+                let slo = pts.iter().fold(Vec3::INFINITY, |a, &p| a.min(p));
+                let shi = pts.iter().fold(Vec3::NEG_INFINITY, |a, &p| a.max(p));
+                slo.cmpgt(hi).any() || shi.cmplt(lo).any()
+            }
+        })
+    }
+
+    /// Which shapes the ray continuing from `p` on surface `surface`, started off it along
+    /// `offset_dir` (± the unit geometric normal there), can meet first:
+    /// - [`Reach::Analytic`] when it [leaves the convex mesh](Scene::leaves_convex_mesh);
+    /// - [`Reach::MeshFirst`] when `surface` is a mesh and no analytic shape comes near the
+    ///   triangles' box: the ray starts within a ray offset of a triangle, so inside the box
+    ///   padded by [`MESH_APART_PAD`] ray offsets, and the segment to any triangle it meets
+    ///   stays inside that box, where no analytic shape is. So a triangle it meets is the
+    ///   nearest hit, and analytic shapes need testing only when it meets none;
+    /// - [`Reach::All`] otherwise.
+    #[inline]
+    pub fn reach_after(&self, surface: u32, p: Vec3, offset_dir: Vec3, ray: &Ray) -> Reach {
+        if self.leaves_convex_mesh(surface, p, offset_dir, ray) {
+            Reach::Analytic
+        } else if self.mesh_apart
+            && matches!(self.surfaces[surface as usize].geometry, SurfaceGeometry::Mesh(_))
+        {
+            Reach::MeshFirst
+        } else {
+            Reach::All
+        }
+    }
+
+    /// The nearest hit among the shapes `reach` allows (see [`Scene::reach_after`]).
+    #[inline]
+    pub fn intersect_reach(&self, ray: &Ray, reach: Reach, t_min: f32, t_max: f32) -> Option<Hit> {
+        match reach {
+            Reach::All => self.intersect(ray, t_min, t_max),
+            Reach::MeshFirst => self.intersect_mesh_first(ray, t_min, t_max),
+            Reach::Analytic => self.intersect_analytic(ray, t_min, t_max),
+        }
     }
 
     /// See [`Self::specular_box`]. With no specular surface the box is empty (every ray
@@ -354,19 +433,29 @@ impl Scene {
 
     /// The nearest surface the ray meets with `t` in (`t_min`, `t_max`).
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
-        let mut best = self.intersect_analytic(ray, t_min, t_max);
+        let best = self.intersect_analytic(ray, t_min, t_max);
         let t_best = best.map_or(t_max, |h| h.t);
-        if let Some(h) = self.bvh.intersect(ray, t_min, t_best) {
-            let info = &self.tri_info[h.index as usize];
-            let shading = match &info.vertex_normals {
-                Some([n0, n1, n2]) => (*n0 * (1.0 - h.b1 - h.b2) + *n1 * h.b1 + *n2 * h.b2)
-                    .try_normalize()
-                    .unwrap_or(info.normal),
-                None => info.normal,
-            };
-            best = Some(Hit { t: h.t, normal: info.normal, shading, shape: info.surface });
-        }
-        best
+        self.intersect_mesh(ray, t_min, t_best).or(best)
+    }
+
+    /// The nearest triangle hit, else the nearest analytic one: the nearest hit of a ray
+    /// that [`Reach::MeshFirst`] describes.
+    pub fn intersect_mesh_first(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        self.intersect_mesh(ray, t_min, t_max).or_else(|| self.intersect_analytic(ray, t_min, t_max))
+    }
+
+    /// The nearest hit on the mesh triangles alone.
+    #[inline]
+    fn intersect_mesh(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
+        let h = self.bvh.intersect(ray, t_min, t_max)?;
+        let info = &self.tri_info[h.index as usize];
+        let shading = match &info.vertex_normals {
+            Some([n0, n1, n2]) => {
+                (*n0 * (1.0 - h.b1 - h.b2) + *n1 * h.b1 + *n2 * h.b2).try_normalize().unwrap_or(info.normal)
+            }
+            None => info.normal,
+        };
+        Some(Hit { t: h.t, normal: info.normal, shading, shape: info.surface })
     }
 
     /// The nearest hit on the analytic shapes alone (the mesh triangles skipped).
@@ -601,5 +690,72 @@ material = "floor"
         }
         // About half the rays start outside.
         assert!((80_000..120_000).contains(&skipped), "{skipped}");
+    }
+
+    #[test]
+    fn a_triangle_met_by_a_ray_leaving_a_mesh_apart_is_the_nearest_hit() {
+        use rand::{RngExt, SeedableRng};
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes");
+        let cube = "[[shapes]]\nkind = \"extrusion\"\nmaterial = \"glass\"\noutline = [[0,0],[1,0],[1,1],[0,1]]\n\
+                    z_range = [1, 1.5]\n";
+        let with = |shape: &str| {
+            parse(&format!("{BASE}\n{cube}\n[[shapes]]\nmaterial = \"floor\"\n{shape}\n")).unwrap()
+        };
+        let mut scenes: Vec<(&str, Scene)> = ["prism", "cognac", "water", "point-glass", "reflector"]
+            .into_iter()
+            .map(|name| (name, Scene::load(&dir.join(format!("{name}.toml"))).unwrap()))
+            .collect();
+        // A sphere half inside the cube: not apart.
+        scenes.push(("cube and sphere", with("kind = \"sphere\"\ncenter = [0.5, 0.5, 1.5]\nradius = 0.3")));
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(13);
+        for (name, scene) in &scenes {
+            let apart = *name != "cube and sphere";
+            assert_eq!(scene.mesh_apart, apart, "{name}");
+            // Rays leaving random points of random triangles as the tracer starts them, to
+            // either side, in random directions (grazing ones included), checked by brute force.
+            let rays = (20_000_000 / scene.triangles.len()).min(20_000);
+            let mut first = 0;
+            for _ in 0..rays {
+                let k = rng.random_range(0..scene.triangles.len());
+                let [a, b, c] = scene.triangles[k];
+                let (mut u, mut v) = (rng.random::<f32>(), rng.random::<f32>());
+                if u + v > 1.0 {
+                    (u, v) = (1.0 - u, 1.0 - v);
+                }
+                let p = a + (b - a) * u + (c - a) * v;
+                let n = scene.tri_info[k].normal;
+                let side = if rng.random::<bool>() { n } else { -n };
+                let w = Vec3::new(
+                    rng.random::<f32>() - 0.5,
+                    rng.random::<f32>() - 0.5,
+                    rng.random::<f32>() - 0.5,
+                );
+                let tangent = (w - n * w.dot(n)).normalize_or_zero();
+                let lift =
+                    if rng.random::<bool>() { rng.random::<f32>() } else { rng.random::<f32>() * 1e-3 };
+                let Some(d) = (tangent + side * lift).try_normalize() else { continue };
+                let ray = Ray::new(p + side * scene.ray_offset(), d);
+                let reach = scene.reach_after(scene.tri_info[k].surface, p, side, &ray);
+                assert_eq!(reach == Reach::MeshFirst, apart && reach != Reach::Analytic);
+                let got = scene.intersect_reach(&ray, reach, 0.0, f32::INFINITY);
+                let want = scene.intersect_brute_force(&ray, 0.0, f32::INFINITY);
+                assert_eq!(
+                    got.map(|h| (h.t, h.normal, h.shape)),
+                    want.map(|h| (h.t, h.normal, h.shape)),
+                    "{name}"
+                );
+                first += (reach == Reach::MeshFirst) as usize;
+            }
+            assert!(!apart || first > rays / 3, "{name}: {first} of {rays}");
+        }
+        // A sphere inside the mesh's box, or a plane through it, or a floor closer than the
+        // pad: not apart. The same floor far enough below: apart.
+        assert!(!with("kind = \"sphere\"\ncenter = [0.5, 0.5, 1.2]\nradius = 0.1").mesh_apart);
+        assert!(!with("kind = \"plane\"\npoint = [0, 0, 1.4]\nnormal = [1, 1, 1]").mesh_apart);
+        let gap =
+            |g: f32| format!("kind = \"plane\"\npoint = [0, 0, {}]\nnormal = [0, 0, 1]", 1.0 - g * 5e-5);
+        assert_eq!(with(&gap(0.0)).ray_offset(), 5e-5, "extent 2 m");
+        assert!(!with(&gap(2.0)).mesh_apart);
+        assert!(with(&gap(8.0)).mesh_apart);
     }
 }

@@ -29,7 +29,7 @@ use crate::format::{
 use crate::scene::material::{
     WAVELENGTH_RANGE_NM, fresnel_cosines, reflect, refract_unnormalised, wavelength_rgb_tabulated,
 };
-use crate::scene::{Dielectric, Material, Ray, Scene};
+use crate::scene::{Dielectric, Material, Ray, Reach, Scene};
 use halton::{Halton, PhotonRng};
 pub use merge::merge;
 
@@ -606,14 +606,10 @@ impl Tracer<'_> {
         let mut ior: Option<(&Dielectric, f32)> = None;
         let mut specular = 0u32;
         let mut path = 0.0f32;
-        // The ray has just left the scene's convex mesh, which it cannot meet again.
-        let mut outside_mesh = false;
+        // Which shapes the ray can meet first (the emission ray: any).
+        let mut reach = Reach::All;
         loop {
-            let found = if outside_mesh {
-                scene.intersect_analytic(&ray, 0.0, f32::INFINITY)
-            } else {
-                scene.intersect(&ray, 0.0, f32::INFINITY)
-            };
+            let found = scene.intersect_reach(&ray, reach, 0.0, f32::INFINITY);
             let Some(hit) = found else { return false };
             path += hit.t;
             let p = ray.at(hit.t);
@@ -649,7 +645,7 @@ impl Tracer<'_> {
                         d = reflect(ray.dir, ng); // the shading normal would send it into the surface
                     }
                     ray = Ray::new(p + ng * scene.ray_offset(), d);
-                    outside_mesh = scene.leaves_convex_mesh(hit.shape, p, ng, &ray);
+                    reach = scene.reach_after(hit.shape, p, ng, &ray);
                 }
                 Material::Dielectric(di) => {
                     if di.dispersion.is_some() && wavelength.is_none() {
@@ -685,7 +681,7 @@ impl Tracer<'_> {
                                 return false;
                             }
                             ray = Ray::new(p - ng * scene.ray_offset(), r.dir);
-                            outside_mesh = scene.leaves_convex_mesh(hit.shape, p, -ng, &ray);
+                            reach = scene.reach_after(hit.shape, p, -ng, &ray);
                         }
                         _ => {
                             let mut d = reflect(ray.dir, normal);
@@ -693,7 +689,7 @@ impl Tracer<'_> {
                                 d = reflect(ray.dir, ng);
                             }
                             ray = Ray::new(p + ng * scene.ray_offset(), d);
-                            outside_mesh = scene.leaves_convex_mesh(hit.shape, p, ng, &ray);
+                            reach = scene.reach_after(hit.shape, p, ng, &ray);
                         }
                     }
                 }

@@ -90,6 +90,24 @@ impl Packet {
 }
 
 /// A ray's origin and direction, each coordinate repeated in four lanes.
+/// Two packets' rows side by side, lanes 0–3 the first packet's and 4–7 the second's: what
+/// [`packet_pair_intersect`] loads into AVX registers as they are.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+struct PacketPair {
+    rows: [[[f32; 8]; 4]; 3],
+}
+
+impl PacketPair {
+    fn new(a: &Packet, b: &Packet) -> PacketPair {
+        let side_by_side = |r: usize, k: usize| {
+            let (a, b) = (a.rows[r][k].to_array(), b.rows[r][k].to_array());
+            std::array::from_fn(|l| if l < 4 { a[l] } else { b[l - 4] })
+        };
+        PacketPair { rows: std::array::from_fn(|r| std::array::from_fn(|k| side_by_side(r, k))) }
+    }
+}
+
 struct RayLanes {
     o: [Vec4; 3],
     d: [Vec4; 3],
@@ -122,6 +140,9 @@ pub struct Bvh {
     packets: Vec<Packet>,
     /// Input index of the triangle in each lane of each packet (`u32::MAX` for padding).
     index: Vec<u32>,
+    /// With AVX, `pairs[p]` holds packets p and p + 1 side by side (for every p but the
+    /// last); empty without AVX.
+    pairs: Vec<PacketPair>,
     /// Whether the processor has AVX, so a leaf's two packets are tested at once
     /// ([`packet_pair_intersect`]).
     avx: bool,
@@ -191,7 +212,13 @@ impl Bvh {
                 index.extend((k..k + 4).map(|j| if j < end { order[j] } else { u32::MAX }));
             }
         }
-        Bvh { nodes, packets, index, avx: avx_available() }
+        let avx = avx_available();
+        let pairs = if avx {
+            packets.windows(2).map(|w| PacketPair::new(&w[0], &w[1])).collect()
+        } else {
+            Vec::new()
+        };
+        Bvh { nodes, packets, index, pairs, avx }
     }
 
     pub fn is_empty(&self) -> bool {
@@ -214,7 +241,7 @@ impl Bvh {
     fn intersect_root_leaf(&self, root: &Node, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
         let mut best: Option<TriHit> = None;
         let mut t_best = t_max;
-        self.test_leaf(root, &RayLanes::new(ray), t_min, &mut t_best, &mut best);
+        self.test_leaf(root, ray, &RayLanes::new(ray), t_min, &mut t_best, &mut best);
         best
     }
 
@@ -231,7 +258,7 @@ impl Bvh {
         slab(node, ray.origin, inv, t_min, t_best)?;
         loop {
             if node.count > 0 {
-                self.test_leaf(node, &lanes, t_min, &mut t_best, &mut best);
+                self.test_leaf(node, ray, &lanes, t_min, &mut t_best, &mut best);
             } else {
                 let l = node.first as usize;
                 let (a, b) = (&self.nodes[l], &self.nodes[l + 1]);
@@ -280,6 +307,7 @@ impl Bvh {
     fn test_leaf(
         &self,
         node: &Node,
+        ray: &Ray,
         lanes: &RayLanes,
         t_min: f32,
         t_best: &mut f32,
@@ -289,10 +317,13 @@ impl Bvh {
         let packets = &self.packets[first..first + (node.count as usize).div_ceil(4)];
         let mut k = 0;
         while k < packets.len() {
-            let found = match packets.get(k..k + 2) {
+            let found = match k + 1 < packets.len() {
                 #[cfg(target_arch = "x86_64")]
-                // SAFETY: `avx` says the processor has AVX.
-                Some([a, b]) if self.avx => unsafe { packet_pair_intersect(a, b, lanes, t_min, *t_best) },
+                // SAFETY: `avx` says the processor has AVX; `pairs` has an entry for every
+                // packet but the last.
+                true if self.avx => unsafe {
+                    packet_pair_intersect(&self.pairs[first + k], ray, t_min, *t_best)
+                },
                 _ => packet_intersect(&packets[k], lanes, t_min, *t_best),
             };
             if let Some((lane, t, b1, b2)) = found {
@@ -495,16 +526,16 @@ fn avx_available() -> bool {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
 unsafe fn packet_pair_intersect(
-    a: &Packet,
-    b: &Packet,
-    r: &RayLanes,
+    pair: &PacketPair,
+    ray: &Ray,
     t_min: f32,
     t_max: f32,
 ) -> Option<(usize, f32, f32, f32)> {
     use std::arch::x86_64::*;
-    let row = |k: usize, e: usize| _mm256_set_m128(b.rows[k][e].into(), a.rows[k][e].into());
-    let o = [_mm256_set1_ps(r.o[0].x), _mm256_set1_ps(r.o[1].x), _mm256_set1_ps(r.o[2].x)];
-    let d = [_mm256_set1_ps(r.d[0].x), _mm256_set1_ps(r.d[1].x), _mm256_set1_ps(r.d[2].x)];
+    // SAFETY: `PacketPair` is 32-byte aligned, so each row of eight f32 is.
+    let row = |k: usize, e: usize| unsafe { _mm256_load_ps(pair.rows[k][e].as_ptr()) };
+    let o = [_mm256_set1_ps(ray.origin.x), _mm256_set1_ps(ray.origin.y), _mm256_set1_ps(ray.origin.z)];
+    let d = [_mm256_set1_ps(ray.dir.x), _mm256_set1_ps(ray.dir.y), _mm256_set1_ps(ray.dir.z)];
     let (mul, add) = (|x, y| _mm256_mul_ps(x, y), |x, y| _mm256_add_ps(x, y));
     let point =
         |k: usize| add(add(add(mul(row(k, 0), o[0]), mul(row(k, 1), o[1])), mul(row(k, 2), o[2])), row(k, 3));
@@ -531,20 +562,20 @@ unsafe fn packet_pair_intersect(
     if mask == 0 {
         return None;
     }
+    // The nearest hit lane, the first among equally near ones: the least t over the hit
+    // lanes (the others +∞; a hit lane's t is finite), then the lowest lane holding it.
+    let th = _mm256_blendv_ps(_mm256_set1_ps(f32::INFINITY), t, hit);
+    let m = _mm256_min_ps(th, _mm256_permute_ps::<0b10_11_00_01>(th));
+    let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
+    let m = _mm256_min_ps(m, _mm256_permute2f128_ps::<1>(m, m));
+    let k = (_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(th, m)) & mask).trailing_zeros() as usize;
     let lanes = |v: __m256| {
         let mut out = [0f32; 8];
         // SAFETY: `out` holds eight f32.
         unsafe { _mm256_storeu_ps(out.as_mut_ptr(), v) };
         out
     };
-    let (t, b1, b2) = (lanes(t), lanes(b1), lanes(b2));
-    let mut best: Option<usize> = None;
-    for lane in 0..8 {
-        if mask & (1 << lane) != 0 && best.is_none_or(|k| t[lane] < t[k]) {
-            best = Some(lane);
-        }
-    }
-    best.map(|k| (k, t[k], b1[k], b2[k]))
+    Some((k, lanes(t)[k], lanes(b1)[k], lanes(b2)[k]))
 }
 
 /// Every triangle tested in turn: the oracle the hierarchy is checked against.
@@ -653,9 +684,9 @@ mod tests {
             let tris = random_leaf(&mut rng, n);
             let (ray, t_max) = random_ray(&mut rng);
             let want = scalar_nearest(&tris, &ray, t_max);
-            let (a, b) = (Packet::new(&tris[..4]), Packet::new(&tris[4..]));
+            let pair = PacketPair::new(&Packet::new(&tris[..4]), &Packet::new(&tris[4..]));
             // SAFETY: AVX was detected above.
-            let got = unsafe { packet_pair_intersect(&a, &b, &RayLanes::new(&ray), 1e-4, t_max) };
+            let got = unsafe { packet_pair_intersect(&pair, &ray, 1e-4, t_max) };
             assert_eq!(bits(got), want, "{tris:?} {ray:?}");
             if let Some((k, ..)) = want {
                 hits[(k >= 4) as usize] += 1;

@@ -573,13 +573,18 @@ unsafe fn packet_pair_intersect(
     if mask == 0 {
         return None;
     }
-    // The nearest hit lane, the first among equally near ones: the least t over the hit
-    // lanes (the others +∞; a hit lane's t is finite), then the lowest lane holding it.
-    let th = _mm256_blendv_ps(_mm256_set1_ps(f32::INFINITY), t, hit);
-    let m = _mm256_min_ps(th, _mm256_permute_ps::<0b10_11_00_01>(th));
-    let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
-    let m = _mm256_min_ps(m, _mm256_permute2f128_ps::<1>(m, m));
-    let k = (_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(th, m)) & mask).trailing_zeros() as usize;
+    // The nearest hit lane, the first among equally near ones: the only one, or the least t
+    // over the hit lanes (the others +∞; a hit lane's t is finite), then the lowest lane
+    // holding it.
+    let k = if mask.count_ones() == 1 {
+        mask.trailing_zeros() as usize
+    } else {
+        let th = _mm256_blendv_ps(_mm256_set1_ps(f32::INFINITY), t, hit);
+        let m = _mm256_min_ps(th, _mm256_permute_ps::<0b10_11_00_01>(th));
+        let m = _mm256_min_ps(m, _mm256_permute_ps::<0b01_00_11_10>(m));
+        let m = _mm256_min_ps(m, _mm256_permute2f128_ps::<1>(m, m));
+        (_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_EQ_OQ>(th, m)) & mask).trailing_zeros() as usize
+    };
     let lanes = |v: __m256| {
         let mut out = [0f32; 8];
         // SAFETY: `out` holds eight f32.

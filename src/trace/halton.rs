@@ -39,6 +39,7 @@ impl Halton {
         HaltonRun {
             halton: self,
             index: start,
+            reversed: start.reverse_bits(),
             base3: Digits::new(start),
             base5: Digits::new(start),
             base7: Digits::new(start),
@@ -60,13 +61,21 @@ impl Halton {
 /// integer converts exactly, through i64: one instruction on x86-64).
 #[inline]
 fn base2(index: u64) -> f64 {
-    (index.reverse_bits() >> 11) as i64 as f64 * (1.0 / (1u64 << 53) as f64)
+    reversed_base2(index.reverse_bits())
+}
+
+/// [`base2`] of the index whose bits reversed are `reversed`.
+#[inline]
+fn reversed_base2(reversed: u64) -> f64 {
+    (reversed >> 11) as i64 as f64 * (1.0 / (1u64 << 53) as f64)
 }
 
 /// Consecutive points of the sequence, from [`Halton::run`].
 pub struct HaltonRun<'a> {
     halton: &'a Halton,
     index: u64,
+    /// The index's bits reversed, carried along (see [`HaltonRun::next_point`]).
+    reversed: u64,
     base3: Digits<3, { mirrored_digits(3) }>,
     base5: Digits<5, { mirrored_digits(5) }>,
     base7: Digits<7, { mirrored_digits(7) }>,
@@ -76,12 +85,16 @@ impl HaltonRun<'_> {
     /// The point of the current index; then moves to the next index.
     #[inline]
     pub fn next_point(&mut self) -> [f32; 4] {
-        let raw = [base2(self.index), self.base3.value(), self.base5.value(), self.base7.value()];
+        let raw = [reversed_base2(self.reversed), self.base3.value(), self.base5.value(), self.base7.value()];
         self.index = self.index.wrapping_add(1);
         if self.index == 0 {
             // Wrapped past u64::MAX, like the index.
             (self.base3, self.base5, self.base7) = (Digits::new(0), Digits::new(0), Digits::new(0));
+            self.reversed = 0;
         } else {
+            // Adding 1 flips the index's trailing ones and the zero above them, the lowest
+            // z + 1 bits (z = the new index's trailing zeros): in the mirror image, the top z + 1.
+            self.reversed ^= !0u64 << (63 - self.index.trailing_zeros());
             self.base3.increment();
             self.base5.increment();
             self.base7.increment();

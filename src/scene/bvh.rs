@@ -137,11 +137,12 @@ pub struct TriHit {
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
     nodes: Vec<Node>,
+    /// Without AVX: the packets (each leaf's from `first` on); empty with AVX.
     packets: Vec<Packet>,
     /// Input index of the triangle in each lane of each packet (`u32::MAX` for padding).
     index: Vec<u32>,
-    /// With AVX, `pairs[p]` holds packets p and p + 1 side by side (for every p but the
-    /// last); empty without AVX.
+    /// With AVX: packets 2p and 2p + 1 side by side as `pairs[p]` (each leaf starts at an
+    /// even packet); empty without AVX.
     pairs: Vec<PacketPair>,
     /// Whether the processor has AVX, so a leaf's two packets are tested at once
     /// ([`packet_pair_intersect`]).
@@ -200,11 +201,21 @@ impl Bvh {
                 Tri::new(a, b, c)
             })
             .collect();
-        // Each leaf's triangles, in the same order, go into packets of their own.
+        // Each leaf's triangles, in the same order, go into packets of their own. With AVX,
+        // each leaf also starts at an even packet and has an even number of them, padded with
+        // empty packets (their lanes never hit), so its packets pair up without overlap.
+        let avx = avx_available();
         let mut packets = Vec::with_capacity(n.div_ceil(4) + nodes.len() / 2);
         let mut index = Vec::with_capacity(packets.capacity() * 4);
+        let pad = |packets: &mut Vec<Packet>, index: &mut Vec<u32>| {
+            if avx && packets.len() % 2 == 1 {
+                packets.push(Packet::new(&[]));
+                index.extend([u32::MAX; 4]);
+            }
+        };
         for node in nodes.iter_mut().filter(|n| n.count > 0) {
             let (first, count) = (node.first as usize, node.count as usize);
+            pad(&mut packets, &mut index);
             node.first = packets.len() as u32;
             for k in (first..first + count).step_by(4) {
                 let end = (k + 4).min(first + count);
@@ -212,17 +223,17 @@ impl Bvh {
                 index.extend((k..k + 4).map(|j| if j < end { order[j] } else { u32::MAX }));
             }
         }
-        let avx = avx_available();
-        let pairs = if avx {
-            packets.windows(2).map(|w| PacketPair::new(&w[0], &w[1])).collect()
+        pad(&mut packets, &mut index);
+        let (packets, pairs) = if avx {
+            (Vec::new(), packets.chunks_exact(2).map(|w| PacketPair::new(&w[0], &w[1])).collect())
         } else {
-            Vec::new()
+            (packets, Vec::new())
         };
         Bvh { nodes, packets, index, pairs, avx }
     }
 
     pub fn is_empty(&self) -> bool {
-        self.packets.is_empty()
+        self.index.is_empty()
     }
 
     /// The nearest triangle hit with `t` in (`t_min`, `t_max`).
@@ -245,9 +256,10 @@ impl Bvh {
         if self.avx && root.count > 4 {
             const _: () = assert!(MAX_LEAF <= 8, "a leaf of more than four triangles is two packets");
             let first = root.first as usize;
-            // SAFETY: `avx` says the processor has AVX; the leaf's two packets are `first`
-            // and `first + 1`, so `pairs[first]` exists.
-            let (lane, t, b1, b2) = unsafe { packet_pair_intersect(&self.pairs[first], ray, t_min, t_max) }?;
+            // SAFETY: `avx` says the processor has AVX. The leaf's two packets are `first`
+            // (even) and `first + 1`, so `pairs[first / 2]`.
+            let (lane, t, b1, b2) =
+                unsafe { packet_pair_intersect(&self.pairs[first / 2], ray, t_min, t_max) }?;
             return Some(TriHit { t, index: self.index[first * 4 + lane], b1, b2 });
         }
         let mut best: Option<TriHit> = None;
@@ -325,23 +337,28 @@ impl Bvh {
         best: &mut Option<TriHit>,
     ) {
         let first = node.first as usize;
-        let packets = &self.packets[first..first + (node.count as usize).div_ceil(4)];
-        let mut k = 0;
-        while k < packets.len() {
-            let found = match k + 1 < packets.len() {
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: `avx` says the processor has AVX; `pairs` has an entry for every
-                // packet but the last.
-                true if self.avx => unsafe {
-                    packet_pair_intersect(&self.pairs[first + k], ray, t_min, *t_best)
-                },
-                _ => packet_intersect(&packets[k], lanes, t_min, *t_best),
+        let n = (node.count as usize).div_ceil(4);
+        let keep =
+            |found: Option<(usize, f32, f32, f32)>, k: usize, t_best: &mut f32, best: &mut Option<TriHit>| {
+                if let Some((lane, t, b1, b2)) = found {
+                    *t_best = t;
+                    *best = Some(TriHit { t, index: self.index[(first + k) * 4 + lane], b1, b2 });
+                }
             };
-            if let Some((lane, t, b1, b2)) = found {
-                *t_best = t;
-                *best = Some(TriHit { t, index: self.index[(first + k) * 4 + lane], b1, b2 });
+        #[cfg(target_arch = "x86_64")]
+        if self.avx {
+            for k in (0..n).step_by(2) {
+                // SAFETY: `avx` says the processor has AVX. The leaf starts at an even packet
+                // and has an even number (padded), so packets first + k and first + k + 1 are
+                // `pairs[(first + k) / 2]`.
+                let found =
+                    unsafe { packet_pair_intersect(&self.pairs[(first + k) / 2], ray, t_min, *t_best) };
+                keep(found, k, t_best, best);
             }
-            k += if self.avx { 2 } else { 1 };
+            return;
+        }
+        for k in 0..n {
+            keep(packet_intersect(&self.packets[first + k], lanes, t_min, *t_best), k, t_best, best);
         }
     }
 }

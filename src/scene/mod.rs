@@ -639,9 +639,33 @@ material = "floor"
         assert!(mirror.may_meet_specular(&Ray::new(Vec3::new(0.0, 0.0, 2.0), Vec3::Z)));
     }
 
+    /// A ray leaving a random point of a random triangle of `scene` as the tracer starts one:
+    /// a ray offset off it, to either side, in a random direction (grazing ones included).
+    /// Returns the triangle, the point, the side (± its unit normal) and the ray.
+    fn ray_leaving_a_triangle(
+        scene: &Scene,
+        rng: &mut rand_pcg::Pcg64Mcg,
+    ) -> Option<(usize, Vec3, Vec3, Ray)> {
+        use rand::RngExt;
+        let k = rng.random_range(0..scene.triangles.len());
+        let [a, b, c] = scene.triangles[k];
+        let (mut u, mut v) = (rng.random::<f32>(), rng.random::<f32>());
+        if u + v > 1.0 {
+            (u, v) = (1.0 - u, 1.0 - v);
+        }
+        let p = a + (b - a) * u + (c - a) * v;
+        let n = scene.tri_info[k].normal;
+        let side = if rng.random::<bool>() { n } else { -n };
+        let w = Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5);
+        let tangent = (w - n * w.dot(n)).normalize_or_zero();
+        let lift = if rng.random::<bool>() { rng.random::<f32>() } else { rng.random::<f32>() * 1e-3 };
+        let dir = (tangent + side * lift).try_normalize()?;
+        Some((k, p, side, Ray::new(p + side * scene.ray_offset(), dir)))
+    }
+
     #[test]
     fn rays_leaving_a_convex_mesh_meet_none_of_its_triangles() {
-        use rand::{RngExt, SeedableRng};
+        use rand::SeedableRng;
         let prism =
             Scene::load(&Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes/prism.toml")).unwrap();
         let Some((surface, _)) = prism.convex_mesh else { panic!("the prism is convex") };
@@ -664,21 +688,7 @@ material = "floor"
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(11);
         let mut skipped = 0;
         for _ in 0..200_000 {
-            let k = rng.random_range(0..prism.triangles.len());
-            let [a, b, c] = prism.triangles[k];
-            let (mut u, mut v) = (rng.random::<f32>(), rng.random::<f32>());
-            if u + v > 1.0 {
-                (u, v) = (1.0 - u, 1.0 - v);
-            }
-            let p = a + (b - a) * u + (c - a) * v;
-            let n = prism.tri_info[k].normal;
-            let side = if rng.random::<bool>() { n } else { -n };
-            let w =
-                Vec3::new(rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5, rng.random::<f32>() - 0.5);
-            let tangent = (w - n * w.dot(n)).normalize_or_zero();
-            let lift = if rng.random::<bool>() { rng.random::<f32>() } else { rng.random::<f32>() * 1e-3 };
-            let Some(dir) = (tangent + side * lift).try_normalize() else { continue };
-            let ray = Ray::new(p + side * prism.ray_offset(), dir);
+            let Some((_, p, side, ray)) = ray_leaving_a_triangle(&prism, &mut rng) else { continue };
             if prism.leaves_convex_mesh(surface, p, side, &ray) {
                 skipped += 1;
                 assert!(bvh::brute_force(&prism.triangles, &ray, 0.0, f32::INFINITY).is_none());
@@ -694,7 +704,7 @@ material = "floor"
 
     #[test]
     fn a_triangle_met_by_a_ray_leaving_a_mesh_apart_is_the_nearest_hit() {
-        use rand::{RngExt, SeedableRng};
+        use rand::SeedableRng;
         let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes");
         let cube = "[[shapes]]\nkind = \"extrusion\"\nmaterial = \"glass\"\noutline = [[0,0],[1,0],[1,1],[0,1]]\n\
                     z_range = [1, 1.5]\n";
@@ -716,25 +726,7 @@ material = "floor"
             let rays = (20_000_000 / scene.triangles.len()).min(20_000);
             let mut first = 0;
             for _ in 0..rays {
-                let k = rng.random_range(0..scene.triangles.len());
-                let [a, b, c] = scene.triangles[k];
-                let (mut u, mut v) = (rng.random::<f32>(), rng.random::<f32>());
-                if u + v > 1.0 {
-                    (u, v) = (1.0 - u, 1.0 - v);
-                }
-                let p = a + (b - a) * u + (c - a) * v;
-                let n = scene.tri_info[k].normal;
-                let side = if rng.random::<bool>() { n } else { -n };
-                let w = Vec3::new(
-                    rng.random::<f32>() - 0.5,
-                    rng.random::<f32>() - 0.5,
-                    rng.random::<f32>() - 0.5,
-                );
-                let tangent = (w - n * w.dot(n)).normalize_or_zero();
-                let lift =
-                    if rng.random::<bool>() { rng.random::<f32>() } else { rng.random::<f32>() * 1e-3 };
-                let Some(d) = (tangent + side * lift).try_normalize() else { continue };
-                let ray = Ray::new(p + side * scene.ray_offset(), d);
+                let Some((k, p, side, ray)) = ray_leaving_a_triangle(scene, &mut rng) else { continue };
                 let reach = scene.reach_after(scene.tri_info[k].surface, p, side, &ray);
                 assert_eq!(reach == Reach::MeshFirst, apart && reach != Reach::Analytic);
                 let got = scene.intersect_reach(&ray, reach, 0.0, f32::INFINITY);

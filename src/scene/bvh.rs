@@ -138,13 +138,15 @@ pub struct TriHit {
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
     nodes: Vec<Node>,
-    /// Without AVX: the packets (each leaf's from `first` on); empty with AVX.
+    /// Each leaf's packets from its `first` on; with AVX, only the leaves of one packet.
     packets: Vec<Packet>,
     /// Input index of the triangle in each lane of each packet (`u32::MAX` for padding).
     index: Vec<u32>,
-    /// With AVX: packets 2p and 2p + 1 side by side as `pairs[p]` (each leaf starts at an
-    /// even packet); empty without AVX.
+    /// With AVX, the leaves of two packets (five to eight triangles), each one pair at its
+    /// `first`; empty without AVX.
     pairs: Vec<PacketPair>,
+    /// Input index of the triangle in each lane of each pair (`u32::MAX` for padding).
+    pair_index: Vec<u32>,
     /// Whether the processor has AVX, so a leaf's two packets are tested at once
     /// ([`packet_pair_intersect`]).
     avx: bool,
@@ -202,39 +204,38 @@ impl Bvh {
                 Tri::new(a, b, c)
             })
             .collect();
-        // Each leaf's triangles, in the same order, go into packets of their own. With AVX,
-        // each leaf also starts at an even packet and has an even number of them, padded with
-        // empty packets (their lanes never hit), so its packets pair up without overlap.
+        // Each leaf's triangles, in the same order, go into packets of their own; with AVX, a
+        // leaf of two packets is stored as one pair instead.
         let avx = avx_available();
-        let mut packets = Vec::with_capacity(n.div_ceil(4) + nodes.len() / 2);
-        let mut index = Vec::with_capacity(packets.capacity() * 4);
-        let pad = |packets: &mut Vec<Packet>, index: &mut Vec<u32>| {
-            if avx && packets.len() % 2 == 1 {
-                packets.push(Packet::new(&[]));
-                index.extend([u32::MAX; 4]);
-            }
+        let (mut packets, mut index, mut pairs, mut pair_index) =
+            (Vec::new(), Vec::new(), Vec::new(), Vec::new());
+        let order = &order;
+        let lanes = |from: usize, to: usize, end: usize| {
+            (from..to).map(move |j| if j < end { order[j] } else { u32::MAX })
         };
         for node in nodes.iter_mut().filter(|n| n.count > 0) {
             let (first, count) = (node.first as usize, node.count as usize);
-            pad(&mut packets, &mut index);
-            node.first = packets.len() as u32;
-            for k in (first..first + count).step_by(4) {
-                let end = (k + 4).min(first + count);
-                packets.push(Packet::new(&tris[k..end]));
-                index.extend((k..k + 4).map(|j| if j < end { order[j] } else { u32::MAX }));
+            let end = first + count;
+            if avx && count > 4 {
+                node.first = pairs.len() as u32;
+                pairs.push(PacketPair::new(
+                    &Packet::new(&tris[first..first + 4]),
+                    &Packet::new(&tris[first + 4..end]),
+                ));
+                pair_index.extend(lanes(first, first + 8, end));
+            } else {
+                node.first = packets.len() as u32;
+                for k in (first..end).step_by(4) {
+                    packets.push(Packet::new(&tris[k..(k + 4).min(end)]));
+                    index.extend(lanes(k, k + 4, end));
+                }
             }
         }
-        pad(&mut packets, &mut index);
-        let (packets, pairs) = if avx {
-            (Vec::new(), packets.chunks_exact(2).map(|w| PacketPair::new(&w[0], &w[1])).collect())
-        } else {
-            (packets, Vec::new())
-        };
-        Bvh { nodes, packets, index, pairs, avx }
+        Bvh { nodes, packets, index, pairs, pair_index, avx }
     }
 
     pub fn is_empty(&self) -> bool {
-        self.index.is_empty()
+        self.index.is_empty() && self.pair_index.is_empty()
     }
 
     /// The nearest triangle hit with `t` in (`t_min`, `t_max`).
@@ -250,19 +251,8 @@ impl Bvh {
         }
     }
 
-    /// A root leaf of five to eight triangles (two packets) with AVX is one call of
-    /// [`packet_pair_intersect`]; any other goes through [`Bvh::test_leaf`].
+    /// The whole mesh as one leaf (see [`Bvh::test_leaf`]).
     fn intersect_root_leaf(&self, root: &Node, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
-        #[cfg(target_arch = "x86_64")]
-        if self.avx && root.count > 4 {
-            const _: () = assert!(MAX_LEAF <= 8, "a leaf of more than four triangles is two packets");
-            let first = root.first as usize;
-            // SAFETY: `avx` says the processor has AVX. The leaf's two packets are `first`
-            // (even) and `first + 1`, so `pairs[first / 2]`.
-            let (lane, t, b1, b2) =
-                unsafe { packet_pair_intersect(&self.pairs[first / 2], ray, t_min, t_max) }?;
-            return Some(TriHit { t, index: self.index[first * 4 + lane], b1, b2 });
-        }
         let mut best: Option<TriHit> = None;
         let mut t_best = t_max;
         self.test_leaf(root, ray, &RayLanes::new(ray), t_min, &mut t_best, &mut best);
@@ -338,28 +328,25 @@ impl Bvh {
         best: &mut Option<TriHit>,
     ) {
         let first = node.first as usize;
-        let n = (node.count as usize).div_ceil(4);
-        let keep =
-            |found: Option<(usize, f32, f32, f32)>, k: usize, t_best: &mut f32, best: &mut Option<TriHit>| {
-                if let Some((lane, t, b1, b2)) = found {
-                    *t_best = t;
-                    *best = Some(TriHit { t, index: self.index[(first + k) * 4 + lane], b1, b2 });
-                }
-            };
         #[cfg(target_arch = "x86_64")]
-        if self.avx {
-            for k in (0..n).step_by(2) {
-                // SAFETY: `avx` says the processor has AVX. The leaf starts at an even packet
-                // and has an even number (padded), so packets first + k and first + k + 1 are
-                // `pairs[(first + k) / 2]`.
-                let found =
-                    unsafe { packet_pair_intersect(&self.pairs[(first + k) / 2], ray, t_min, *t_best) };
-                keep(found, k, t_best, best);
+        if self.avx && node.count > 4 {
+            const _: () = assert!(MAX_LEAF <= 8, "a leaf of more than four triangles is one pair");
+            // SAFETY: `avx` says the processor has AVX; with it, a leaf of more than four
+            // triangles is the pair at `first`.
+            if let Some((lane, t, b1, b2)) =
+                unsafe { packet_pair_intersect(&self.pairs[first], ray, t_min, *t_best) }
+            {
+                *t_best = t;
+                *best = Some(TriHit { t, index: self.pair_index[first * 8 + lane], b1, b2 });
             }
             return;
         }
-        for k in 0..n {
-            keep(packet_intersect(&self.packets[first + k], lanes, t_min, *t_best), k, t_best, best);
+        for k in 0..(node.count as usize).div_ceil(4) {
+            if let Some((lane, t, b1, b2)) = packet_intersect(&self.packets[first + k], lanes, t_min, *t_best)
+            {
+                *t_best = t;
+                *best = Some(TriHit { t, index: self.index[(first + k) * 4 + lane], b1, b2 });
+            }
         }
     }
 }

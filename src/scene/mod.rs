@@ -230,7 +230,7 @@ impl Scene {
     /// - [`Reach::Analytic`] when it [leaves the convex mesh](Scene::leaves_convex_mesh);
     /// - [`Reach::MeshFirst`] when `surface` is a mesh and no analytic shape comes near the
     ///   triangles' box: the ray starts within a ray offset of a triangle, so inside the box
-    ///   padded by [`MESH_APART_PAD`] ray offsets, and the segment to any triangle it meets
+    ///   padded by four ray offsets (`MESH_APART_PAD`), and the segment to any triangle it meets
     ///   stays inside that box, where no analytic shape is. So a triangle it meets is the
     ///   nearest hit, and analytic shapes need testing only when it meets none;
     /// - [`Reach::All`] otherwise.

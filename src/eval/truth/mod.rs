@@ -7,7 +7,7 @@
 //! [`floor_truth`] gives cell-averaged irradiance on a [`FloorGrid`]: flux landing in each cell
 //! divided by its area. The beam's parameter square is cut into triangles whose corners are
 //! carried through the optics (E(X) = Σ E0·T/|det X′| over the pre-images of X, integrated
-//! exactly over each cell for the piecewise-linear map; [`splat`]). `docs/truth.md` describes
+//! exactly over each cell for the piecewise-linear map; `splat`). `docs/truth.md` describes
 //! each scene's truth and its accuracy.
 
 mod optics;
@@ -74,13 +74,13 @@ impl FloorGrid {
 }
 
 /// Cell-averaged caustic irradiance on a floor grid, W/m² per RGB channel, row-major
-/// (index = row * cells[0] + column).
+/// (index = `row * cells[0] + column`).
 #[derive(Clone, Debug)]
 pub struct FloorTruth {
     pub grid: FloorGrid,
     pub irradiance: Vec<[f64; 3]>,
     /// Which stored photons this truth accounts for, by their BOUNCES value (specular bounces
-    /// before the floor), e.g. [2] for the sphere's once-in-once-out light. The comparison keeps
+    /// before the floor), e.g. `[2]` for the sphere's once-in-once-out light. The comparison keeps
     /// only these photons before running any method.
     pub bounces: Vec<u8>,
     /// Per cell: true where light arrives from two or more separate pre-image sheets (folded

@@ -235,6 +235,11 @@ impl Bvh {
         Bvh { nodes, packets, index, pairs, pair_index, avx }
     }
 
+    /// The box around every triangle (the root node's), or `None` without triangles.
+    pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
+        self.nodes.first().map(|root| (root.min, root.max))
+    }
+
     pub fn is_empty(&self) -> bool {
         self.index.is_empty() && self.pair_index.is_empty()
     }

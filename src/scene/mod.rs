@@ -200,11 +200,7 @@ impl Scene {
     /// disjoint from the box around each analytic shape (an infinite plane: the plane
     /// itself). False without triangles.
     fn find_mesh_apart(&self) -> bool {
-        let Some((lo, hi)) = self.triangles.iter().flatten().fold(None, |b: Option<(Vec3, Vec3)>, &p| {
-            Some(b.map_or((p, p), |(lo, hi)| (lo.min(p), hi.max(p))))
-        }) else {
-            return false;
-        };
+        let Some((lo, hi)) = self.bvh.bounds() else { return false };
         let pad = Vec3::splat(MESH_APART_PAD * self.ray_offset);
         let (lo, hi) = (lo - pad, hi + pad);
         if !(lo.is_finite() && hi.is_finite()) {

@@ -105,22 +105,22 @@ pub trait NeighbourSearch: Sync {
     /// counting `i` itself, nearest first, as the current space defines them.
     fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>);
 
-    /// The same neighbours as [`Self::neighbours`], and their positions in `xs` (by default
-    /// read from `positions`, the snapshot the index was built over), in an order that may
-    /// differ from nearest first but depends only on the queries made with `scratch` since
-    /// it was made (so results never depend on the thread count). `scratch` is the search's
-    /// reusable buffer: one per run of queries.
+    /// The positions of the same neighbours as [`Self::neighbours`], in `xs` (by default read
+    /// from `positions`, the snapshot the index was built over), in an order that may differ
+    /// from nearest first but depends only on the queries made with `scratch` since it was
+    /// made (so results never depend on the thread count). `scratch` is the search's reusable
+    /// buffer: one per run of queries.
     fn neighbours_at(
         &self,
         i: usize,
         k: usize,
         positions: &[[f32; 3]],
         scratch: &mut crate::spatial::Neighbours,
-        ids: &mut Vec<u32>,
         xs: &mut Vec<Vec3>,
     ) {
         let _ = scratch;
-        self.neighbours(i, k, ids);
+        let mut ids = Vec::with_capacity(k);
+        self.neighbours(i, k, &mut ids);
         xs.clear();
         xs.extend(ids.iter().map(|&j| Vec3::from(positions[j as usize])));
     }
@@ -199,8 +199,7 @@ pub fn iterate(
         .zip(spacing_slot.par_chunks_mut(CHUNK))
         .enumerate()
         .for_each(|(c, (((steps, nns), ratios), spacings))| {
-            let mut ids = Vec::with_capacity(p.kf);
-            let mut xs = Vec::with_capacity(p.kf);
+            let mut xs = Vec::with_capacity(p.kf + 1);
             // A fresh buffer per chunk: the order neighbours come in depends only on the chunk.
             let mut found = crate::spatial::Neighbours::unordered(0);
             for (o, (((s, d1), q), sp)) in steps
@@ -226,7 +225,7 @@ pub fn iterate(
                         Constraint::Tangent { normal } => crate::spatial::prefetch(&normal[a]),
                     }
                 }
-                index.neighbours_at(i, p.kf, snapshot, &mut found, &mut ids, &mut xs);
+                index.neighbours_at(i, p.kf, snapshot, &mut found, &mut xs);
                 let xi = Vec3::from(snapshot[i]);
                 // The farthest and nearest neighbour (the search need not sort them).
                 let (near, far) = xs.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &x| {
@@ -335,32 +334,22 @@ thread_local! {
 }
 
 impl IndexSearch<'_> {
-    /// The k nearest photons other than `i`, and their positions, through the buffer `found`
-    /// (in its order: nearest first if it is ordered). The search asks for k + 1 *including*
-    /// `i` and drops `i` if present, else the last of the k + 1 by (distance², index): the
-    /// same k photons (i is either among the k + 1, or ranks after all of them), and the
-    /// previous query's result then holds k + 1 candidates of this one, which gives the
-    /// search its starting bound ([`crate::spatial::SpatialIndex::knn`]).
-    fn search(
-        &self,
-        found: &mut crate::spatial::Neighbours,
-        i: usize,
-        k: usize,
-        mut each: impl FnMut(u32, [f32; 3]),
-    ) {
+    /// Searches the k nearest photons other than `i` through the buffer `found`, which then
+    /// holds k + 1 (in its order: nearest first if it is ordered); returns the place of the
+    /// one that is not among the k. The search asks for k + 1 *including* `i`, and the one
+    /// left out is `i` if present, else the last of the k + 1 by (distance², index): the same
+    /// k photons (i is either among the k + 1, or ranks after all of them), and the previous
+    /// query's result then holds k + 1 candidates of this one, which gives the search its
+    /// starting bound ([`crate::spatial::SpatialIndex::knn`]).
+    fn search(&self, found: &mut crate::spatial::Neighbours, i: usize, k: usize) -> Option<usize> {
         let q = self.points.query(i, self.radius.map(|r| r[i]));
         self.index.knn(&q, k + 1, found);
         let items = found.as_slice();
-        let drop = items.iter().position(|n| n.index as usize == i).or_else(|| {
+        items.iter().position(|n| n.index as usize == i).or_else(|| {
             (items.len() > k)
                 .then(|| (0..items.len()).reduce(|a, b| if items[a].before(&items[b]) { b } else { a }))
                 .flatten()
-        });
-        for (at, (n, x)) in items.iter().zip(found.coords()).enumerate() {
-            if Some(at) != drop {
-                each(n.index, *x);
-            }
-        }
+        })
     }
 }
 
@@ -374,7 +363,13 @@ impl NeighbourSearch for IndexSearch<'_> {
 
     fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
         out.clear();
-        FOUND.with_borrow_mut(|found| self.search(found, i, k, |j, _| out.push(j)));
+        FOUND.with_borrow_mut(|found| {
+            let left_out = self.search(found, i, k);
+            out.extend(found.indices());
+            if let Some(at) = left_out {
+                out.remove(at);
+            }
+        });
     }
 
     fn neighbours_at(
@@ -383,15 +378,15 @@ impl NeighbourSearch for IndexSearch<'_> {
         k: usize,
         _: &[[f32; 3]],
         found: &mut crate::spatial::Neighbours,
-        ids: &mut Vec<u32>,
         xs: &mut Vec<Vec3>,
     ) {
-        ids.clear();
+        let left_out = self.search(found, i, k);
+        // All k + 1 in one pass of known length, then the one left out (order kept).
         xs.clear();
-        self.search(found, i, k, |j, x| {
-            ids.push(j);
-            xs.push(Vec3::from(x));
-        });
+        xs.extend(found.coords().iter().map(|&x| Vec3::from(x)));
+        if let Some(at) = left_out {
+            xs.remove(at);
+        }
     }
 
     fn order(&self) -> Option<Vec<u32>> {

@@ -58,6 +58,9 @@ pub struct Args {
     /// β of Eq. 1.
     #[arg(long, default_value_t = 3.0)]
     beta: f32,
+    /// k of the parameter-space density estimate ρ = k/(π r_k²) of Eq. 1; default Kc.
+    #[arg(long, value_name = "K")]
+    k_density: Option<usize>,
     /// Kf: neighbours in the repulsion force.
     #[arg(long, default_value_t = 16)]
     kf: usize,
@@ -91,7 +94,7 @@ pub struct Args {
     /// Integrate the closed-form truth quickly (for tests) instead of to convergence.
     #[arg(long, hide = true)]
     fast_truth: bool,
-    /// Vary one setting over runs: photons=…, k=…, kc=…, beta=… or iterations=…
+    /// Vary one setting over runs: photons=…, k=…, kc=…, beta=…, k-density=… or iterations=…
     /// (comma-separated values), e.g. photons=1e5,3e5,1e6. Progressive photon mapping runs
     /// again only when its photons per pass change (they follow --photons unless
     /// --ppm-photons is given).
@@ -112,11 +115,14 @@ fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(
             "k" => o.k = v.parse().with_context(bad)?,
             "kc" => o.kc = v.parse().with_context(bad)?,
             "beta" => o.beta = v.parse().with_context(bad)?,
+            "k-density" => {
+                o.k_density = Some(v.parse().ok().filter(|&k: &usize| k >= 2).with_context(bad)?);
+            }
             "iterations" => {
                 o.iterations = v.parse().with_context(bad)?;
                 o.iterations_2009 = 2 * o.iterations;
             }
-            k => bail!("--sweep: unknown setting '{k}' (photons, k, kc, beta, iterations)"),
+            k => bail!("--sweep: unknown setting '{k}' (photons, k, kc, beta, k-density, iterations)"),
         }
         runs.push((format!("{} = {v}", key.trim()), o));
     }
@@ -137,6 +143,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
+    if a.k_density.is_some_and(|k| k < 2) {
+        bail!("--k-density needs at least 2");
+    }
     if a.k == 0 || a.kc < 3 || a.kf == 0 || a.diffusion_k == 0 || a.spp == 0 || a.cells < 4 {
         bail!("-k, --kf, --diffusion-k and --spp need at least 1, --kc at least 3, --cells at least 4");
     }
@@ -149,6 +158,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         k: a.k,
         kc: a.kc,
         beta: a.beta,
+        k_density: a.k_density,
         kf: a.kf,
         iterations: a.iterations,
         iterations_2009: a.iterations_2009,
@@ -226,4 +236,23 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     eprintln!("report: {}", a.out_dir.join("report.md").display());
     Ok(ExitCode::SUCCESS)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_sweep_gives_one_run_per_value_and_refuses_bad_ones() {
+        let base = CompareOptions::default();
+        let runs = sweep_runs(&base, Some("k-density=50, 16")).unwrap();
+        let got: Vec<_> = runs.iter().map(|(label, o)| (label.as_str(), o.k_density, o.kc)).collect();
+        assert_eq!(got, [("k-density = 50", Some(50), 50), ("k-density = 16", Some(16), 50)]);
+        let runs = sweep_runs(&base, Some("iterations=3")).unwrap();
+        assert_eq!((runs[0].1.iterations, runs[0].1.iterations_2009), (3, 6));
+        assert_eq!(sweep_runs(&base, None).unwrap(), [(String::new(), base.clone())]);
+        for bad in ["k-density=1", "k-density=x", "kc=", "colour=1", "photons"] {
+            assert!(sweep_runs(&base, Some(bad)).is_err(), "{bad}");
+        }
+    }
 }

@@ -114,6 +114,8 @@ pub struct CompareOptions {
     /// Kc and β of feature detection.
     pub kc: usize,
     pub beta: f32,
+    /// k of the parameter-space density ρ (Eq. 1); `None` means Kc.
+    pub k_density: Option<usize>,
     /// Kf of the repulsion force.
     pub kf: usize,
     /// R: iterations before the collapse and again after it (this method).
@@ -140,6 +142,7 @@ impl Default for CompareOptions {
             k: 15,
             kc: 50,
             beta: 3.0,
+            k_density: None,
             kf: 16,
             iterations: 7,
             iterations_2009: 14,
@@ -391,7 +394,13 @@ pub fn run(
 
     let detect_stage = |input: &str, output: &str, method: Method| -> Result<f64, CompareError> {
         let map = PhotonMap::open_path(&file(input))?;
-        let dp = DetectParams { kc: o.kc, beta: o.beta, method, ..DetectParams::default() };
+        let dp = DetectParams {
+            kc: o.kc,
+            beta: o.beta,
+            k_density: o.k_density,
+            method,
+            ..DetectParams::default()
+        };
         let t = Instant::now();
         let d = detect::detect_map(&map, &dp, &|_| {})?;
         let secs = t.elapsed().as_secs_f64();

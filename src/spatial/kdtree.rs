@@ -2,10 +2,11 @@
 //!
 //! Records are stored in leaf order (one contiguous slice per leaf); the internal nodes are
 //! in depth-first order, each holding only its split axis, split value and the index of its
-//! right child (the left child follows it). Every node splits its points at the median along
-//! the axis of widest *weighted* extent: cycling axes would waste a level in three on photons
-//! that lie on a plane, and the weights let world-space metres and parameter-space units
-//! compete fairly (see [`Weights`]).
+//! right child (the left child follows it). Every node splits its points along the axis of
+//! widest *weighted* extent: cycling axes would waste a level in three on photons that lie on
+//! a plane, and the weights let world-space metres and parameter-space units compete fairly
+//! (see [`Weights`]). The split lies at the median rounded to whole leaves, so every leaf but
+//! the last is full ([`left_size`]).
 //!
 //! A query finds the k records nearest the query in the `W` distance dimensions among those
 //! within a Euclidean ball in the `P` dimensions, with the ball test inside the traversal: a
@@ -36,8 +37,9 @@ use std::sync::atomic::Ordering;
 use glam::Vec4;
 use rayon::prelude::*;
 
-/// Records per leaf; chosen by measurement (BENCHMARKS.md, "Spatial index").
-pub(crate) const LEAF: usize = 12;
+/// Records per leaf (every leaf but the last holds exactly this many); chosen by measurement
+/// (BENCHMARKS.md, "Sixth round": 16 against 12 and 20).
+pub(crate) const LEAF: usize = 16;
 
 /// Blocks of four records a leaf's scan reads (the last may be partly empty).
 const BLOCKS: usize = LEAF.div_ceil(4);
@@ -175,9 +177,18 @@ impl Cand {
     }
 }
 
-/// Internal nodes of a subtree of `m` records.
+/// Records in the left subtree of a node over `m` > [`LEAF`] records: half the subtree's
+/// leaves (rounded up), each full, so that every leaf but the tree's last holds exactly
+/// `LEAF` records whatever the photon count (halving `m` would fill leaves anywhere from half
+/// to wholly, as the count falls between powers of two).
+#[inline(always)]
+fn left_size(m: usize) -> usize {
+    LEAF * m.div_ceil(LEAF).div_ceil(2)
+}
+
+/// Internal nodes of a subtree of `m` records: one fewer than its leaves.
 fn count_nodes(m: usize) -> usize {
-    if m <= LEAF { 0 } else { 1 + count_nodes(m / 2) + count_nodes(m - m / 2) }
+    m.div_ceil(LEAF).saturating_sub(1)
 }
 
 #[derive(Clone, Debug, Default)]
@@ -536,7 +547,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             let n = &self.nodes[node];
             let axis = n.axis as usize;
             let q = if axis < W { qw[axis] } else { qp[axis - W] };
-            let mid = lo + (hi - lo) / 2;
+            let mid = lo + left_size(hi - lo);
             if q - n.split < 0.0 {
                 (node, hi) = (node + 1, mid);
             } else {
@@ -630,7 +641,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         {
             return;
         }
-        let mid = lo + (hi - lo) / 2;
+        let mid = lo + left_size(hi - lo);
         self.collect(node + 1, lo, mid, leaf, g);
         self.collect(n.right as usize, mid, hi, n.right_leaf, g);
     }
@@ -877,7 +888,7 @@ fn build_node<const W: usize, const P: usize>(
             axis = a;
         }
     }
-    let mid = m / 2;
+    let mid = left_size(m);
     recs.select_nth_unstable_by(mid, |a, b| a.coord(axis).total_cmp(&b.coord(axis)));
     let split = recs[mid].coord(axis);
     let left_nodes = count_nodes(mid);
@@ -940,7 +951,7 @@ fn refit_node<const W: usize, const P: usize>(
         return (l.lo_w, l.hi_w);
     }
     let (right, right_leaf) = (nodes[node].right as usize, nodes[node].right_leaf as usize);
-    let mid = lo + (hi - lo) / 2;
+    let mid = lo + left_size(hi - lo);
     let (alo, ahi) = refit_node(nodes, leaves, node + 1, lo, mid, leaf);
     let (blo, bhi) = refit_node(nodes, leaves, right, mid, hi, right_leaf);
     let n = &mut nodes[node];
@@ -964,7 +975,7 @@ fn leaf_ranges<const W: usize, const P: usize>(lo: usize, hi: usize, out: &mut V
         out.push(z);
         return;
     }
-    let mid = lo + (hi - lo) / 2;
+    let mid = lo + left_size(hi - lo);
     leaf_ranges(lo, mid, out);
     leaf_ranges(mid, hi, out);
 }
@@ -1003,7 +1014,7 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
             return;
         }
         let axis = n.axis as usize;
-        let mid = lo + (hi - lo) / 2;
+        let mid = lo + left_size(hi - lo);
         let q = if axis < W { self.qw[axis] } else { self.qp[axis - W] };
         let diff = q - n.split;
         let ((near, nlo, nhi), (far, flo, fhi)) = if diff < 0.0 {
@@ -1080,6 +1091,29 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
         }
         if ordered {
             self.heap.sort_unstable_by_key(|c| c.key);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every leaf but the last is full, whatever the record count, and the nodes and leaves
+    /// of each subtree add up as the traversals assume (a binary tree: one leaf more than
+    /// internal nodes).
+    #[test]
+    fn leaves_are_full_but_the_last() {
+        for n in [0, 1, LEAF - 1, LEAF, LEAF + 1, 2 * LEAF, 2 * LEAF + 1, 5 * LEAF + 3, 1000, 4097] {
+            let mut leaves: Vec<Leaf<3, 0>> = Vec::new();
+            leaf_ranges(0, n, &mut leaves);
+            let sizes: Vec<u32> = leaves.iter().map(|l| l.hi - l.lo).collect();
+            let full = sizes.len().saturating_sub(1);
+            assert!(sizes[..full].iter().all(|&m| m as usize == LEAF), "n = {n}: {sizes:?}");
+            assert!(sizes.last().is_none_or(|&m| m >= 1 || n == 0), "n = {n}: {sizes:?}");
+            assert_eq!(sizes.iter().sum::<u32>() as usize, n);
+            assert_eq!(leaves.len(), n.div_ceil(LEAF).max(1), "n = {n}");
+            assert_eq!(count_nodes(n), leaves.len() - 1, "n = {n}");
         }
     }
 }

@@ -84,7 +84,8 @@ fn unit(rng: &mut Pcg64Mcg) -> [f32; 3] {
 #[test]
 fn world_knn_equals_brute_force_on_random_points() {
     let mut rng = Pcg64Mcg::seed_from_u64(1);
-    for n in [0, 1, 5, 12, 13, 100, 700] {
+    // Around one, two and three leaves' worth (16 records each), and larger.
+    for n in [0, 1, 5, 15, 16, 17, 31, 32, 33, 48, 49, 100, 700] {
         let o = Owned {
             pos: random_points(n, &mut rng),
             params: vec![],

@@ -515,13 +515,13 @@ fn box_box_dist2<const N: usize>(lo: &[f32; N], hi: &[f32; N], glo: &[f32], ghi:
 
 impl<const W: usize, const P: usize> KdTree<W, P> {
     /// Gathers the candidates of the leaf that holds the query, whose k nearest `out` holds,
-    /// into `out`'s group: within the query's k-th distance plus a quarter of the leaf's
-    /// diagonal of the leaf's box, and within 1.2 times the query's ball radius of the leaf's
-    /// parameter box. (On an unconstrained search another query of the leaf has its k-th
-    /// within the first's plus their distance, at most the diagonal; with a quarter, 87 % of
-    /// the default scene's queries were answered from a group (the rest started one) and
-    /// under 1 % of those tried fell back to a search; it was fastest, against 0, 0.15,
-    /// 0.35 and 0.5: `PHOTONKIT_KD=slack=…,ballslack=…` sets both factors.) A query
+    /// into `out`'s group: within the query's k-th distance plus 0.15 of the diagonal of the
+    /// leaf's box, and within 1.2 times the query's ball radius of the leaf's parameter box.
+    /// (On an unconstrained search another query of the leaf has its k-th within the first's
+    /// plus their distance, at most the diagonal. With leaves of 12 records, half full on
+    /// average, a quarter was fastest against 0, 0.15, 0.35 and 0.5; with full leaves of 16,
+    /// 0.15 against 0.05, 0.1, 0.25 and 0.35, by 1 % over a quarter in relax (BENCHMARKS.md,
+    /// "Sixth round"). `PHOTONKIT_KD=slack=…,ballslack=…` sets both factors.) A query
     /// outside the group's reach is searched as before: the reach changes speed, never results.
     #[allow(clippy::too_many_arguments)]
     fn gather(
@@ -829,7 +829,7 @@ fn tuning() -> Tuning {
             boxes: !s.contains("nobox"),
             all_boxes: s.contains("allbox"),
             groups: !s.contains("nogroup"),
-            slack: num("slack", 0.25),
+            slack: num("slack", 0.15),
             ball_slack: num("ballslack", 1.44),
             estimate: !s.contains("noestimate"),
             guess: num("guess", 0.0),

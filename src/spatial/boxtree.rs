@@ -268,5 +268,21 @@ mod tests {
             }
         }
         assert!(BoxTree::build(&[]).is_empty());
+        // Around one, two and three leaves' worth: every point's neighbours, every k.
+        for n in [1, LEAF - 1, LEAF, LEAF + 1, 2 * LEAF, 2 * LEAF + 1, 3 * LEAF + 2] {
+            let pts: Vec<[f32; 3]> = (0..n).map(|_| [rng.next_f32(), rng.next_f32(), 0.0]).collect();
+            let (tree, set) = (BoxTree::build(&pts), PointSet::world(&pts));
+            for (i, &q) in pts.iter().enumerate() {
+                for k in 1..=n {
+                    let query = Query { position: q, params: &[], radius: None, emitter: 0, exclude: None };
+                    tree.knn(q, k, f32::INFINITY, &mut out);
+                    assert_eq!(
+                        out.as_slice(),
+                        &brute_force_knn(&set, Space::World, &query, k)[..],
+                        "n {n} i {i} k {k}"
+                    );
+                }
+            }
+        }
     }
 }

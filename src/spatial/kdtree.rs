@@ -518,11 +518,12 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     /// into `out`'s group: within the query's k-th distance plus 0.15 of the diagonal of the
     /// leaf's box, and within 1.2 times the query's ball radius of the leaf's parameter box.
     /// (On an unconstrained search another query of the leaf has its k-th within the first's
-    /// plus their distance, at most the diagonal. With leaves of 12 records, half full on
-    /// average, a quarter was fastest against 0, 0.15, 0.35 and 0.5; with full leaves of 16,
-    /// 0.15 against 0.05, 0.1, 0.25 and 0.35, by 1 % over a quarter in relax (BENCHMARKS.md,
-    /// "Sixth round"). `PHOTONKIT_KD=slack=…,ballslack=…` sets both factors.) A query
-    /// outside the group's reach is searched as before: the reach changes speed, never results.
+    /// plus their distance, at most the diagonal. With leaves of at most 12 records (6 to 12,
+    /// by the photon count), a quarter was fastest against 0, 0.15, 0.35 and 0.5; with full
+    /// leaves of 16, 0.15 against 0.05, 0.1, 0.25 and 0.35, by 1 % over a quarter in relax
+    /// (BENCHMARKS.md, "Sixth round"). `PHOTONKIT_KD=slack=…,ballslack=…` sets both
+    /// factors.) A query outside the group's reach is searched as before: the reach changes
+    /// speed, never results.
     #[allow(clippy::too_many_arguments)]
     fn gather(
         &self,

@@ -102,6 +102,20 @@ pub struct Args {
     sweep: Option<String>,
 }
 
+/// Refuses settings no method can run with: the options given, and each run of a sweep.
+fn check_options(o: &CompareOptions) -> anyhow::Result<()> {
+    if o.k == 0 || o.kc < 3 || o.kf == 0 || o.diffusion_k == 0 || o.spp == 0 {
+        bail!("-k, --kf, --diffusion-k and --spp need at least 1, --kc at least 3");
+    }
+    if o.k_density.is_some_and(|k| k < 2) {
+        bail!("--k-density needs at least 2");
+    }
+    if !(o.beta > 0.0 && o.beta.is_finite() && o.diffusion_q > 0.0 && o.diffusion_q.is_finite()) {
+        bail!("--beta and --diffusion-q must be positive");
+    }
+    Ok(())
+}
+
 /// The runs of a sweep: a label and the options of each.
 fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(String, CompareOptions)>> {
     let Some(spec) = spec else { return Ok(vec![(String::new(), base.clone())]) };
@@ -115,15 +129,14 @@ fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(
             "k" => o.k = v.parse().with_context(bad)?,
             "kc" => o.kc = v.parse().with_context(bad)?,
             "beta" => o.beta = v.parse().with_context(bad)?,
-            "k-density" => {
-                o.k_density = Some(v.parse().ok().filter(|&k: &usize| k >= 2).with_context(bad)?);
-            }
+            "k-density" => o.k_density = Some(v.parse().with_context(bad)?),
             "iterations" => {
                 o.iterations = v.parse().with_context(bad)?;
                 o.iterations_2009 = 2 * o.iterations;
             }
             k => bail!("--sweep: unknown setting '{k}' (photons, k, kc, beta, k-density, iterations)"),
         }
+        check_options(&o).with_context(|| format!("--sweep {key}: '{v}'"))?;
         runs.push((format!("{} = {v}", key.trim()), o));
     }
     if runs.is_empty() {
@@ -143,14 +156,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;
-    if a.k_density.is_some_and(|k| k < 2) {
-        bail!("--k-density needs at least 2");
-    }
-    if a.k == 0 || a.kc < 3 || a.kf == 0 || a.diffusion_k == 0 || a.spp == 0 || a.cells < 4 {
-        bail!("-k, --kf, --diffusion-k and --spp need at least 1, --kc at least 3, --cells at least 4");
-    }
-    if !(a.beta > 0.0 && a.beta.is_finite() && a.diffusion_q > 0.0 && a.diffusion_q.is_finite()) {
-        bail!("--beta and --diffusion-q must be positive");
+    if a.cells < 4 {
+        bail!("--cells needs at least 4");
     }
     let base = CompareOptions {
         photons: a.photons,
@@ -169,6 +176,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         spp: a.spp,
         methods,
     };
+    check_options(&base)?;
     let runs = sweep_runs(&base, a.sweep.as_deref())?;
     std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;
 

@@ -647,10 +647,12 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         self.collect(n.right as usize, mid, hi, n.right_leaf, g);
     }
 
-    /// Appends to `cands` the group's candidates within distance² `reach` of `qw` that the
-    /// ball of radius² `r2` about `qp` admits, except `exclude`: leaf by leaf, skipping a leaf
-    /// whose box lies beyond either (its box distance is at most any record's), four records
-    /// at a time, distances summed in axis order as [`dist2`] sums them.
+    /// Writes to `cands[..n]`, returning n, the group's candidates within distance² `reach`
+    /// of `qw` that the ball of radius² `r2` about `qp` admits, except `exclude`: leaf by
+    /// leaf, skipping a leaf whose box lies beyond either (its box distance is at most any
+    /// record's), four records at a time, distances summed in axis order as [`dist2`] sums
+    /// them. `cands` is scratch: it is lengthened to hold every record of the group (and is
+    /// never shortened, so that its entries are written only here).
     #[allow(clippy::too_many_arguments)]
     fn scan_group(
         &self,
@@ -661,7 +663,14 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         exclude: u32,
         reach: f32,
         cands: &mut Vec<Cand>,
-    ) {
+    ) -> usize {
+        // Room for every record of the group, and four past the last (a block is written
+        // whole).
+        let room = g.leaves.len() * SLOTS + 4;
+        if cands.len() < room {
+            cands.resize(room, Cand::default());
+        }
+        let mut n = 0;
         let qwv: [Vec4; W] = std::array::from_fn(|a| Vec4::splat(qw[a]));
         let qpv: [Vec4; P] = std::array::from_fn(|a| Vec4::splat(qp[a]));
         let (reachv, r2v) = (Vec4::splat(reach), Vec4::splat(r2));
@@ -683,14 +692,18 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 let j = pass.trailing_zeros() as usize;
                 pass &= pass - 1;
                 if let Some(&leaf) = four.get(j) {
-                    self.scan_leaf(leaf, &qwv, &qpv, g.ball, reachv, r2v, exclude, cands);
+                    self.scan_leaf(leaf, &qwv, &qpv, g.ball, reachv, r2v, exclude, cands, &mut n);
                 }
             }
         }
+        n
     }
 
     /// The records of leaf `leaf` within distance² `reachv` (splatted) of `qwv` that the
-    /// ball `r2v` about `qpv` admits (when `ball`), except `exclude`, into `cands`.
+    /// ball `r2v` about `qpv` admits (when `ball`), except `exclude`, into `cands` from
+    /// `*n` on. Each block's four records are written whether they pass or not, and `*n`
+    /// advanced past those that do: which records of a block pass is not predictable, and
+    /// a branch per record (or per block) costs more in mispredictions than the writes.
     #[allow(clippy::too_many_arguments)]
     #[inline(always)]
     fn scan_leaf(
@@ -702,7 +715,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         reachv: Vec4,
         r2v: Vec4,
         exclude: u32,
-        cands: &mut Vec<Cand>,
+        cands: &mut [Cand],
+        n: &mut usize,
     ) {
         let l = &self.leaves[leaf as usize];
         let leaf = leaf as usize;
@@ -728,16 +742,11 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 }
                 pass &= e.cmple(r2v).bitmask();
             }
-            if pass != 0 {
-                let d = d.to_array();
-                while pass != 0 {
-                    let j = pass.trailing_zeros() as usize;
-                    pass &= pass - 1;
-                    let idx = ids[4 * b + j];
-                    if idx != exclude {
-                        cands.push(Cand { key: rank(d[j], idx), slot: l.lo + (4 * b + j) as u32 });
-                    }
-                }
+            let d = d.to_array();
+            for j in 0..4 {
+                let idx = ids[4 * b + j];
+                cands[*n] = Cand { key: rank(d[j], idx), slot: l.lo + (4 * b + j) as u32 };
+                *n += (pass >> j) as usize & (idx != exclude) as usize;
             }
         }
     }
@@ -770,24 +779,24 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             f32::INFINITY
         };
         let g = &out.group;
-        let cands = &mut out.cands;
+        let mut n = 0;
         for reach in [guess, g.g2] {
             if reach > g.g2 && reach != g.g2 {
                 continue;
             }
-            cands.clear();
-            self.scan_group(g, qw, qp, r2, exclude, reach, cands);
-            if cands.len() >= k {
+            n = self.scan_group(g, qw, qp, r2, exclude, reach, &mut out.cands);
+            if n >= k {
                 break;
             }
         }
-        if cands.len() < k {
+        if n < k {
             return false;
         }
-        if cands.len() > k {
+        let cands = &mut out.cands[..n];
+        if n > k {
             cands.select_nth_unstable_by_key(k - 1, |c| c.key);
-            cands.truncate(k);
         }
+        let cands = &mut cands[..k];
         if out.ordered {
             cands.sort_unstable_by_key(|c| c.key);
         }

@@ -299,21 +299,31 @@ impl Neighbourhood<'_> {
 /// Normalised PCA of the offsets projected into the tangent plane (t1, t2): the eigen-
 /// decomposition with λ divided by `r2`, or `None` if the points have no extent relative to
 /// r. The covariance of the projected points is Tᵀ C T for the offsets' 3×3 covariance C and
-/// T = [t1 t2], so C is summed in one pass over the offsets and projected once.
+/// T = [t1 t2], so C is summed in one pass over the offsets (as Σ o oᵀ − m·ō ōᵀ: every offset
+/// lies within r of the photon, so what the subtraction cancels is at most about 1e-16 r²,
+/// far below the 1e-12 r² under which a neighbourhood counts as having no extent) and
+/// projected once.
 fn normalised_pca(offsets: &[DVec3], t1: DVec3, t2: DVec3, r2: f64) -> Option<Eigen2> {
     let m = offsets.len() as f64;
-    let mean = offsets.iter().sum::<DVec3>() / m;
-    // The upper triangle of C (times m): xx, xy, xz, yy, yz, zz.
+    let mut sum = DVec3::ZERO;
+    // The upper triangle of Σ o oᵀ: xx, xy, xz, yy, yz, zz.
     let mut c = [0.0f64; 6];
     for o in offsets {
-        let d = *o - mean;
-        c[0] += d.x * d.x;
-        c[1] += d.x * d.y;
-        c[2] += d.x * d.z;
-        c[3] += d.y * d.y;
-        c[4] += d.y * d.z;
-        c[5] += d.z * d.z;
+        sum += *o;
+        c[0] += o.x * o.x;
+        c[1] += o.x * o.y;
+        c[2] += o.x * o.z;
+        c[3] += o.y * o.y;
+        c[4] += o.y * o.z;
+        c[5] += o.z * o.z;
     }
+    let mean = sum / m;
+    c[0] -= sum.x * mean.x;
+    c[1] -= sum.x * mean.y;
+    c[2] -= sum.x * mean.z;
+    c[3] -= sum.y * mean.y;
+    c[4] -= sum.y * mean.z;
+    c[5] -= sum.z * mean.z;
     let times = |v: DVec3| {
         DVec3::new(
             c[0] * v.x + c[1] * v.y + c[2] * v.z,

@@ -722,11 +722,9 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         let leaf = leaf as usize;
         let axes = &self.axes[leaf * (W + P)..][..W + P];
         let ids = &self.ids[leaf];
-        let m = (l.hi - l.lo) as usize;
+        // Every block, also past the last leaf's records (whose lanes are NaN and never
+        // pass): a loop of fixed length, without a test per block.
         for b in 0..BLOCKS {
-            if 4 * b >= m {
-                break;
-            }
             let mut d = Vec4::ZERO;
             for (a, q) in qwv.iter().enumerate() {
                 let o = axes[a][b] - *q;

@@ -651,8 +651,9 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     /// of `qw` that the ball of radius² `r2` about `qp` admits, except `exclude`: leaf by
     /// leaf, skipping a leaf whose box lies beyond either (its box distance is at most any
     /// record's), four records at a time, distances summed in axis order as [`dist2`] sums
-    /// them. `cands` is scratch: it is lengthened to hold every record of the group (and is
-    /// never shortened, so that its entries are written only here).
+    /// them. `cands` is scratch: it is lengthened, when it must be, to hold every record of the
+    /// group, and its entries past n are left as they are (the tree search, which shares it,
+    /// clears it before use).
     #[allow(clippy::too_many_arguments)]
     fn scan_group(
         &self,

@@ -651,9 +651,9 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     /// of `qw` that the ball of radius² `r2` about `qp` admits, except `exclude`: leaf by
     /// leaf, skipping a leaf whose box lies beyond either (its box distance is at most any
     /// record's), four records at a time, distances summed in axis order as [`dist2`] sums
-    /// them. `cands` is scratch: it is lengthened, when it must be, to hold every record of the
-    /// group, and its entries past n are left as they are (the tree search, which shares it,
-    /// clears it before use).
+    /// them. `cands` is scratch, lengthened when it must be to hold every record of the group
+    /// and never shortened (its entries past n are left as they are), so that it is not
+    /// written twice.
     #[allow(clippy::too_many_arguments)]
     fn scan_group(
         &self,
@@ -783,7 +783,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             if reach > g.g2 && reach != g.g2 {
                 continue;
             }
-            n = self.scan_group(g, qw, qp, r2, exclude, reach, &mut out.cands);
+            n = self.scan_group(g, qw, qp, r2, exclude, reach, &mut out.scanned);
             if n >= k {
                 break;
             }
@@ -791,7 +791,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         if n < k {
             return false;
         }
-        let cands = &mut out.cands[..n];
+        let cands = &mut out.scanned[..n];
         if n > k {
             cands.select_nth_unstable_by_key(k - 1, |c| c.key);
         }

@@ -253,6 +253,9 @@ pub struct Neighbours {
     tree: u64,
     /// Candidate buffer of the search.
     cands: Vec<kdtree::Cand>,
+    /// Candidates of a query answered from its group (scratch, only ever lengthened: see
+    /// `KdTree::scan_group`).
+    scanned: Vec<kdtree::Cand>,
     /// Candidates gathered for the queries of one leaf.
     group: kdtree::Group,
     /// Whether results are sorted (see [`Self::unordered`]).
@@ -278,6 +281,7 @@ impl Neighbours {
             slots: Vec::with_capacity(k),
             tree: 0,
             cands: Vec::with_capacity(2 * k),
+            scanned: Vec::new(),
             group: Default::default(),
             ordered: true,
             with_coords: true,

@@ -779,11 +779,13 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         };
         let g = &out.group;
         let mut n = 0;
+        let mut scanned_reach = g.g2;
         for reach in [guess, g.g2] {
             if reach > g.g2 && reach != g.g2 {
                 continue;
             }
             n = self.scan_group(g, qw, qp, r2, exclude, reach, &mut out.scanned);
+            scanned_reach = reach;
             if n >= k {
                 break;
             }
@@ -792,9 +794,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             return false;
         }
         let cands = &mut out.scanned[..n];
-        if n > k {
-            cands.select_nth_unstable_by_key(k - 1, |c| c.key);
-        }
+        nearest_first(cands, k, scanned_reach);
         let cands = &mut cands[..k];
         if out.ordered {
             cands.sort_unstable_by_key(|c| c.key);
@@ -804,6 +804,73 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         out.far2 = self.emit(cands, &mut out.items, coords, &mut out.slots);
         true
     }
+}
+
+/// Buckets of [`nearest_first`]'s histogram.
+const BUCKETS: usize = 64;
+
+/// Most candidates [`nearest_first`] sorts into buckets (more go to `select_nth_unstable`).
+const BUCKETED: usize = 256;
+
+/// Most candidates of the k-th's bucket [`nearest_first`] selects among (more, as when many
+/// photons lie at one distance, go to `select_nth_unstable`).
+const EDGE: usize = 32;
+
+/// Moves the `k` candidates of lowest rank to the front of `s` (in any order; what lies behind
+/// them is unspecified); every candidate's distance² is at most `reach`. A histogram of the
+/// distances² in [`BUCKETS`] equal parts of 0..reach finds the bucket that holds the k-th (a
+/// bucket's distances are all below the next one's: scaling and truncation keep the order);
+/// the candidates of lower buckets are kept and the few of that bucket selected among by
+/// rank. One pass to count and one to keep, without a branch per candidate, where
+/// `select_nth_unstable`'s partitions and final insertion sort mispredict about half their
+/// comparisons on candidates in no particular order.
+fn nearest_first(s: &mut [Cand], k: usize, reach: f32) {
+    let m = s.len();
+    if m <= k {
+        return;
+    }
+    if m > BUCKETED || !(reach > 0.0 && reach.is_finite()) || tuning().no_buckets {
+        s.select_nth_unstable_by_key(k - 1, |c| c.key);
+        return;
+    }
+    let scale = BUCKETS as f32 / reach;
+    let mut bucket = [0u8; BUCKETED];
+    let mut count = [0u32; 2 * BUCKETS];
+    for (b, c) in bucket.iter_mut().zip(s.iter()) {
+        // d² · scale lies in 0..=BUCKETS (just above, by rounding, at d² = reach); adding
+        // 2²³ rounds it to an integer in the float's low mantissa bits: rounding is monotone
+        // too, and cheaper than a saturating conversion.
+        let x = ((c.dist2() * scale + 8_388_608.0).to_bits() & (2 * BUCKETS as u32 - 1)) as usize;
+        *b = x as u8;
+        count[x] += 1;
+    }
+    // The bucket of the k-th, and how many lie below it.
+    let (mut edge, mut below) = (0, 0);
+    while below + (count[edge] as usize) < k {
+        below += count[edge] as usize;
+        edge += 1;
+    }
+    if count[edge] as usize > EDGE {
+        s.select_nth_unstable_by_key(k - 1, |c| c.key);
+        return;
+    }
+    // Lower buckets to the front (`kept ≤ i`: the write never overtakes the read), the
+    // edge bucket aside.
+    let mut aside = [Cand::default(); EDGE + 1];
+    let (mut kept, mut on_edge) = (0, 0);
+    for i in 0..m {
+        let (c, b) = (s[i], bucket[i] as usize);
+        s[kept] = c;
+        kept += (b < edge) as usize;
+        aside[on_edge] = c;
+        on_edge += (b == edge) as usize;
+    }
+    let aside = &mut aside[..on_edge];
+    let need = k - below;
+    if need < on_edge {
+        aside.select_nth_unstable_by_key(need - 1, |c| c.key);
+    }
+    s[below..k].copy_from_slice(&aside[..need]);
 }
 
 /// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox,
@@ -821,6 +888,7 @@ struct Tuning {
     /// A fixed guess factor (0: the default, which depends on k).
     guess: f32,
     group_size: usize,
+    no_buckets: bool,
 }
 
 fn tuning() -> Tuning {
@@ -843,6 +911,7 @@ fn tuning() -> Tuning {
             estimate: !s.contains("noestimate"),
             guess: num("guess", 0.0),
             group_size: num("group", LEAF as f32) as usize,
+            no_buckets: s.contains("nobucket"),
         }
     })
 }
@@ -1123,6 +1192,42 @@ mod tests {
             assert_eq!(sizes.iter().sum::<u32>() as usize, n);
             assert_eq!(leaves.len(), n.div_ceil(LEAF).max(1), "n = {n}");
             assert_eq!(count_nodes(n), leaves.len() - 1, "n = {n}");
+        }
+    }
+
+    /// `nearest_first` keeps exactly the k lowest ranks, checked against a full sort: sets of
+    /// distinct, tied (few distinct distances, many in one bucket) and coincident distances,
+    /// every k, and reaches at and above the largest distance.
+    #[test]
+    fn nearest_first_keeps_the_k_lowest_ranks() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(7);
+        for trial in 0..300 {
+            let m = rng.random_range(1..=BUCKETED + 20);
+            let levels = [0usize, 3, 40, 1_000_000][trial % 4];
+            let cands: Vec<Cand> = (0..m as u32)
+                .map(|i| {
+                    let d =
+                        if levels == 0 { 0.0 } else { rng.random_range(0..levels) as f32 / levels as f32 };
+                    Cand { key: rank(d, rng.random_range(0..10 * m as u32) * 16 + i % 16), slot: i }
+                })
+                .collect();
+            let far = cands.iter().map(|c| c.dist2()).fold(0.0, f32::max);
+            let mut sorted: Vec<u64> = cands.iter().map(|c| c.key).collect();
+            sorted.sort_unstable();
+            sorted.dedup();
+            if sorted.len() != m {
+                continue; // ranks are unique in the tree (they hold the photon index)
+            }
+            for k in 1..=m {
+                for reach in [far, far * 1.5 + 1e-3] {
+                    let mut s = cands.clone();
+                    nearest_first(&mut s, k, reach);
+                    let mut got: Vec<u64> = s[..k].iter().map(|c| c.key).collect();
+                    got.sort_unstable();
+                    assert_eq!(got, sorted[..k], "m = {m}, k = {k}, levels = {levels}, reach = {reach}");
+                }
+            }
         }
     }
 }

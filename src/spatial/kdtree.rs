@@ -819,19 +819,25 @@ const EDGE: usize = 32;
 /// Moves the `k` candidates of lowest rank to the front of `s` (in any order; what lies behind
 /// them is unspecified); every candidate's distance² is at most `reach`. A histogram of the
 /// distances² in [`BUCKETS`] equal parts of 0..reach finds the bucket that holds the k-th (a
-/// bucket's distances are all below the next one's: scaling and truncation keep the order);
+/// bucket's distances are all below the next one's: scaling and rounding keep the order);
 /// the candidates of lower buckets are kept and the few of that bucket selected among by
 /// rank. One pass to count and one to keep, without a branch per candidate, where
 /// `select_nth_unstable`'s partitions and final insertion sort mispredict about half their
-/// comparisons on candidates in no particular order.
+/// comparisons on candidates in no particular order; it still decides where the histogram
+/// cannot (see [`by_buckets`]).
 fn nearest_first(s: &mut [Cand], k: usize, reach: f32) {
-    let m = s.len();
-    if m <= k {
-        return;
-    }
-    if m > BUCKETED || !(reach > 0.0 && reach.is_finite()) || tuning().no_buckets {
+    if s.len() > k && !by_buckets(s, k, reach) {
         s.select_nth_unstable_by_key(k - 1, |c| c.key);
-        return;
+    }
+}
+
+/// [`nearest_first`] by the histogram, for k < `s.len()`; false (and `s` untouched) when it
+/// does not apply: too many candidates, a reach of 0 (or not finite), or more than [`EDGE`]
+/// in the k-th's bucket (as when many photons lie at one distance).
+fn by_buckets(s: &mut [Cand], k: usize, reach: f32) -> bool {
+    let m = s.len();
+    if m > BUCKETED || !(reach > 0.0 && reach.is_finite()) || tuning().no_buckets {
+        return false;
     }
     let scale = BUCKETS as f32 / reach;
     let mut bucket = [0u8; BUCKETED];
@@ -851,8 +857,7 @@ fn nearest_first(s: &mut [Cand], k: usize, reach: f32) {
         edge += 1;
     }
     if count[edge] as usize > EDGE {
-        s.select_nth_unstable_by_key(k - 1, |c| c.key);
-        return;
+        return false;
     }
     // Lower buckets to the front (`kept ≤ i`: the write never overtakes the read), the
     // edge bucket aside.
@@ -871,10 +876,11 @@ fn nearest_first(s: &mut [Cand], k: usize, reach: f32) {
         aside.select_nth_unstable_by_key(need - 1, |c| c.key);
     }
     s[below..k].copy_from_slice(&aside[..need]);
+    true
 }
 
 /// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox,
-/// nogroup,noestimate,slack=…,ballslack=…,guess=…,group=…`): seeding on, boxes on constrained
+/// nogroup,noestimate,nobucket,slack=…,ballslack=…,guess=…,group=…`): seeding on, boxes on constrained
 /// trees only, groups of one leaf, by default. Results are the same either way.
 #[derive(Clone, Copy, Debug)]
 struct Tuning {

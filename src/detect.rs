@@ -527,7 +527,7 @@ pub fn param_radius(
     let mut found = vec![0f32; order.len()];
     found.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
         // Only the k-th distance is needed: no coordinates.
-        let mut nb = Neighbours::unordered(k_density).without_coords();
+        let mut nb = Neighbours::farthest_only(k_density);
         for (o, (r, &i)) in out.iter_mut().zip(ids).enumerate() {
             if let Some(&a) = ids.get(o + crate::spatial::PREFETCH_AHEAD) {
                 points.prefetch(a as usize);

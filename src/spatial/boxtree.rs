@@ -143,6 +143,7 @@ impl BoxTree {
             out.items.sort_unstable_by(|a, b| a.dist2.total_cmp(&b.dist2).then(a.index.cmp(&b.index)));
         }
         out.far2 = out.items.iter().map(|n| n.dist2).fold(0.0, f32::max);
+        out.found = out.items.len();
     }
 }
 

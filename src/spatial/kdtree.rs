@@ -164,14 +164,79 @@ fn rank(dist2: f32, index: u32) -> u64 {
     ((dist2.to_bits() as u64) << 32) | index as u64
 }
 
-/// A candidate of a search: its rank and its place among the tree's records.
-#[derive(Clone, Copy, Debug, Default)]
+/// Writes a block's four candidates — distances² `d`, photon indices `ids`, slots `slot`,
+/// `slot + 1`, … — to `cands` from `*n` on, each whole, and advances `*n` past those whose bit
+/// in `pass` is set and whose index is not `exclude` (see [`KdTree::scan_leaf`]). With SSE2
+/// the four are built in registers, each one store; elsewhere one field at a time.
+#[inline(always)]
+fn write_block(
+    d: Vec4,
+    ids: [u32; 4],
+    slot: u32,
+    pass: u32,
+    exclude: u32,
+    cands: &mut [Cand],
+    n: &mut usize,
+) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        let idv: __m128i = bytemuck::cast(ids);
+        // SAFETY: SSE2 is part of every x86-64 target; these only compute on registers.
+        let (four, excluded) = unsafe {
+            let dv = _mm_castps_si128(d.into());
+            let sv = _mm_add_epi32(_mm_set1_epi32(slot as i32), _mm_setr_epi32(0, 1, 2, 3));
+            let zero = _mm_setzero_si128();
+            // (index, distance² bits) pairs are the little-endian u64 ranks of `rank`.
+            let (klo, khi) = (_mm_unpacklo_epi32(idv, dv), _mm_unpackhi_epi32(idv, dv));
+            let (slo, shi) = (_mm_unpacklo_epi32(sv, zero), _mm_unpackhi_epi32(sv, zero));
+            let four = [
+                _mm_unpacklo_epi64(klo, slo),
+                _mm_unpackhi_epi64(klo, slo),
+                _mm_unpacklo_epi64(khi, shi),
+                _mm_unpackhi_epi64(khi, shi),
+            ];
+            (four, _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(idv, _mm_set1_epi32(exclude as i32)))))
+        };
+        let keep = pass & !(excluded as u32);
+        // One bounds check for the block; `off` never exceeds 3 (the mask tells the compiler).
+        let out = cands[*n..].first_chunk_mut::<4>().expect("room for a block past the last candidate");
+        let mut off = 0;
+        for (j, c) in four.into_iter().enumerate() {
+            out[off & 3] = bytemuck::cast(c);
+            off += (keep >> j) as usize & 1;
+        }
+        *n += off;
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let d = d.to_array();
+        let out = cands[*n..].first_chunk_mut::<4>().expect("room for a block past the last candidate");
+        let mut off = 0;
+        for j in 0..4 {
+            out[off & 3] = Cand::new(rank(d[j], ids[j]), slot + j as u32);
+            off += (pass >> j) as usize & (ids[j] != exclude) as usize;
+        }
+        *n += off;
+    }
+}
+
+/// A candidate of a search: its rank and its place among the tree's records. Laid out as
+/// four 32-bit words (photon index, distance² bits, slot, 0) so that a leaf's scan builds it
+/// in one vector register ([`KdTree::scan_leaf`]).
+#[derive(Clone, Copy, Debug, Default, bytemuck::Pod, bytemuck::Zeroable)]
+#[repr(C)]
 pub(crate) struct Cand {
     key: u64,
     slot: u32,
+    pad: u32,
 }
 
 impl Cand {
+    fn new(key: u64, slot: u32) -> Self {
+        Cand { key, slot, pad: 0 }
+    }
+
     fn dist2(&self) -> f32 {
         f32::from_bits((self.key >> 32) as u32)
     }
@@ -309,7 +374,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             if !serves
                 && tuning().estimate
                 && out.tree == id
-                && out.items.len() == k
+                && out.len() == k
                 && let Some(kth) = out.max_dist2()
             {
                 self.gather(qw, qp, r2v, ball, k, kth, out);
@@ -324,7 +389,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         self.search(qw, qp, r2v, ball, exclude, k, out);
         if grouped
             && (estimated || !out.group.serves(id, k, qw, qp, r2v, ball))
-            && out.items.len() == k
+            && out.len() == k
             && let Some(kth) = out.max_dist2()
         {
             self.gather(qw, qp, r2v, ball, k, kth, out);
@@ -384,6 +449,10 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         out.tree = id;
         let coords = out.with_coords.then_some(&mut out.coords);
         out.far2 = self.emit(&out.cands, &mut out.items, coords, &mut out.slots);
+        out.found = out.items.len();
+        if out.farthest_only {
+            out.items.clear();
+        }
     }
 
     /// Writes the candidates `cands` as a result, and returns their largest distance². Each
@@ -437,7 +506,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             }
             let d = dist2(&r.w, qw);
             max = max.max(d);
-            scratch.push(Cand { key: rank(d, r.idx), slot });
+            scratch.push(Cand::new(rank(d, r.idx), slot));
         }
         match scratch.len().cmp(&k) {
             std::cmp::Ordering::Less => None,
@@ -741,12 +810,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 }
                 pass &= e.cmple(r2v).bitmask();
             }
-            let d = d.to_array();
-            for j in 0..4 {
-                let idx = ids[4 * b + j];
-                cands[*n] = Cand { key: rank(d[j], idx), slot: l.lo + (4 * b + j) as u32 };
-                *n += (pass >> j) as usize & (idx != exclude) as usize;
-            }
+            let block: [u32; 4] = std::array::from_fn(|j| ids[4 * b + j]);
+            write_block(d, block, l.lo + 4 * b as u32, pass, exclude, cands, n);
         }
     }
 
@@ -768,7 +833,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         // First within a tighter reach guessed from the previous result (a nearby query of
         // the same tree), which leaves fewer candidates to select from; if fewer than k lie
         // within it, again within the group's whole reach.
-        let guess = if out.tree == self.build && out.items.len() == k {
+        let guess = if out.tree == self.build && out.len() == k {
             // Neighbouring queries' k-th distances differ by a relative amount that shrinks
             // like 1/√k: 1.3 at Kf + 1 = 17 (6–8 % faster than no guess), 1.18 at Kc = 50
             // (callgrind, detect: 2.4 % fewer instructions than 1.3; 1.12 gained no more).
@@ -794,12 +859,20 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             return false;
         }
         let cands = &mut out.scanned[..n];
+        out.tree = self.build;
+        out.found = k;
+        if out.farthest_only {
+            // The k-th's distance² alone; the slots of the last search stay, as k candidates
+            // that still bound the next search (`seed`).
+            out.items.clear();
+            out.far2 = f32::from_bits((kth_rank(cands, k, scanned_reach) >> 32) as u32);
+            return true;
+        }
         nearest_first(cands, k, scanned_reach);
         let cands = &mut cands[..k];
         if out.ordered {
             cands.sort_unstable_by_key(|c| c.key);
         }
-        out.tree = self.build;
         let coords = out.with_coords.then_some(&mut out.coords);
         out.far2 = self.emit(cands, &mut out.items, coords, &mut out.slots);
         true
@@ -831,13 +904,14 @@ fn nearest_first(s: &mut [Cand], k: usize, reach: f32) {
     }
 }
 
-/// [`nearest_first`] by the histogram, for k < `s.len()`; false (and `s` untouched) when it
-/// does not apply: too many candidates, a reach of 0 (or not finite), or more than [`EDGE`]
-/// in the k-th's bucket (as when many photons lie at one distance).
-fn by_buckets(s: &mut [Cand], k: usize, reach: f32) -> bool {
-    let m = s.len();
-    if m > BUCKETED || !(reach > 0.0 && reach.is_finite()) || tuning().no_buckets {
-        return false;
+/// The histogram of [`nearest_first`] over `s` (k < `s.len()`): each candidate's bucket, the
+/// bucket that holds the k-th and how many lie below it; `None` when it does not apply: too
+/// many candidates, a reach of 0 (or not finite), or more than [`EDGE`] in the k-th's bucket
+/// (as when many photons lie at one distance).
+#[inline(always)]
+fn histogram(s: &[Cand], k: usize, reach: f32) -> Option<([u8; BUCKETED], usize, usize)> {
+    if s.len() > BUCKETED || !(reach > 0.0 && reach.is_finite()) || tuning().no_buckets {
+        return None;
     }
     let scale = BUCKETS as f32 / reach;
     let mut bucket = [0u8; BUCKETED];
@@ -856,14 +930,18 @@ fn by_buckets(s: &mut [Cand], k: usize, reach: f32) -> bool {
         below += count[edge] as usize;
         edge += 1;
     }
-    if count[edge] as usize > EDGE {
-        return false;
-    }
+    (count[edge] as usize <= EDGE).then_some((bucket, edge, below))
+}
+
+/// [`nearest_first`] by the [`histogram`], for k < `s.len()`; false (and `s` untouched) when
+/// the histogram does not apply.
+fn by_buckets(s: &mut [Cand], k: usize, reach: f32) -> bool {
+    let Some((bucket, edge, below)) = histogram(s, k, reach) else { return false };
     // Lower buckets to the front (`kept ≤ i`: the write never overtakes the read), the
     // edge bucket aside.
     let mut aside = [Cand::default(); EDGE + 1];
     let (mut kept, mut on_edge) = (0, 0);
-    for i in 0..m {
+    for i in 0..s.len() {
         let (c, b) = (s[i], bucket[i] as usize);
         s[kept] = c;
         kept += (b < edge) as usize;
@@ -877,6 +955,25 @@ fn by_buckets(s: &mut [Cand], k: usize, reach: f32) -> bool {
     }
     s[below..k].copy_from_slice(&aside[..need]);
     true
+}
+
+/// The k-th lowest rank among the candidates `s` (at least k, every distance² at most
+/// `reach`), whose order it may change: as [`nearest_first`], but only the k-th's bucket is
+/// gathered and selected among.
+fn kth_rank(s: &mut [Cand], k: usize, reach: f32) -> u64 {
+    if s.len() == k {
+        return s.iter().fold(0, |m, c| m.max(c.key));
+    }
+    if let Some((bucket, edge, below)) = histogram(s, k, reach) {
+        let mut aside = [Cand::default(); EDGE + 1];
+        let mut on_edge = 0;
+        for (&c, &b) in s.iter().zip(&bucket) {
+            aside[on_edge] = c;
+            on_edge += (b as usize == edge) as usize;
+        }
+        return aside[..on_edge].select_nth_unstable_by_key(k - below - 1, |c| c.key).1.key;
+    }
+    s.select_nth_unstable_by_key(k - 1, |c| c.key).1.key
 }
 
 /// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox,
@@ -1139,7 +1236,7 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
             if r.idx == self.exclude || (self.ball && dist2(&r.p, self.qp) > self.r2) {
                 continue;
             }
-            self.push(Cand { key, slot: (lo + slot) as u32 });
+            self.push(Cand::new(key, (lo + slot) as u32));
         }
     }
 
@@ -1215,7 +1312,7 @@ mod tests {
                 .map(|i| {
                     let d =
                         if levels == 0 { 0.0 } else { rng.random_range(0..levels) as f32 / levels as f32 };
-                    Cand { key: rank(d, rng.random_range(0..10 * m as u32) * 16 + i % 16), slot: i }
+                    Cand::new(rank(d, rng.random_range(0..10 * m as u32) * 16 + i % 16), i)
                 })
                 .collect();
             let far = cands.iter().map(|c| c.dist2()).fold(0.0, f32::max);

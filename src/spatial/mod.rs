@@ -243,7 +243,10 @@ impl Neighbour {
 #[derive(Clone, Debug)]
 pub struct Neighbours {
     items: Vec<Neighbour>,
-    /// The largest distance² in `items` (meaningless when it is empty).
+    /// How many neighbours the last result found: `items.len()`, except in a buffer made
+    /// [`Self::farthest_only`], whose `items` stay empty.
+    found: usize,
+    /// The largest distance² found (meaningless when none was).
     far2: f32,
     /// The neighbours' coordinates in the tree's distance space, padded to three.
     coords: Vec<[f32; 3]>,
@@ -262,6 +265,9 @@ pub struct Neighbours {
     ordered: bool,
     /// Whether results carry coordinates (see [`Self::without_coords`]).
     with_coords: bool,
+    /// Whether results are only the count and the farthest distance (see
+    /// [`Self::farthest_only`]).
+    farthest_only: bool,
     /// Queries answered from a group's candidates (for tests and tuning).
     pub(crate) group_answers: u64,
 }
@@ -276,6 +282,7 @@ impl Neighbours {
     pub fn with_capacity(k: usize) -> Self {
         Neighbours {
             items: Vec::with_capacity(k),
+            found: 0,
             far2: 0.0,
             coords: Vec::with_capacity(k),
             slots: Vec::with_capacity(k),
@@ -285,6 +292,7 @@ impl Neighbours {
             group: Default::default(),
             ordered: true,
             with_coords: true,
+            farthest_only: false,
             group_answers: 0,
         }
     }
@@ -302,21 +310,31 @@ impl Neighbours {
         Neighbours { with_coords: false, ..self }
     }
 
+    /// A buffer whose results are only how many neighbours were found ([`Self::len`]) and
+    /// the farthest one's distance ([`Self::max_dist2`]); the neighbours themselves
+    /// ([`Self::as_slice`], [`Self::indices`], [`Self::coords`]) are left empty. For the
+    /// density of Eq. 1, which needs only the k-th distance: a query answered from its group
+    /// then finds it without moving the k nearest together or writing them out.
+    pub fn farthest_only(k: usize) -> Self {
+        Neighbours { farthest_only: true, ..Neighbours::unordered(k).without_coords() }
+    }
+
     /// The largest squared distance found (the k-th nearest's when k were found).
     pub fn max_dist2(&self) -> Option<f32> {
-        (!self.items.is_empty()).then_some(self.far2)
+        (self.found > 0).then_some(self.far2)
     }
 
     pub fn as_slice(&self) -> &[Neighbour] {
         &self.items
     }
 
+    /// How many neighbours were found (also in a buffer made [`Self::farthest_only`]).
     pub fn len(&self) -> usize {
-        self.items.len()
+        self.found
     }
 
     pub fn is_empty(&self) -> bool {
-        self.items.is_empty()
+        self.found == 0
     }
 
     pub fn indices(&self) -> impl ExactSizeIterator<Item = u32> + '_ {
@@ -347,6 +365,7 @@ impl Neighbours {
     /// Empties the buffer and forgets the last result.
     fn clear(&mut self) {
         self.items.clear();
+        self.found = 0;
         self.coords.clear();
         self.slots.clear();
         self.tree = 0;

@@ -33,6 +33,7 @@ fn check_all(o: &Owned, space: Space, ks: &[usize], radii: &[Option<f32>], rng: 
     let set = o.set();
     let index = SpatialIndex::build(&set, space).unwrap();
     let mut out = Neighbours::default();
+    let mut far = Neighbours::farthest_only(0);
     let n = set.len();
     let mut queries: Vec<Query> = (0..n).map(|i| set.query(i, None)).collect();
     // Off-photon queries: jittered copies of photons, and one with its own photon excluded.
@@ -58,6 +59,9 @@ fn check_all(o: &Owned, space: Space, ks: &[usize], radii: &[Option<f32>], rng: 
                     &want[..],
                     "space {space:?}, k {k}, radius {radius:?}, query {q:?}"
                 );
+                index.knn(q, k, &mut far);
+                assert_eq!((far.len(), far.max_dist2()), (want.len(), want.last().map(|n| n.dist2)));
+                assert!(far.as_slice().is_empty());
             }
         }
     }
@@ -342,6 +346,7 @@ fn queries_in_leaf_order_with_a_reused_buffer_equal_brute_force_and_return_posit
         let index = SpatialIndex::build(&set, space).unwrap();
         let (mut out, mut set_only) = (Neighbours::default(), Neighbours::unordered(k));
         let mut bare = Neighbours::unordered(k).without_coords();
+        let mut far = Neighbours::farthest_only(k);
         for i in index.order() {
             let i = i as usize;
             let q = set.query(i, Some(radius[i]));
@@ -362,7 +367,16 @@ fn queries_in_leaf_order_with_a_reused_buffer_equal_brute_force_and_return_posit
             index.knn(&q, k, &mut bare);
             assert_eq!(bare.as_slice(), set_only.as_slice(), "bare, space {space:?}, k {k}, photon {i}");
             assert!(bare.coords().is_empty());
+            // Only the count and the farthest: as the scan's, and no neighbours.
+            index.knn(&q, k, &mut far);
+            assert_eq!((far.len(), far.max_dist2()), (want.len(), want.last().map(|n| n.dist2)));
+            assert!(far.as_slice().is_empty() && far.coords().is_empty());
         }
+        assert!(
+            far.group_answers > out.group_answers / 2,
+            "{space:?}, k {k}: {} from groups",
+            far.group_answers
+        );
         // Queries were answered from their leaf's gathered candidates, not a search: most of
         // them where every ball holds k photons; fewer where the random radii (the stages'
         // vary smoothly) often admit fewer than k (691 and 109 of 1500 when written).

@@ -924,13 +924,16 @@ fn histogram(s: &[Cand], k: usize, reach: f32) -> Option<([u8; BUCKETED], usize,
         *b = x as u8;
         count[x] += 1;
     }
-    // The bucket of the k-th, and how many lie below it.
-    let (mut edge, mut below) = (0, 0);
-    while below + (count[edge] as usize) < k {
-        below += count[edge] as usize;
-        edge += 1;
+    // The bucket of the k-th, and how many lie below it, counted down from the top bucket
+    // (d² ≤ reach puts every candidate at most there): the surplus over k is usually small,
+    // so that bucket lies a few from the top.
+    let (mut edge, mut above) = (BUCKETS, 0);
+    while edge > 0 && s.len() - above - count[edge] as usize >= k {
+        above += count[edge] as usize;
+        edge -= 1;
     }
-    (count[edge] as usize <= EDGE).then_some((bucket, edge, below))
+    let below = s.len() - above - count[edge] as usize;
+    (count[edge] as usize <= EDGE && below < k).then_some((bucket, edge, below))
 }
 
 /// [`nearest_first`] by the [`histogram`], for k < `s.len()`; false (and `s` untouched) when
@@ -1302,7 +1305,7 @@ mod tests {
     /// distinct, tied (few distinct distances, many in one bucket) and coincident distances,
     /// every k, and reaches at and above the largest distance.
     #[test]
-    fn nearest_first_keeps_the_k_lowest_ranks() {
+    fn nearest_first_keeps_the_k_lowest_ranks_and_kth_rank_finds_the_kth() {
         use rand::{RngExt, SeedableRng};
         let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(7);
         for trial in 0..300 {
@@ -1329,6 +1332,8 @@ mod tests {
                     let mut got: Vec<u64> = s[..k].iter().map(|c| c.key).collect();
                     got.sort_unstable();
                     assert_eq!(got, sorted[..k], "m = {m}, k = {k}, levels = {levels}, reach = {reach}");
+                    let mut s = cands.clone();
+                    assert_eq!(kth_rank(&mut s, k, reach), sorted[k - 1], "k-th, m = {m}, k = {k}");
                 }
             }
         }

@@ -1073,7 +1073,11 @@ fn build_node<const W: usize, const P: usize>(
         }
     }
     let mid = left_size(m);
-    recs.select_nth_unstable_by(mid, |a, b| a.coord(axis).total_cmp(&b.coord(axis)));
+    // Records are finite (the index refuses others), so `<` orders them totally but for
+    // −0 = +0, which either side of the split may hold.
+    recs.select_nth_unstable_by(mid, |a, b| {
+        a.coord(axis).partial_cmp(&b.coord(axis)).unwrap_or(std::cmp::Ordering::Equal)
+    });
     let split = recs[mid].coord(axis);
     let left_nodes = count_nodes(mid);
     let (head, rest) = nodes.split_first_mut().expect("a subtree of more than LEAF records has a node");

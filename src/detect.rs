@@ -141,15 +141,27 @@ pub struct Eigen2 {
 }
 
 /// Closed-form eigen-decomposition of [[a, b], [b, c]] (Eq. 2–7's PCA): λ = m ± d with
-/// m = (a + c)/2, d = hypot((a − c)/2, b), and P1 at angle θ = ½·atan2(b, (a − c)/2), which
-/// is stable for every input (no division, no cancellation in the vector). λ1 ≥ λ2; for a
-/// covariance λ2 is clamped at 0 against rounding. An isotropic matrix gives P1 = (1, 0).
+/// m = (a + c)/2 and d = √(h² + b²), h = (a − c)/2. P1 lies at half the angle φ of (h, b),
+/// the direction of (h + d, b) — or, where h < 0 would make h + d cancel, of (b, d − h) —
+/// by the half-angle identity tan(φ/2) = b/(d + h) = (d − h)/b: no trigonometric function and
+/// no cancellation. P1 is taken with a non-negative first component (angle in (−90°, 90°]).
+/// λ1 ≥ λ2; for a covariance λ2 is clamped at 0 against rounding. An isotropic matrix gives
+/// P1 = (1, 0).
 pub fn eigen2(a: f64, b: f64, c: f64) -> Eigen2 {
     let h = 0.5 * (a - c);
     let m = 0.5 * (a + c);
-    let d = h.hypot(b);
-    let theta = 0.5 * b.atan2(h);
-    let (s, co) = theta.sin_cos();
+    let d = (h * h + b * b).sqrt();
+    // Squares beyond f64's range (|h| or |b| ≳ 1e154): the slower, overflow-free form.
+    let d = if d.is_finite() { d } else { h.hypot(b) };
+    let (x, y) = if h >= 0.0 { (h + d, b) } else { (b, d - h) };
+    let len = (x * x + y * y).sqrt();
+    let len = if len.is_finite() { len } else { x.hypot(y) };
+    let [co, s] = if len > 0.0 && len.is_finite() {
+        let sign = if x < 0.0 { -1.0 } else { 1.0 };
+        [sign * x / len, sign * y / len]
+    } else {
+        [1.0, 0.0]
+    };
     Eigen2 { lambda1: m + d, lambda2: (m - d).max(0.0), p1: [co, s], p2: [-s, co] }
 }
 

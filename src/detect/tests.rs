@@ -19,6 +19,8 @@ fn eigen2_matches_nalgebra_and_its_own_definition() {
     let mut r = rng(1);
     let mut cases: Vec<[f64; 3]> =
         vec![[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [0.0, 0.0, 0.0], [0.0, 1.0, 0.0]];
+    // Beyond the range of the squares, and h < 0 with b of either sign.
+    cases.extend([[1e300, 3e299, -1e300], [-2.0, 1.0, 3.0], [-2.0, -1.0, 3.0], [1.0, -0.0, 5.0]]);
     cases.extend((0..500).map(|_| {
         let s = 10f64.powf(r.random_range(-8.0..8.0));
         [r.random_range(-1.0..1.0) * s, r.random_range(-1.0..1.0) * s, r.random_range(-1.0..1.0) * s]
@@ -41,6 +43,11 @@ fn eigen2_matches_nalgebra_and_its_own_definition() {
             assert!((p[0].hypot(p[1]) - 1.0).abs() < 1e-12);
         }
         assert!((e.p1[0] * e.p2[0] + e.p1[1] * e.p2[1]).abs() < 1e-12);
+        // P1 at an angle in (−90°, 90°], and (1, 0) when the matrix is isotropic.
+        assert!(e.p1[0] > 0.0 || (e.p1[0] == 0.0 && e.p1[1] > 0.0), "{a} {b} {c}: {e:?}");
+        if a == c && b == 0.0 {
+            assert_eq!(e.p1, [1.0, 0.0]);
+        }
     }
 }
 

@@ -448,7 +448,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         s.finish(out.ordered);
         out.tree = id;
         let coords = out.with_coords.then_some(&mut out.coords);
-        out.far2 = self.emit(&out.cands, &mut out.items, coords, &mut out.slots);
+        self.emit(&out.cands, &mut out.items, coords, &mut out.slots);
+        out.far2 = farthest(&out.cands);
         out.found = out.items.len();
         if out.farthest_only {
             out.items.clear();
@@ -464,7 +465,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         items: &mut Vec<Neighbour>,
         coords: Option<&mut Vec<[f32; 3]>>,
         slots: &mut Vec<u32>,
-    ) -> f32 {
+    ) {
         items.clear();
         items.extend(cands.iter().map(|c| Neighbour { dist2: c.dist2(), index: c.key as u32 }));
         if let Some(coords) = coords {
@@ -476,7 +477,6 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         }
         slots.clear();
         slots.extend(cands.iter().map(|c| c.slot));
-        cands.iter().fold(0.0, |m, c| larger(m, c.dist2()))
     }
 
     /// An upper bound on the k-th distance² of a query: the k-th among the records at `slots`
@@ -868,13 +868,14 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             out.far2 = f32::from_bits((kth_rank(cands, k, scanned_reach) >> 32) as u32);
             return true;
         }
-        nearest_first(cands, k, scanned_reach);
+        let far2 = nearest_first(cands, k, scanned_reach);
         let cands = &mut cands[..k];
         if out.ordered {
             cands.sort_unstable_by_key(|c| c.key);
         }
         let coords = out.with_coords.then_some(&mut out.coords);
-        out.far2 = self.emit(cands, &mut out.items, coords, &mut out.slots);
+        self.emit(cands, &mut out.items, coords, &mut out.slots);
+        out.far2 = far2;
         true
     }
 }
@@ -897,11 +898,21 @@ const EDGE: usize = 32;
 /// rank. One pass to count and one to keep, without a branch per candidate, where
 /// `select_nth_unstable`'s partitions and final insertion sort mispredict about half their
 /// comparisons on candidates in no particular order; it still decides where the histogram
-/// cannot (see [`by_buckets`]).
-fn nearest_first(s: &mut [Cand], k: usize, reach: f32) {
-    if s.len() > k && !by_buckets(s, k, reach) {
-        s.select_nth_unstable_by_key(k - 1, |c| c.key);
+/// cannot (see [`by_buckets`]). Returns the largest distance² of the k (the k-th's), which
+/// the selection finds on the way.
+fn nearest_first(s: &mut [Cand], k: usize, reach: f32) -> f32 {
+    if s.len() <= k {
+        return farthest(s);
     }
+    match by_buckets(s, k, reach) {
+        Some(far2) => far2,
+        None => s.select_nth_unstable_by_key(k - 1, |c| c.key).1.dist2(),
+    }
+}
+
+/// The largest distance² among `s` (0 when empty).
+fn farthest(s: &[Cand]) -> f32 {
+    s.iter().fold(0.0, |m, c| larger(m, c.dist2()))
 }
 
 /// The histogram of [`nearest_first`] over `s` (k < `s.len()`): each candidate's bucket, the
@@ -936,10 +947,10 @@ fn histogram(s: &[Cand], k: usize, reach: f32) -> Option<([u8; BUCKETED], usize,
     (count[edge] as usize <= EDGE && below < k).then_some((bucket, edge, below))
 }
 
-/// [`nearest_first`] by the [`histogram`], for k < `s.len()`; false (and `s` untouched) when
-/// the histogram does not apply.
-fn by_buckets(s: &mut [Cand], k: usize, reach: f32) -> bool {
-    let Some((bucket, edge, below)) = histogram(s, k, reach) else { return false };
+/// [`nearest_first`] by the [`histogram`], for k < `s.len()`, returning the k-th's distance²;
+/// `None` (and `s` untouched) when the histogram does not apply.
+fn by_buckets(s: &mut [Cand], k: usize, reach: f32) -> Option<f32> {
+    let (bucket, edge, below) = histogram(s, k, reach)?;
     // Lower buckets to the front (`kept ≤ i`: the write never overtakes the read), the
     // edge bucket aside.
     let mut aside = [Cand::default(); EDGE + 1];
@@ -953,11 +964,14 @@ fn by_buckets(s: &mut [Cand], k: usize, reach: f32) -> bool {
     }
     let aside = &mut aside[..on_edge];
     let need = k - below;
-    if need < on_edge {
-        aside.select_nth_unstable_by_key(need - 1, |c| c.key);
-    }
+    // The k-th: the need-th of its bucket (all of them when all are needed).
+    let far2 = if need < on_edge {
+        aside.select_nth_unstable_by_key(need - 1, |c| c.key).1.dist2()
+    } else {
+        farthest(aside)
+    };
     s[below..k].copy_from_slice(&aside[..need]);
-    true
+    Some(far2)
 }
 
 /// The k-th lowest rank among the candidates `s` (at least k, every distance² at most
@@ -1332,7 +1346,8 @@ mod tests {
             for k in 1..=m {
                 for reach in [far, far * 1.5 + 1e-3] {
                     let mut s = cands.clone();
-                    nearest_first(&mut s, k, reach);
+                    let far2 = nearest_first(&mut s, k, reach);
+                    assert_eq!(far2, f32::from_bits((sorted[k - 1] >> 32) as u32), "m = {m}, k = {k}");
                     let mut got: Vec<u64> = s[..k].iter().map(|c| c.key).collect();
                     got.sort_unstable();
                     assert_eq!(got, sorted[..k], "m = {m}, k = {k}, levels = {levels}, reach = {reach}");

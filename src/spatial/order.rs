@@ -41,7 +41,10 @@ pub fn locality_order(positions: &[[f32; 3]]) -> Vec<u32> {
             (spread(cell(0)) | spread(cell(1)) << 1 | spread(cell(2)) << 2, i as u32)
         })
         .collect();
-    keyed.par_sort_unstable();
+    // A stable radix sort on the key keeps ties in index order (the order sorting by (key,
+    // index) gives), in a fixed number of linear passes: several times fewer cycles than a
+    // comparison sort on a million photons.
+    radsort::sort_by_key(&mut keyed, |&(key, _)| key);
     keyed.into_iter().map(|(_, i)| i).collect()
 }
 
@@ -127,6 +130,27 @@ mod tests {
         let pairs: Vec<u32> = (0..32).collect();
         let p2 = permuted(&pairs, &order, 2);
         assert_eq!(p2[0..2], [2 * order[0], 2 * order[0] + 1]);
+    }
+
+    /// Photons at the same place (equal keys) are visited in index order, as sorting by
+    /// (key, index) visits them, and the places themselves in Z-order.
+    #[test]
+    fn ties_are_visited_in_index_order() {
+        let places: Vec<[f32; 3]> =
+            (0..7u32).map(|k| [(k % 2) as f32, (k / 2 % 2) as f32, (k / 4) as f32]).collect();
+        let pos: Vec<[f32; 3]> =
+            (0..3000u32).map(|i| places[(i * 2_654_435_761 >> 7) as usize % 7]).collect();
+        let order = locality_order(&pos);
+        for w in order.windows(2) {
+            let (a, b) = (pos[w[0] as usize], pos[w[1] as usize]);
+            if a == b {
+                assert!(w[0] < w[1], "{w:?}");
+            }
+        }
+        // Each place's photons in one run: (x, y, z) bits interleaved x lowest.
+        let key = |p: [f32; 3]| p[0] as u32 | (p[1] as u32) << 1 | (p[2] as u32) << 2;
+        let keys: Vec<u32> = order.iter().map(|&i| key(pos[i as usize])).collect();
+        assert!(keys.windows(2).all(|k| k[0] <= k[1]));
     }
 
     #[test]

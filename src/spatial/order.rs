@@ -139,7 +139,7 @@ mod tests {
         let places: Vec<[f32; 3]> =
             (0..7u32).map(|k| [(k % 2) as f32, (k / 2 % 2) as f32, (k / 4) as f32]).collect();
         let pos: Vec<[f32; 3]> =
-            (0..3000u32).map(|i| places[(i * 2_654_435_761 >> 7) as usize % 7]).collect();
+            (0..3000u32).map(|i| places[(i.wrapping_mul(2_654_435_761) >> 7) as usize % 7]).collect();
         let order = locality_order(&pos);
         for w in order.windows(2) {
             let (a, b) = (pos[w[0] as usize], pos[w[1] as usize]);

@@ -53,10 +53,7 @@ fn main() {
     let ph = traced.photons();
     let n = ph.len();
     println!("default scene: {emitted} emitted, {n} stored; {threads} threads");
-    let before = clock::ghz();
-    println!("{}", clock::line("before", before));
-    // (stage, µs per photon (per iteration) per core, goal in µs) for the costs in cycles.
-    let mut costs: Vec<(&str, f64, f64)> = Vec::new();
+    println!("{}", clock::line("before"));
     println!("\n| stage | CPU s | wall s | µs per photon (per iteration) per core | paper | goal |");
     println!("| --- | --- | --- | --- | --- | --- |");
     let row = |stage: &str, c: f64, w: f64, per: f64, paper: &str, goal: &str| {
@@ -84,7 +81,6 @@ fn main() {
     let (d, c, w) = measure(|| detect::detect(&input, &p, &|_| {}).unwrap());
     if runs("detect") {
         row("detect, param-pca (Kc = 50)", c, w, n as f64, "43", "≤ 4");
-        costs.push(("detect", c / n as f64 * 1e6, 4.0));
     }
     if runs("world-pca") {
         let wp = DetectParams { method: detect::Method::WorldPca, ..p };
@@ -156,23 +152,9 @@ fn main() {
         assert_eq!(relaxed.len(), n);
         let per = (n * rp.iterations) as f64;
         row(label, c + rc, w + rw, per, "16.5", "≤ 1.5");
-        costs.push((label, (c + rc) / per * 1e6, 1.5));
         row("  of which relabelling into spatial order and back", rc, rw, per, "-", "-");
         row("  of which index rebuilds", build_c, build_w, per, "-", "-");
         row("  of which iterations (search, force, move)", c - build_c, w - build_w, per, "-", "-");
     }
-    let after = clock::ghz();
-    println!("\n{}", clock::line("after", after));
-    // Costs in cycles move less with the clock than times do (waits on memory do not shrink
-    // with it): an estimate, at the clock read before and after, when those agree.
-    if let Some(g) = clock::steady(before, after) {
-        for (stage, us, goal) in costs {
-            println!(
-                "{stage} at a steady {g:.2} GHz: ≈ {:.0} cycles per photon (per iteration) per core, \
-                 against the goal's {:.0} at this clock",
-                us * g * 1e3,
-                goal * g * 1e3
-            );
-        }
-    }
+    println!("\n{}", clock::line("after"));
 }

@@ -56,8 +56,7 @@ fn main() {
     files.sort_by_key(|p| p.file_stem().is_none_or(|s| s != "prism"));
 
     println!("tracer throughput: {} rayon threads", rayon::current_num_threads());
-    let before = clock::ghz();
-    println!("{}", clock::line("before", before));
+    println!("{}", clock::line("before"));
     println!(
         "paper: {PAPER_M_PER_S_PER_CORE:.2} M emitted/s per core (20 M in 12.3 s on 7 cores); \
          goal ≥ {GOAL_M_PER_S_PER_CORE} M/s per core\n"
@@ -66,8 +65,6 @@ fn main() {
         "| scene | triangles | emitted | stored | CPU s | wall s | M emitted/s per core | × paper | share of goal |"
     );
     println!("| --- | --- | --- | --- | --- | --- | --- | --- | --- |");
-    // CPU seconds per emitted photon of the prism, for its cost in cycles.
-    let mut prism_cost = None;
     for path in files {
         let name = path.file_stem().map_or(String::new(), |s| s.to_string_lossy().into_owned());
         let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
@@ -84,21 +81,7 @@ fn main() {
             rate / PAPER_M_PER_S_PER_CORE,
             100.0 * rate / GOAL_M_PER_S_PER_CORE
         );
-        if name == "prism" {
-            prism_cost = Some(c / n as f64);
-        }
         drop(traced);
     }
-    let after = clock::ghz();
-    println!("\n{}", clock::line("after", after));
-    // The cost in cycles moves less with the clock than the rate does (waits on memory do
-    // not shrink with it): an estimate, at the clock read before and after, when those agree.
-    if let (Some(g), Some(cost)) = (clock::steady(before, after), prism_cost) {
-        println!(
-            "prism at a steady {g:.2} GHz: ≈ {:.0} cycles per emitted photon per core, against the \
-             goal's {:.0} (≥ {GOAL_M_PER_S_PER_CORE} M/s per core) at this clock",
-            cost * g * 1e9,
-            g * 1e9 / (GOAL_M_PER_S_PER_CORE * 1e6)
-        );
-    }
+    println!("\n{}", clock::line("after"));
 }

@@ -35,17 +35,10 @@ pub fn ghz() -> Option<f64> {
     None
 }
 
-/// A line to print beside a bench's table: the clock `g` measured (by [`ghz`]) `when`.
-pub fn line(when: &str, g: Option<f64>) -> String {
-    match g {
+/// A line to print beside a bench's table: the clock, measured now.
+pub fn line(when: &str) -> String {
+    match ghz() {
         Some(g) => format!("clock {when}: {g:.2} GHz (dependent adds per ns, one thread)"),
         None => format!("clock {when}: not measured (PHOTONKIT_BENCH_CLOCK=0, or not x86-64)"),
     }
-}
-
-/// The clock a run had, when the readings before and after it agree within 5 % (their mean);
-/// `None` when either is missing or the clock moved: costs in cycles are then unknown.
-pub fn steady(before: Option<f64>, after: Option<f64>) -> Option<f64> {
-    let (a, b) = (before?, after?);
-    ((a - b).abs() <= 0.05 * a.max(b)).then_some(0.5 * (a + b))
 }

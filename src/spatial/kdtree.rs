@@ -456,9 +456,10 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         }
     }
 
-    /// Writes the candidates `cands` as a result, and returns their largest distance². Each
-    /// list is filled in one pass over a slice of known length (no capacity check per item);
-    /// a candidate's photon index is the low half of its rank.
+    /// Writes the candidates `cands` as a result (the caller sets its largest distance², which
+    /// the selection already knows). Each list is filled in one pass over a slice of known
+    /// length (no capacity check per item); a candidate's photon index is the low half of its
+    /// rank.
     fn emit(
         &self,
         cands: &[Cand],

@@ -245,7 +245,7 @@ impl Bvh {
     }
 
     /// The nearest triangle hit with `t` in (`t_min`, `t_max`).
-    #[inline]
+    #[inline(always)]
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
         match self.nodes.first() {
             None => None,
@@ -258,6 +258,7 @@ impl Bvh {
     }
 
     /// The whole mesh as one leaf (see [`Bvh::test_leaf`]).
+    #[inline(always)]
     fn intersect_root_leaf(&self, root: &Node, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
         let mut best: Option<TriHit> = None;
         let mut t_best = t_max;
@@ -526,7 +527,7 @@ fn packet_intersect(p: &Packet, r: &RayLanes, t_min: f32, t_max: f32) -> Option<
 }
 
 /// Whether [`packet_pair_intersect`] may run (`PHOTONKIT_NO_AVX` set turns it off, to measure).
-fn avx_available() -> bool {
+pub(crate) fn avx_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         std::arch::is_x86_feature_detected!("avx") && std::env::var_os("PHOTONKIT_NO_AVX").is_none()
@@ -547,6 +548,7 @@ fn avx_available() -> bool {
 /// The processor must have AVX.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
+#[inline]
 unsafe fn packet_pair_intersect(
     pair: &PacketPair,
     ray: &Ray,

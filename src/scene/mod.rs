@@ -244,7 +244,7 @@ impl Scene {
     }
 
     /// The nearest hit among the shapes `reach` allows (see [`Scene::reach_after`]).
-    #[inline]
+    #[inline(always)]
     pub fn intersect_reach(&self, ray: &Ray, reach: Reach, t_min: f32, t_max: f32) -> Option<Hit> {
         match reach {
             Reach::All => self.intersect(ray, t_min, t_max),
@@ -428,6 +428,7 @@ impl Scene {
     }
 
     /// The nearest surface the ray meets with `t` in (`t_min`, `t_max`).
+    #[inline(always)]
     pub fn intersect(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
         let best = self.intersect_analytic(ray, t_min, t_max);
         let t_best = best.map_or(t_max, |h| h.t);
@@ -436,12 +437,13 @@ impl Scene {
 
     /// The nearest triangle hit, else the nearest analytic one: the nearest hit of a ray
     /// that [`Reach::MeshFirst`] describes.
+    #[inline(always)]
     pub fn intersect_mesh_first(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
         self.intersect_mesh(ray, t_min, t_max).or_else(|| self.intersect_analytic(ray, t_min, t_max))
     }
 
     /// The nearest hit on the mesh triangles alone.
-    #[inline]
+    #[inline(always)]
     fn intersect_mesh(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
         let h = self.bvh.intersect(ray, t_min, t_max)?;
         let info = &self.tri_info[h.index as usize];
@@ -455,7 +457,7 @@ impl Scene {
     }
 
     /// The nearest hit on the analytic shapes alone (the mesh triangles skipped).
-    #[inline]
+    #[inline(always)]
     pub fn intersect_analytic(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
         let mut best: Option<Hit> = None;
         let mut t_best = t_max;

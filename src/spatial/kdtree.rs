@@ -179,7 +179,7 @@ fn write_block(
     n: &mut usize,
 ) {
     #[cfg(target_arch = "x86_64")]
-    {
+    let (four, keep): ([Cand; 4], u32) = {
         use std::arch::x86_64::*;
         let idv: __m128i = bytemuck::cast(ids);
         // SAFETY: SSE2 is part of every x86-64 target; these only compute on registers.
@@ -198,27 +198,22 @@ fn write_block(
             ];
             (four, _mm_movemask_ps(_mm_castsi128_ps(_mm_cmpeq_epi32(idv, _mm_set1_epi32(exclude as i32)))))
         };
-        let keep = pass & !(excluded as u32);
-        // One bounds check for the block; `off` never exceeds 3 (the mask tells the compiler).
-        let out = cands[*n..].first_chunk_mut::<4>().expect("room for a block past the last candidate");
-        let mut off = 0;
-        for (j, c) in four.into_iter().enumerate() {
-            out[off & 3] = bytemuck::cast(c);
-            off += (keep >> j) as usize & 1;
-        }
-        *n += off;
-    }
+        (four.map(bytemuck::cast), pass & !(excluded as u32))
+    };
     #[cfg(not(target_arch = "x86_64"))]
-    {
+    let (four, keep): ([Cand; 4], u32) = {
         let d = d.to_array();
-        let out = cands[*n..].first_chunk_mut::<4>().expect("room for a block past the last candidate");
-        let mut off = 0;
-        for j in 0..4 {
-            out[off & 3] = Cand::new(rank(d[j], ids[j]), slot + j as u32);
-            off += (pass >> j) as usize & (ids[j] != exclude) as usize;
-        }
-        *n += off;
+        let excluded = (0..4).fold(0, |m, j| m | ((ids[j] == exclude) as u32) << j);
+        (std::array::from_fn(|j| Cand::new(rank(d[j], ids[j]), slot + j as u32)), pass & !excluded)
+    };
+    // One bounds check for the block; `off` never exceeds 3 (the mask tells the compiler).
+    let out = cands[*n..].first_chunk_mut::<4>().expect("room for a block past the last candidate");
+    let mut off = 0;
+    for (j, c) in four.into_iter().enumerate() {
+        out[off & 3] = c;
+        off += (keep >> j) as usize & 1;
     }
+    *n += off;
 }
 
 /// A candidate of a search: its rank and its place among the tree's records. Laid out as

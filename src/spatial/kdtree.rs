@@ -442,28 +442,29 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         }
         s.finish(out.ordered);
         out.tree = id;
+        let items = (!out.farthest_only).then_some(&mut out.items);
         let coords = out.with_coords.then_some(&mut out.coords);
-        self.emit(&out.cands, &mut out.items, coords, &mut out.slots);
+        self.emit(&out.cands, items, coords, &mut out.slots);
         out.far2 = farthest(&out.cands);
-        out.found = out.items.len();
-        if out.farthest_only {
-            out.items.clear();
-        }
+        out.found = out.cands.len();
     }
 
     /// Writes the candidates `cands` as a result (the caller sets its largest distance², which
-    /// the selection already knows). Each list is filled in one pass over a slice of known
-    /// length (no capacity check per item); a candidate's photon index is the low half of its
-    /// rank.
+    /// the selection already knows): the neighbours unless `items` is `None` (a buffer made
+    /// `farthest_only`, whose list stays empty), their coordinates unless `coords` is, and
+    /// their slots. Each list is filled in one pass over a slice of known length (no capacity
+    /// check per item); a candidate's photon index is the low half of its rank.
     fn emit(
         &self,
         cands: &[Cand],
-        items: &mut Vec<Neighbour>,
+        items: Option<&mut Vec<Neighbour>>,
         coords: Option<&mut Vec<[f32; 3]>>,
         slots: &mut Vec<u32>,
     ) {
-        items.clear();
-        items.extend(cands.iter().map(|c| Neighbour { dist2: c.dist2(), index: c.key as u32 }));
+        if let Some(items) = items {
+            items.clear();
+            items.extend(cands.iter().map(|c| Neighbour { dist2: c.dist2(), index: c.key as u32 }));
+        }
         if let Some(coords) = coords {
             coords.clear();
             coords.extend(cands.iter().map(|c| {
@@ -860,7 +861,6 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         if out.farthest_only {
             // The k-th's distance² alone; the slots of the last search stay, as k candidates
             // that still bound the next search (`seed`).
-            out.items.clear();
             out.far2 = f32::from_bits((kth_rank(cands, k, scanned_reach) >> 32) as u32);
             return true;
         }
@@ -870,7 +870,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             cands.sort_unstable_by_key(|c| c.key);
         }
         let coords = out.with_coords.then_some(&mut out.coords);
-        self.emit(cands, &mut out.items, coords, &mut out.slots);
+        self.emit(cands, Some(&mut out.items), coords, &mut out.slots);
         out.far2 = far2;
         true
     }

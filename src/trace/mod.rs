@@ -419,7 +419,6 @@ pub fn trace(
             return Err(TraceError::StoredWithShard);
         }
     }
-    let power: f64 = scene.emitters.iter().map(|e| e.power_w).sum();
     let tracer = Tracer::new(scene, opts);
     let mut traced = Traced {
         chunks: Vec::new(),
@@ -429,7 +428,7 @@ pub fn trace(
         emitted: 0,
         stored: 0,
         bounce_limited: 0,
-        power_w: power,
+        power_w: tracer.power_w,
     };
     match opts.budget {
         Budget::Emitted(n) => {
@@ -517,6 +516,8 @@ struct Tracer<'a> {
     /// then runs compiled for it ([`Tracer::chunk`]).
     #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     avx: bool,
+    /// The scene's power in watts (the emitters chosen in proportion to it).
+    power_w: f64,
 }
 
 impl<'a> Tracer<'a> {
@@ -553,6 +554,7 @@ impl<'a> Tracer<'a> {
                 .map(|e| opts.store != StorePolicy::Direct && cull_worth_it(scene, e))
                 .collect(),
             avx: crate::scene::bvh::avx_available(),
+            power_w: power,
         }
     }
 }

@@ -175,29 +175,6 @@ impl Chunk {
         self.first + self.emission_offset[i] as u64
     }
 
-    /// Empty columns with room for `n` photons of `dims` trajectory parameters.
-    fn with_capacity(n: usize, dims: usize) -> Chunk {
-        Chunk {
-            first: 0,
-            position: Vec::with_capacity(n),
-            normal: Vec::with_capacity(n),
-            flux: Vec::with_capacity(n),
-            incident: Vec::with_capacity(n),
-            emitter: Vec::with_capacity(n),
-            params: Vec::with_capacity(n * dims),
-            path_length: Vec::with_capacity(n),
-            bounces: Vec::with_capacity(n),
-            emission_offset: Vec::with_capacity(n),
-            surface: Vec::with_capacity(n),
-        }
-    }
-
-    /// Empties the columns (keeping their room) for a chunk starting at emission number `first`.
-    fn reset(&mut self, first: u64) {
-        self.first = first;
-        self.truncate(0, 0);
-    }
-
     fn truncate(&mut self, n: usize, dims: usize) {
         self.position.truncate(n);
         self.normal.truncate(n);
@@ -209,6 +186,113 @@ impl Chunk {
         self.bounces.truncate(n);
         self.emission_offset.truncate(n);
         self.surface.truncate(n);
+    }
+}
+
+const CHUNK_LEN: usize = CHUNK as usize;
+
+/// One stored photon, as [`Scratch::push`] takes it.
+struct Landing {
+    position: Vec3,
+    normal: Vec3,
+    flux: Vec3,
+    incident: Vec3,
+    emitter: u16,
+    /// All three; the first `dims` are kept.
+    params: [f32; 3],
+    path_length: f32,
+    bounces: u8,
+    emission_offset: u16,
+    surface: u32,
+}
+
+/// A worker's chunk under construction, reused chunk after chunk: columns with room for a
+/// photon per emission number of a chunk, written in place under one count (no length and
+/// capacity per column to check and update, no copy call for the parameters).
+struct Scratch {
+    first: u64,
+    len: usize,
+    /// Trajectory parameters per photon (at most 3).
+    dims: usize,
+    position: Box<[[f32; 3]; CHUNK_LEN]>,
+    normal: Box<[[f32; 3]; CHUNK_LEN]>,
+    flux: Box<[[f32; 3]; CHUNK_LEN]>,
+    incident: Box<[[f32; 3]; CHUNK_LEN]>,
+    emitter: Box<[u16; CHUNK_LEN]>,
+    /// `dims` values per photon; each photon writes three, the next overwriting the surplus.
+    params: Box<[f32; 3 * CHUNK_LEN]>,
+    path_length: Box<[f32; CHUNK_LEN]>,
+    bounces: Box<[u8; CHUNK_LEN]>,
+    emission_offset: Box<[u16; CHUNK_LEN]>,
+    surface: Box<[u32; CHUNK_LEN]>,
+}
+
+impl Scratch {
+    fn new(dims: usize) -> Scratch {
+        fn column<T: Copy + Default, const N: usize>() -> Box<[T; N]> {
+            vec![T::default(); N].into_boxed_slice().try_into().unwrap_or_else(|_| unreachable!())
+        }
+        assert!(dims <= 3, "at most three trajectory parameters");
+        Scratch {
+            first: 0,
+            len: 0,
+            dims,
+            position: column(),
+            normal: column(),
+            flux: column(),
+            incident: column(),
+            emitter: column(),
+            params: column(),
+            path_length: column(),
+            bounces: column(),
+            emission_offset: column(),
+            surface: column(),
+        }
+    }
+
+    /// Empties it for a chunk starting at emission number `first`.
+    fn reset(&mut self, first: u64) {
+        self.first = first;
+        self.len = 0;
+    }
+
+    /// Appends photon `p`. A chunk stores each of its at most [`CHUNK`] emission numbers
+    /// at most once, so there is always room.
+    #[inline(always)]
+    fn push(&mut self, p: Landing) {
+        let n = self.len;
+        assert!(n < CHUNK_LEN, "a chunk stores at most one photon per emission number");
+        self.position[n] = p.position.to_array();
+        self.normal[n] = p.normal.to_array();
+        self.flux[n] = p.flux.to_array();
+        self.incident[n] = p.incident.to_array();
+        self.emitter[n] = p.emitter;
+        let at = n * self.dims.min(3);
+        self.params[at..at + 3].copy_from_slice(&p.params);
+        self.path_length[n] = p.path_length;
+        self.bounces[n] = p.bounces;
+        self.emission_offset[n] = p.emission_offset;
+        self.surface[n] = p.surface;
+        self.len = n + 1;
+    }
+
+    /// A copy of exactly the stored photons (with the emitter column if `emitter_column`):
+    /// only the copy lands in fresh memory.
+    fn to_chunk(&self, emitter_column: bool) -> Chunk {
+        let n = self.len;
+        Chunk {
+            first: self.first,
+            position: self.position[..n].to_vec(),
+            normal: self.normal[..n].to_vec(),
+            flux: self.flux[..n].to_vec(),
+            incident: self.incident[..n].to_vec(),
+            emitter: if emitter_column { self.emitter[..n].to_vec() } else { Vec::new() },
+            params: self.params[..n * self.dims].to_vec(),
+            path_length: self.path_length[..n].to_vec(),
+            bounces: self.bounces[..n].to_vec(),
+            emission_offset: self.emission_offset[..n].to_vec(),
+            surface: self.surface[..n].to_vec(),
+        }
     }
 }
 
@@ -567,16 +651,13 @@ impl Tracer<'_> {
         let out: Vec<(Chunk, u64)> = (0..n_chunks)
             .into_par_iter()
             .map_init(
-                // Room for every photon of a chunk, so the columns never grow by copying.
-                || Chunk::with_capacity(CHUNK as usize, self.dims),
-                |buffer, k| {
+                || Scratch::new(self.dims),
+                |scratch, k| {
                     let a = range.start + k * CHUNK;
                     let b = (a + CHUNK).min(range.end);
-                    let limited = self.chunk(a..b, buffer);
-                    progress(b - a, buffer.len() as u64);
-                    // A copy of exactly the stored photons: the worker's buffer is reused
-                    // chunk after chunk, and only the copy lands in fresh memory.
-                    (buffer.clone(), limited)
+                    let limited = self.chunk(a..b, scratch);
+                    progress(b - a, scratch.len as u64);
+                    (scratch.to_chunk(self.emitter_column), limited)
                 },
             )
             .collect();
@@ -585,7 +666,7 @@ impl Tracer<'_> {
     }
 
     /// Traces `range` into `out` (emptied first); returns the number dropped at the bounce limit.
-    fn chunk(&self, range: Range<u64>, out: &mut Chunk) -> u64 {
+    fn chunk(&self, range: Range<u64>, out: &mut Scratch) -> u64 {
         #[cfg(target_arch = "x86_64")]
         if self.avx {
             // SAFETY: `avx` says the processor has AVX.
@@ -604,12 +685,12 @@ impl Tracer<'_> {
     /// The processor must have AVX.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx")]
-    unsafe fn chunk_avx(&self, range: Range<u64>, out: &mut Chunk) -> u64 {
+    unsafe fn chunk_avx(&self, range: Range<u64>, out: &mut Scratch) -> u64 {
         self.chunk_any(range, out)
     }
 
     #[inline(always)]
-    fn chunk_any(&self, range: Range<u64>, out: &mut Chunk) -> u64 {
+    fn chunk_any(&self, range: Range<u64>, out: &mut Scratch) -> u64 {
         out.reset(range.start);
         let mut limited = 0;
         let mut halton = self.halton.run(range.start);
@@ -631,7 +712,7 @@ impl Tracer<'_> {
     /// photon of an emitter marked in [`Tracer::cull`] whose emission ray cannot meet a
     /// specular surface stops at once.
     #[inline(always)]
-    fn photon<const CULL: bool>(&self, index: u64, point: [f32; 4], out: &mut Chunk) -> bool {
+    fn photon<const CULL: bool>(&self, index: u64, point: [f32; 4], out: &mut Scratch) -> bool {
         let scene = self.scene;
         let [u0, u1, u2, u3] = point;
         let e = self.table.cdf.iter().position(|&c| u0 < c).unwrap_or(self.table.cdf.len() - 1);
@@ -661,18 +742,18 @@ impl Tracer<'_> {
             match scene.material(hit.shape) {
                 Material::Diffuse { .. } => {
                     if specular > 0 || self.opts.store == StorePolicy::Direct {
-                        out.position.push(p.to_array());
-                        out.normal.push(ng.to_array());
-                        out.flux.push(flux.to_array());
-                        out.incident.push(ray.dir.to_array());
-                        if self.emitter_column {
-                            out.emitter.push(e as u16);
-                        }
-                        out.params.extend_from_slice(&params[..self.dims]);
-                        out.path_length.push(path);
-                        out.bounces.push(specular.min(255) as u8);
-                        out.emission_offset.push((index - out.first) as u16);
-                        out.surface.push(hit.shape);
+                        out.push(Landing {
+                            position: p,
+                            normal: ng,
+                            flux,
+                            incident: ray.dir,
+                            emitter: e as u16,
+                            params,
+                            path_length: path,
+                            bounces: specular.min(255) as u8,
+                            emission_offset: (index - out.first) as u16,
+                            surface: hit.shape,
+                        });
                     }
                     return false;
                 }
@@ -837,12 +918,12 @@ material = "glass"
             if !tracer.avx {
                 return;
             }
-            let mut with = Chunk::with_capacity(CHUNK as usize, tracer.dims);
-            let mut without = with.clone();
+            let (mut with, mut without) = (Scratch::new(tracer.dims), Scratch::new(tracer.dims));
             let range = 3 * CHUNK..4 * CHUNK;
             let limited = tracer.chunk(range.clone(), &mut with);
             tracer.avx = false;
             assert_eq!(tracer.chunk(range, &mut without), limited);
+            let (with, without) = (with.to_chunk(true), without.to_chunk(true));
             assert!(with.len() > 100, "{name}: {} stored", with.len());
             assert!(with == without, "{name}: the two loops stored different photons");
         }

@@ -145,11 +145,13 @@ pub struct Bvh {
     index: Vec<u32>,
     /// With AVX, the leaves of two packets (five to eight triangles), each one pair at its
     /// `first`; empty without AVX.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     pairs: Vec<PacketPair>,
     /// Input index of the triangle in each lane of each pair (`u32::MAX` for padding).
     pair_index: Vec<u32>,
     /// Whether the processor has AVX, so a leaf's two packets are tested at once
     /// ([`packet_pair_intersect`]).
+    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     avx: bool,
 }
 
@@ -335,6 +337,8 @@ impl Bvh {
         best: &mut Option<TriHit>,
     ) {
         let first = node.first as usize;
+        #[cfg(not(target_arch = "x86_64"))]
+        let _ = ray; // only the AVX pair test reads the ray itself
         #[cfg(target_arch = "x86_64")]
         if self.avx && node.count > 4 {
             const _: () = assert!(MAX_LEAF <= 8, "a leaf of more than four triangles is one pair");

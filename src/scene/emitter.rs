@@ -37,6 +37,7 @@ pub enum EmitterShape {
 impl Emitter {
     /// The emission ray for a sample (s, t) ∈ [0,1)², and its trajectory parameters
     /// (trailing unused components zero).
+    #[inline(always)]
     pub fn emit(&self, s: f32, t: f32) -> (Ray, [f32; 3]) {
         match self.kind {
             EmitterShape::Collimated { origin, edge_u, edge_v, direction } => {

@@ -335,6 +335,15 @@ mod tests {
         }
     }
 
+    /// The prism sample (the tracer's benchmark) goes through its planes, at any scale.
+    #[test]
+    fn the_prism_sample_has_a_hull() {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes/prism.toml");
+        let prism = Scene::load(&path).unwrap();
+        assert_eq!(prism.hull.as_ref().map(Hull::planes), Some(5));
+        assert_eq!(prism.scaled(1000.0).hull.as_ref().map(Hull::planes), Some(5));
+    }
+
     /// Only a closed mesh of non-degenerate triangles has a hull.
     #[test]
     fn an_open_mesh_has_no_hull() {

@@ -151,7 +151,6 @@ pub struct Bvh {
     pair_index: Vec<u32>,
     /// Whether the processor has AVX, so a leaf's two packets are tested at once
     /// ([`packet_pair_intersect`]).
-    #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     avx: bool,
 }
 
@@ -244,6 +243,12 @@ impl Bvh {
 
     pub fn is_empty(&self) -> bool {
         self.index.is_empty() && self.pair_index.is_empty()
+    }
+
+    /// Whether the processor has AVX (and `PHOTONKIT_NO_AVX` is not set), which the scene's
+    /// other eight-lane tests use too.
+    pub(crate) fn avx(&self) -> bool {
+        self.avx
     }
 
     /// The nearest triangle hit with `t` in (`t_min`, `t_max`).

@@ -100,8 +100,6 @@ pub struct Scene {
     /// The convex mesh as the half-spaces of its faces, when it is closed and flat-shaded:
     /// rays are tested against its planes instead of its triangles ([`Scene::intersect_mesh`]).
     hull: Option<hull::Hull>,
-    /// Whether the hull's planes are tested in AVX registers.
-    hull_avx: bool,
     /// The box around every mirror and dielectric surface, padded by the ray offset; `None`
     /// when one is unbounded (see [`Scene::may_meet_specular`]).
     specular_box: Option<(Vec3, Vec3)>,
@@ -138,7 +136,6 @@ impl Scene {
             ray_offset: RAY_OFFSET_FALLBACK_M,
             convex_mesh: None,
             hull: None,
-            hull_avx: false,
             specular_box: None,
             mesh_apart: false,
         }
@@ -201,7 +198,6 @@ impl Scene {
         self.ray_offset = self.compute_ray_offset();
         self.convex_mesh = self.find_convex_mesh();
         self.hull = self.find_hull();
-        self.hull_avx = bvh::avx_available();
         self.specular_box = self.find_specular_box();
         self.mesh_apart = self.find_mesh_apart();
     }
@@ -313,8 +309,7 @@ impl Scene {
             return None;
         }
         let vertices: Vec<Vec3> = self.triangles.iter().flatten().copied().collect();
-        let far = vertices.iter().map(|v| v.abs().max_element()).fold(0.0f32, f32::max);
-        let tol = 16.0 * f32::EPSILON * far;
+        let tol = self.mesh_plane_tolerance();
         if !tol.is_finite() || 4.0 * tol >= self.ray_offset {
             return None;
         }
@@ -343,9 +338,15 @@ impl Scene {
         if self.tri_info.iter().any(|t| t.vertex_normals.is_some()) {
             return None;
         }
-        let far = self.triangles.iter().flatten().map(|v| v.abs().max_element()).fold(0.0f32, f32::max);
         let normals: Vec<Vec3> = self.tri_info.iter().map(|t| t.normal).collect();
-        hull::Hull::new(&self.triangles, &normals, 16.0 * f32::EPSILON * far)
+        hull::Hull::new(&self.triangles, &normals, self.mesh_plane_tolerance())
+    }
+
+    /// How far from a triangle's plane a vertex may lie and still count as on it: 16 f32
+    /// ulps of the mesh's largest coordinate (the convexity check's and the hull's).
+    fn mesh_plane_tolerance(&self) -> f32 {
+        let far = self.triangles.iter().flatten().map(|v| v.abs().max_element()).fold(0.0f32, f32::max);
+        16.0 * f32::EPSILON * far
     }
 
     /// Whether `ray`, continuing from `p` on surface `surface` and started off it along
@@ -470,7 +471,7 @@ impl Scene {
     #[inline(always)]
     fn intersect_mesh(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {
         if let (Some(hull), Some((surface, _))) = (&self.hull, self.convex_mesh) {
-            let (t, normal) = hull.intersect(ray, t_min, t_max, self.hull_avx)?;
+            let (t, normal) = hull.intersect(ray, t_min, t_max, self.bvh.avx())?;
             return Some(Hit { t, normal, shading: normal, shape: surface });
         }
         let h = self.bvh.intersect(ray, t_min, t_max)?;

@@ -310,14 +310,21 @@ fn copy<T: Copy>(v: &[T]) -> Vec<T> {
 /// On older kernels and other systems the pages fault in on first write as usual.
 fn prefault(p: *mut u8, len: usize) {
     #[cfg(target_os = "linux")]
-    if len >= 4096 {
-        const MADV_POPULATE_WRITE: libc::c_int = 23;
-        let page = 4096usize;
+    {
+        static PAGE: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
+        // SAFETY: sysconf only reads a system setting.
+        let page = *PAGE.get_or_init(|| match unsafe { libc::sysconf(libc::_SC_PAGESIZE) } {
+            n if n > 0 && (n as usize).is_power_of_two() => n as usize,
+            _ => 4096,
+        });
+        if len < page {
+            return;
+        }
         let start = p as usize & !(page - 1);
         let end = (p as usize + len).div_ceil(page) * page;
         // SAFETY: the range covers memory of this process's heap (the new vector's); the
         // advice only maps its pages, it does not change their contents.
-        unsafe { libc::madvise(start as *mut libc::c_void, end - start, MADV_POPULATE_WRITE) };
+        unsafe { libc::madvise(start as *mut libc::c_void, end - start, libc::MADV_POPULATE_WRITE) };
     }
     #[cfg(not(target_os = "linux"))]
     let _ = (p, len);

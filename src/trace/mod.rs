@@ -636,6 +636,8 @@ struct Tracer<'a> {
     avx: bool,
     /// The scene's power in watts (the emitters chosen in proportion to it).
     power_w: f64,
+    /// The scene's dispersive dielectric when it has exactly one.
+    dispersive: Option<&'a Dielectric>,
 }
 
 impl<'a> Tracer<'a> {
@@ -673,6 +675,13 @@ impl<'a> Tracer<'a> {
                 .collect(),
             avx: crate::scene::bvh::avx_available(),
             power_w: power,
+            dispersive: {
+                let mut d = scene.materials.iter().filter_map(|m| match m {
+                    Material::Dielectric(d) if d.dispersion.is_some() => Some(d),
+                    _ => None,
+                });
+                d.next().filter(|_| d.next().is_none())
+            },
         }
     }
 }
@@ -757,9 +766,17 @@ impl Tracer<'_> {
         let mut flux = self.table.colour[e];
         let mut rng = PhotonRng::new(self.opts.seed, index);
         let mut wavelength: Option<f32> = None;
-        // The dielectric met last and its index of refraction at this photon's wavelength:
-        // a dispersion formula is evaluated once per photon and material, not per interface.
-        let mut ior: Option<(&Dielectric, f32)> = None;
+        // The dielectric met last, its index of refraction n at this photon's wavelength and
+        // 1/n: a dispersion formula is evaluated once per photon and material, not per
+        // interface, and the division off each entry's chain of dependent operations.
+        // With one dispersive material in the scene its index is computed here, from the
+        // Halton coordinate alone, where it overlaps the first ray's intersection instead of
+        // following it (the same value as at the first hit: the same wavelength).
+        let mut ior: Option<(&Dielectric, f32, f32)> = self.dispersive.map(|di| {
+            let (lo, hi) = WAVELENGTH_RANGE_NM;
+            let n = di.ior_at(Some(lo + (hi - lo) * u3));
+            (di, n, 1.0 / n)
+        });
         let mut specular = 0u32;
         let mut path = 0.0f32;
         // Which shapes the ray can meet first (the emission ray: any).
@@ -810,15 +827,15 @@ impl Tracer<'_> {
                         flux *= wavelength_rgb_tabulated(l);
                         wavelength = Some(l);
                     }
-                    let n = match ior {
-                        Some((d, n)) if std::ptr::eq(d, di) => n,
+                    let (n, inv_n) = match ior {
+                        Some((d, n, inv_n)) if std::ptr::eq(d, di) => (n, inv_n),
                         _ => {
                             let n = di.ior_at(wavelength);
-                            ior = Some((di, n));
-                            n
+                            ior = Some((di, n, 1.0 / n));
+                            (n, 1.0 / n)
                         }
                     };
-                    let eta = if front { 1.0 / n } else { n };
+                    let eta = if front { inv_n } else { n };
                     let mut normal = ns;
                     let mut refracted = refract_unnormalised(ray.dir, normal, eta);
                     if refracted.is_some_and(|r| r.dir.dot(ng) >= 0.0) || ray.dir.dot(normal) >= 0.0 {

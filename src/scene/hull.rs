@@ -138,8 +138,18 @@ impl Hull {
     #[inline]
     unsafe fn span_avx(&self, ray: &Ray) -> Option<Span> {
         use std::arch::x86_64::*;
-        let o = [_mm256_set1_ps(ray.origin.x), _mm256_set1_ps(ray.origin.y), _mm256_set1_ps(ray.origin.z)];
-        let d = [_mm256_set1_ps(ray.dir.x), _mm256_set1_ps(ray.dir.y), _mm256_set1_ps(ray.dir.z)];
+        // Each component broadcast from its own place: a ray just written is not read back
+        // as one wider load, which the processor could not forward from the narrower stores.
+        let o = [
+            _mm256_broadcast_ss(&ray.origin.x),
+            _mm256_broadcast_ss(&ray.origin.y),
+            _mm256_broadcast_ss(&ray.origin.z),
+        ];
+        let d = [
+            _mm256_broadcast_ss(&ray.dir.x),
+            _mm256_broadcast_ss(&ray.dir.y),
+            _mm256_broadcast_ss(&ray.dir.z),
+        ];
         let (mul, add) = (|x, y| _mm256_mul_ps(x, y), |x, y| _mm256_add_ps(x, y));
         let zero = _mm256_setzero_ps();
         let mut s = Span::EVERYWHERE;

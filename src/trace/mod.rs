@@ -772,11 +772,8 @@ impl Tracer<'_> {
         // With one dispersive material in the scene its index is computed here, from the
         // Halton coordinate alone, where it overlaps the first ray's intersection instead of
         // following it (the same value as at the first hit: the same wavelength).
-        let mut ior: Option<(&Dielectric, f32, f32)> = self.dispersive.map(|di| {
-            let (lo, hi) = WAVELENGTH_RANGE_NM;
-            let n = di.ior_at(Some(lo + (hi - lo) * u3));
-            (di, n, 1.0 / n)
-        });
+        let mut ior: Option<(&Dielectric, f32, f32)> =
+            self.dispersive.map(|di| index_of_refraction(di, Some(wavelength_nm(u3))));
         let mut specular = 0u32;
         let mut path = 0.0f32;
         // Which shapes the ray can meet first (the emission ray: any).
@@ -822,17 +819,16 @@ impl Tracer<'_> {
                 }
                 Material::Dielectric(di) => {
                     if di.dispersion.is_some() && wavelength.is_none() {
-                        let (lo, hi) = WAVELENGTH_RANGE_NM;
-                        let l = lo + (hi - lo) * u3;
+                        let l = wavelength_nm(u3);
                         flux *= wavelength_rgb_tabulated(l);
                         wavelength = Some(l);
                     }
                     let (n, inv_n) = match ior {
                         Some((d, n, inv_n)) if std::ptr::eq(d, di) => (n, inv_n),
                         _ => {
-                            let n = di.ior_at(wavelength);
-                            ior = Some((di, n, 1.0 / n));
-                            (n, 1.0 / n)
+                            let entry = index_of_refraction(di, wavelength);
+                            ior = Some(entry);
+                            (entry.1, entry.2)
                         }
                     };
                     let eta = if front { inv_n } else { n };
@@ -873,6 +869,21 @@ impl Tracer<'_> {
             }
         }
     }
+}
+
+/// The wavelength, nm, of a photon whose fourth Halton coordinate is `u3`: uniform on
+/// [`WAVELENGTH_RANGE_NM`].
+#[inline(always)]
+fn wavelength_nm(u3: f32) -> f32 {
+    let (lo, hi) = WAVELENGTH_RANGE_NM;
+    lo + (hi - lo) * u3
+}
+
+/// A photon's cached entry for dielectric `di` at its wavelength: the material, n and 1/n.
+#[inline(always)]
+fn index_of_refraction(di: &Dielectric, wavelength_nm: Option<f32>) -> (&Dielectric, f32, f32) {
+    let n = di.ior_at(wavelength_nm);
+    (di, n, 1.0 / n)
 }
 
 /// Multiplies `flux` by the attenuation `a` and plays Russian roulette with survival

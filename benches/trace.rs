@@ -37,7 +37,6 @@ fn env_count(name: &str, default: u64) -> u64 {
     std::env::var(name).ok().and_then(|s| s.parse::<f64>().ok()).map_or(default, |x| x as u64)
 }
 
-/// Paper: 20 M photons in 12.3 s on 7 cores.
 /// One scene's runs in a line: median (the mean of the middle two for an even count), range,
 /// and how many reached the goal.
 fn summary(name: &str, rates: &mut [f64]) -> String {
@@ -53,6 +52,7 @@ fn summary(name: &str, rates: &mut [f64]) -> String {
     )
 }
 
+/// Paper: 20 M photons in 12.3 s on 7 cores.
 const PAPER_M_PER_S_PER_CORE: f64 = 20.0 / (12.3 * 7.0);
 const GOAL_M_PER_S_PER_CORE: f64 = 4.0;
 

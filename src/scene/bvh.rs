@@ -15,6 +15,8 @@
 //! the triangles are kept in leaf order next to the nodes, which is what makes photon tracing
 //! cache-friendly.
 
+use std::mem::MaybeUninit;
+
 use glam::{Vec3, Vec4};
 
 use super::shape::Ray;
@@ -187,7 +189,14 @@ pub struct Bvh {
     /// Whether the processor has AVX, so a leaf's two packets are tested at once
     /// ([`packet_pair_intersect`]).
     avx: bool,
+    /// The most children the traversal can have pending at once: three per level of the
+    /// four-wide tree below the root (a node pushes all but the one it visits).
+    stack_need: usize,
 }
+
+/// Pending children the traversal keeps on the call stack; a tree that may need more (deeper
+/// than 64 levels, which no sample scene comes near) gets a stack on the heap per ray.
+const INLINE_STACK: usize = 3 * 64;
 
 #[derive(Clone, Copy)]
 struct Aabb {
@@ -276,7 +285,8 @@ impl Bvh {
             collapse(&nodes, 0, &mut wide);
             (wide, None)
         };
-        Bvh { nodes: wide, bounds, root_leaf, packets, index, pairs, pair_index, avx }
+        let stack_need = 3 * wide_depth(&wide);
+        Bvh { nodes: wide, bounds, root_leaf, packets, index, pairs, pair_index, avx, stack_need }
     }
 
     /// The box around every triangle (the root node's), or `None` without triangles.
@@ -328,15 +338,30 @@ impl Bvh {
     /// child is dropped when the best hit so far lies before its box.
     #[inline(never)]
     fn traverse(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
+        // Left uninitialised (zeroing it cost 3 % of a mesh scene's time): only the entries
+        // below the stack pointer are read, and each was written first.
+        if self.stack_need <= INLINE_STACK {
+            let mut stack = [MaybeUninit::<Pending>::uninit(); INLINE_STACK];
+            self.traverse_with(&mut stack, ray, t_min, t_max)
+        } else {
+            let mut stack = vec![MaybeUninit::<Pending>::uninit(); self.stack_need];
+            self.traverse_with(&mut stack, ray, t_min, t_max)
+        }
+    }
+
+    /// [`Bvh::traverse`] with a stack of at least [`Bvh::stack_need`] entries.
+    #[inline(always)]
+    fn traverse_with(
+        &self,
+        stack: &mut [MaybeUninit<Pending>],
+        ray: &Ray,
+        t_min: f32,
+        t_max: f32,
+    ) -> Option<TriHit> {
         let lanes = RayLanes::new(ray);
         let mut best: Option<TriHit> = None;
         let mut t_best = t_max;
         let slabs = Slabs::new(ray);
-        // At most three children are pushed per level, and the four-wide tree is no deeper
-        // than the binary one, so this holds what the binary tree's stack of 64 did.
-        // Left uninitialised (zeroing it cost 3 % of a mesh scene's time): only the entries
-        // below `sp` are read, and each was written first.
-        let mut stack = [std::mem::MaybeUninit::<Pending>::uninit(); 3 * 64];
         let mut sp = 0usize;
         // The node or leaf in hand.
         let mut current = Pending { child: 0, count: 0, near: t_min };
@@ -374,10 +399,10 @@ impl Bvh {
                         }
                     }
                     for &lane in &order[..k - 1] {
-                        if sp < stack.len() {
-                            stack[sp].write(pending(lane));
-                            sp += 1;
-                        }
+                        // Within the stack by `stack_need` (an index past it would panic,
+                        // never drop a child).
+                        stack[sp].write(pending(lane));
+                        sp += 1;
                     }
                     current = pending(order[k - 1]);
                     continue;
@@ -460,6 +485,20 @@ const SLAB_SLACK: f32 = 1.0 + 1.0 / 65536.0;
 #[inline(always)]
 fn still_ahead(near: f32, t_best: f32) -> bool {
     near <= t_best * SLAB_SLACK
+}
+
+/// Levels of interior nodes in the four-wide tree (0 for none), without recursion.
+fn wide_depth(nodes: &[Node4]) -> usize {
+    let mut deepest = 0;
+    let mut todo = if nodes.is_empty() { vec![] } else { vec![(0usize, 1usize)] };
+    while let Some((n, d)) = todo.pop() {
+        deepest = deepest.max(d);
+        let node = &nodes[n];
+        for lane in (0..4).filter(|&l| node.used & (1 << l) != 0 && node.count[l] == 0) {
+            todo.push((node.child[lane] as usize, d + 1));
+        }
+    }
+    deepest
 }
 
 /// Writes the four-wide node for binary interior node `n` (and, depth first, those below it)
@@ -969,6 +1008,34 @@ mod tests {
             hits += 1;
         }
         assert!(hits > 100_000, "{hits}");
+    }
+
+    /// The traversal never has more children pending than `stack_need` (three per level): run
+    /// with a stack of exactly that many entries (on the heap, as for a tree deeper than the
+    /// inline stack allows), a push past it would panic; and the hits equal brute force.
+    #[test]
+    fn the_traversal_stack_bound_holds() {
+        let mut rng = Pcg64Mcg::seed_from_u64(17);
+        for n in [40usize, 3000] {
+            let tris: Vec<[Vec3; 3]> = (0..n)
+                .map(|_| {
+                    let c = v(&mut rng, 4.0);
+                    [c + v(&mut rng, 0.6), c + v(&mut rng, 0.6), c + v(&mut rng, 0.6)]
+                })
+                .collect();
+            let bvh = Bvh::build(&tris);
+            assert!(bvh.stack_need >= 3 && bvh.stack_need % 3 == 0, "{}", bvh.stack_need);
+            let mut hits = 0;
+            for _ in 0..3000 {
+                let o = v(&mut rng, 10.0);
+                let ray = Ray::new(o, (v(&mut rng, 3.0) - o).normalize());
+                let mut stack = vec![MaybeUninit::uninit(); bvh.stack_need];
+                let a = bvh.traverse_with(&mut stack, &ray, 1e-4, f32::INFINITY);
+                assert_eq!(a, brute_force(&tris, &ray, 1e-4, f32::INFINITY), "n = {n}: {ray:?}");
+                hits += a.is_some() as u32;
+            }
+            assert!(hits > 150, "n = {n}: {hits}");
+        }
     }
 
     #[test]

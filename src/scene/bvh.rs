@@ -1024,7 +1024,7 @@ mod tests {
                 })
                 .collect();
             let bvh = Bvh::build(&tris);
-            assert!(bvh.stack_need >= 3 && bvh.stack_need % 3 == 0, "{}", bvh.stack_need);
+            assert!(bvh.stack_need >= 3 && bvh.stack_need.is_multiple_of(3), "{}", bvh.stack_need);
             let mut hits = 0;
             for _ in 0..3000 {
                 let o = v(&mut rng, 10.0);

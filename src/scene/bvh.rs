@@ -677,14 +677,22 @@ fn partition(v: &mut [u32], pred: impl Fn(u32) -> bool) -> usize {
 }
 
 /// Entry distance of the ray from `o` with inverse direction `inv` into the box
-/// [`min`, `max`], if it enters within (`t_min`, `t_max`).
+/// [`min`, `max`], if it enters within (`t_min`, `t_max`). Along an axis the ray runs parallel
+/// to (an infinite inverse), the box is entered only if the origin lies between the bounds,
+/// bounds included (as in [`Slabs::enter4`]): the distances (bound − origin)·∞ are NaN when
+/// the origin lies in a bound's plane.
 #[inline(always)]
 pub(crate) fn ray_box(min: Vec3, max: Vec3, o: Vec3, inv: Vec3, t_min: f32, t_max: f32) -> Option<f32> {
-    let t0 = (min - o) * inv;
-    let t1 = (max - o) * inv;
-    // min/max that ignore the NaN of 0·∞ (a ray in a slab's plane).
-    let near = t0.min(t1).max_element().max(t_min);
-    let far = t0.max(t1).min_element().min(t_max);
+    let (mut near, mut far) = (t_min, t_max);
+    for a in 0..3 {
+        if inv[a].is_finite() {
+            let (t0, t1) = ((min[a] - o[a]) * inv[a], (max[a] - o[a]) * inv[a]);
+            near = near.max(t0.min(t1));
+            far = far.min(t0.max(t1));
+        } else if !(min[a] <= o[a] && o[a] <= max[a]) {
+            return None;
+        }
+    }
     (near <= far).then_some(near)
 }
 
@@ -1035,6 +1043,25 @@ mod tests {
                 hits += a.is_some() as u32;
             }
             assert!(hits > 150, "n = {n}: {hits}");
+        }
+    }
+
+    /// The single-box test: entry distance, misses, and rays parallel to a slab lying in a
+    /// bound's plane (with +0 and −0 direction components), inside and just outside.
+    #[test]
+    fn ray_box_enters_where_a_closed_box_is_met() {
+        let (lo, hi) = (Vec3::ZERO, Vec3::ONE);
+        let hit = |o: Vec3, d: Vec3| ray_box(lo, hi, o, d.recip(), 0.0, f32::INFINITY);
+        assert_eq!(hit(Vec3::new(0.5, 0.5, 5.0), Vec3::NEG_Z), Some(4.0));
+        assert_eq!(hit(Vec3::new(0.5, 0.5, 5.0), Vec3::Z), None);
+        assert_eq!(hit(Vec3::new(0.5, 0.5, 0.5), Vec3::Z), Some(0.0));
+        for x in [0.0, 1.0] {
+            for sign in [0.0f32, -0.0] {
+                for (y, want) in [(0.0, Some(4.0)), (0.5, Some(4.0)), (1.0, Some(4.0)), (1.0001, None)] {
+                    let (o, d) = (Vec3::new(x, y, 5.0), Vec3::new(sign, sign, -1.0));
+                    assert_eq!(hit(o, d), want, "{o:?} {d:?}");
+                }
+            }
         }
     }
 

@@ -535,7 +535,8 @@ fn collapse(bin: &[Node], n: usize, out: &mut Vec<Node4>) -> u32 {
 }
 
 impl Bvh {
-    /// Tests the packets of leaf `node` in order, keeping the nearest hit in `best`.
+    /// Tests the leaf of `count` triangles from packet (or pair) `first` in order, keeping the
+    /// nearest hit in `best`.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn test_leaf(

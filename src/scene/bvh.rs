@@ -30,6 +30,7 @@ const BINS: usize = 16;
 const PACKET_COST: f32 = 1.0;
 const NODE_COST: f32 = 1.0;
 
+/// A node of the binary tree the builder makes, which [`collapse`] turns into [`Node4`]s.
 #[derive(Clone, Copy, Debug, Default)]
 #[repr(C)]
 struct Node {
@@ -289,7 +290,7 @@ impl Bvh {
         Bvh { nodes: wide, bounds, root_leaf, packets, index, pairs, pair_index, avx, stack_need }
     }
 
-    /// The box around every triangle (the root node's), or `None` without triangles.
+    /// The box around every triangle (the binary tree's root's), or `None` without triangles.
     pub fn bounds(&self) -> Option<(Vec3, Vec3)> {
         self.bounds
     }

@@ -60,7 +60,7 @@ pub fn export(map: &PhotonMap, to: ExportFormat, target: &Output) -> Result<()> 
             let mut out = std::io::BufWriter::new(tmp);
             write(map, to, &mut out, &file)?;
             let tmp = out.into_inner().map_err(|e| io(e.into_error()))?;
-            tmp.persist(p).map_err(|e| io(e.error))?;
+            crate::format::persist(tmp, p).map_err(io)?;
             Ok(())
         }
     }

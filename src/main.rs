@@ -47,6 +47,9 @@ enum Command {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    if let Err(e) = photonkit::format::guard::install_signal_handlers() {
+        eprintln!("photonkit: warning: no signal handlers ({e}): an interrupt may leave temporary files");
+    }
     let result = match cli.command {
         Command::Pipeline(a) => cli::pipeline::run(a),
         Command::Trace(a) => cli::trace::run(a),

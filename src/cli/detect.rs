@@ -69,6 +69,7 @@ enum NoiseArg {
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
+    super::refuse_input_as_output(&a.output)?;
     let requested = a.method.map(|m| match m {
         MethodArg::ParamPca => Method::ParamPca,
         MethodArg::WorldPca => Method::WorldPca,

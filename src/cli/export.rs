@@ -32,6 +32,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         To::Csv => ExportFormat::Csv,
     };
     let map = PhotonMap::open(&a.file)?;
+    if let Some(o) = &a.output {
+        super::refuse_input_as_output(o)?;
+    }
     let target = match &a.output {
         Some(o) => Output::parse(o),
         None => export::default_output(&a.file, to),

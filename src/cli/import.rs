@@ -16,7 +16,7 @@ use photonkit::import::{self, Options, SourceFormat};
 /// of the PD variant become trajectory parameters (emission directions).
 #[derive(clap::Args)]
 pub struct Args {
-    /// The file to import.
+    /// The file to import (`-` for standard input; CSV from standard input needs `--from csv`).
     input: String,
     /// Output photon map (`-` for standard output).
     #[arg(short, long, value_name = "FILE")]
@@ -65,6 +65,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     let path = Path::new(&a.input);
     let photons = import::import(path, &options)?;
+    super::refuse_input_as_output(&a.output)?;
     let (n, format, emitters) = (photons.len(), photons.format, photons.emitters.len());
     let dims = photons.emitters.first().map_or(0, |e| e.param_dims);
     let parameters = import::stage_parameters(path, format, &options);

@@ -61,6 +61,7 @@ fn scene_for(map: &PhotonMap, path: Option<&std::path::Path>) -> anyhow::Result<
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
+    super::refuse_input_as_output(&a.output)?;
     let p = RelaxParams {
         iterations: a.iterations,
         kf: a.kf,
@@ -141,6 +142,7 @@ pub struct CollapseArgs {
 
 pub fn collapse(a: CollapseArgs) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
+    super::refuse_input_as_output(&a.output)?;
     relax::collapse(&map, Output::parse(&a.output))?;
     Ok(ExitCode::SUCCESS)
 }

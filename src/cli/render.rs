@@ -325,6 +325,7 @@ fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Sc
                     map.file_name()
                 )
             };
+            photonkit::format::guard::register_input(&found);
             let text =
                 std::fs::read_to_string(&found).with_context(|| format!("reading {}", found.display()))?;
             let crc = photonkit::trace::scene_crc32(&text);
@@ -358,6 +359,9 @@ fn progress_bar(len: u64, what: &str) -> ProgressBar {
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
     let file = map.file_name().to_string();
+    for p in [Some(a.output.clone()), a.common.outputs(&a.output).png].into_iter().flatten() {
+        super::refuse_input_as_output(&p.to_string_lossy())?;
+    }
     let mut mode = match a.mode {
         None if a.plane.is_some() => Mode::Irradiance,
         None | Some(ModeArg::Full) => Mode::Full,
@@ -618,7 +622,10 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
 
     let (scene, scene_name) = load_scene(None, a.scene.as_deref())?;
     let text = match &a.scene {
-        Some(p) => std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?,
+        Some(p) => {
+            photonkit::format::guard::register_input(p);
+            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
+        }
         None => photonkit::scene::DEFAULT_SCENE.to_string(),
     };
     let camera = a.common.camera(&scene)?;

@@ -87,6 +87,7 @@ fn parse_shard(s: &str) -> Result<Shard, String> {
 pub(crate) fn load_scene(path: Option<&std::path::Path>) -> anyhow::Result<(Scene, String, String)> {
     Ok(match path {
         Some(p) => {
+            photonkit::format::guard::register_input(p);
             let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
             let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
             (Scene::parse(&text, &p.display().to_string(), dir)?, p.display().to_string(), text)
@@ -97,6 +98,7 @@ pub(crate) fn load_scene(path: Option<&std::path::Path>) -> anyhow::Result<(Scen
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (scene, label, text) = load_scene(a.scene.as_deref())?;
+    super::refuse_input_as_output(&a.output)?;
     let budget = match (a.photons, a.stored) {
         (_, Some(0)) | (Some(0), _) => bail!("--photons and --stored need at least 1"),
         (_, Some(n)) => Budget::Stored(n),

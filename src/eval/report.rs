@@ -23,7 +23,7 @@ fn write_atomic(path: &Path, bytes: &[u8]) -> Result<(), CompareError> {
     let io = |e: std::io::Error| CompareError::Io { path: path.display().to_string(), source: e };
     let mut tmp = crate::format::temp_beside(path, ".photonkit-").map_err(io)?;
     std::io::Write::write_all(&mut tmp, bytes).map_err(io)?;
-    tmp.persist(path).map_err(|e| io(e.error))?;
+    crate::format::persist(tmp, path).map_err(io)?;
     Ok(())
 }
 

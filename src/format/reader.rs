@@ -27,6 +27,8 @@ pub struct PhotonMap {
     storage: Storage,
     preamble: Preamble,
     meta: Metadata,
+    /// Keeps the file registered as an input while mapped ([`super::guard`]).
+    hold: Option<super::guard::InputHold>,
 }
 
 impl std::fmt::Debug for PhotonMap {
@@ -52,10 +54,14 @@ impl PhotonMap {
         if f.metadata().map_err(io)?.len() == 0 {
             return Err(FormatError::Truncated { file, what: "preamble", needed: 32, actual: 0 });
         }
-        // SAFETY: the map is read-only; a file changed by another process while mapped is
-        // outside what photonkit supports (as with every memory-mapped format reader).
+        // SAFETY: the map is read-only; a file truncated by another process while mapped raises
+        // SIGBUS on access, which `guard` reports by name (the process then exits).
         let map = unsafe { memmap2::Mmap::map(&f) }.map_err(io)?;
-        Self::from_storage(file, Storage::Mapped(map))
+        let hold = super::guard::hold_mapped_input(path);
+        super::guard::test_pause("AFTER_MAP");
+        let mut map = Self::from_storage(file, Storage::Mapped(map))?;
+        map.hold = hold;
+        Ok(map)
     }
 
     /// Reads a whole file from a stream (standard input) into memory and validates it.
@@ -78,7 +84,7 @@ impl PhotonMap {
             Storage::Owned { words, len } => &bytemuck::cast_slice(words)[..*len],
         };
         let (preamble, meta) = parse(&file, bytes)?;
-        Ok(PhotonMap { file, storage, preamble, meta })
+        Ok(PhotonMap { file, storage, preamble, meta, hold: None })
     }
 
     /// The whole file.

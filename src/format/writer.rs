@@ -122,7 +122,9 @@ impl PhotonWriter {
 
         let tmp = match &target {
             Output::Path(p) => temp_beside(p, ".phm-"),
-            Output::Stdout => new_file_builder("photonkit-", ".phm").tempfile(),
+            Output::Stdout => new_file_builder("photonkit-", ".phm").tempfile().inspect(|t| {
+                super::guard::register_temp(t.path());
+            }),
         }
         .map_err(|source| FormatError::Io { file: tname.clone(), source })?;
         // Sizing the file up front makes every padding byte zero without writing it.
@@ -273,9 +275,8 @@ impl PhotonWriter {
         f.write_all_at(&region, PREAMBLE_LEN as u64).map_err(|e| self.io(e))?;
         match &self.target {
             Output::Path(p) => {
-                self.tmp
-                    .persist(p)
-                    .map_err(|e| FormatError::Io { file: p.display().to_string(), source: e.error })?;
+                persist(self.tmp, p)
+                    .map_err(|source| FormatError::Io { file: p.display().to_string(), source })?;
             }
             Output::Stdout => {
                 let mut f = self.tmp.reopen().map_err(|e| self.io(e))?;
@@ -318,9 +319,26 @@ fn new_file_builder<'a>(prefix: &'a str, suffix: &'a str) -> tempfile::Builder<'
 /// A temporary file beside `path` (same directory, so the final rename stays on one disk),
 /// named `<prefix>….tmp`: every output of every stage is written there and renamed into place
 /// only when complete, so a failed run never leaves a damaged file.
+///
+/// Refuses a `path` that is one of the command's inputs ([`super::guard::check_output`]), and
+/// registers the temporary file so an interrupt removes it.
 pub fn temp_beside(path: &Path, prefix: &str) -> std::io::Result<tempfile::NamedTempFile> {
+    super::guard::check_output(path)?;
     let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    new_file_builder(prefix, ".tmp").tempfile_in(dir)
+    let tmp = new_file_builder(prefix, ".tmp").tempfile_in(dir)?;
+    super::guard::register_temp(tmp.path());
+    Ok(tmp)
+}
+
+/// Renames a finished temporary file from [`temp_beside`] into place, checking once more that
+/// the target is not one of the command's inputs.
+pub fn persist(tmp: tempfile::NamedTempFile, path: &Path) -> std::io::Result<()> {
+    super::guard::check_output(path)?;
+    super::guard::test_pause("BEFORE_RENAME");
+    let temp_path = tmp.path().to_path_buf();
+    tmp.persist(path).map_err(|e| e.error)?;
+    super::guard::forget_temp(&temp_path);
+    Ok(())
 }
 
 /// Writes whole columns held in memory (or mapped from an input file) as one PHM file.

@@ -157,8 +157,17 @@ impl Imported {
 
 /// Reads `path` in the format given or detected.
 pub fn import(path: &Path, options: &Options) -> Result<Imported> {
-    let file = path.display().to_string();
-    let bytes = std::fs::read(path).map_err(|source| ImportError::Io { file: file.clone(), source })?;
+    let stdin = path == Path::new("-");
+    let file = if stdin { "<stdin>".to_string() } else { path.display().to_string() };
+    let bytes = if stdin {
+        let mut bytes = Vec::new();
+        std::io::Read::read_to_end(&mut std::io::stdin().lock(), &mut bytes)
+            .map_err(|source| ImportError::Io { file: file.clone(), source })?;
+        bytes
+    } else {
+        crate::format::guard::register_input(path);
+        std::fs::read(path).map_err(|source| ImportError::Io { file: file.clone(), source })?
+    };
     let format = match options.format {
         Some(f) => f,
         None => SourceFormat::detect(path, &bytes)

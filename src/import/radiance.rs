@@ -499,6 +499,7 @@ fn read_ooc(path: &Path, r: &mut Reader, variant: Variant, n: usize) -> Result<V
     leaf_path.push(".leaf");
     let leaf_path = std::path::PathBuf::from(leaf_path);
     let leaf_name = leaf_path.display().to_string();
+    crate::format::guard::register_input(&leaf_path);
     let leaf = std::fs::read(&leaf_path).map_err(|source| ImportError::Io {
         file: format!("{leaf_name} (the photons of the out-of-core map {})", r.file),
         source,

@@ -128,12 +128,12 @@ pub fn write(img: &Image, out: &Outputs, notes: &Notes) -> Result<(), RenderErro
     };
     let mut done: Vec<&PathBuf> = Vec::new();
     for (p, tmp) in exr.into_iter().chain(png) {
-        if let Err(e) = tmp.persist(p) {
+        if let Err(e) = crate::format::persist(tmp, p) {
             // Leave no half-written set: remove what this call already put in place.
             for d in done {
                 let _ = std::fs::remove_file(d);
             }
-            return Err(RenderError::Io { file: p.display().to_string(), source: e.error });
+            return Err(RenderError::Io { file: p.display().to_string(), source: e });
         }
         done.push(p);
     }

@@ -241,6 +241,7 @@ pub fn paraboloid(focal: f32, r_min: f32, r_max: f32, rings: u32, segments: u32)
 /// them for every vertex.
 pub fn load_obj(path: &std::path::Path) -> Result<Mesh, String> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
+    crate::format::guard::register_input(path);
     let (models, _materials) = tobj::load_obj(path, &opts).map_err(|e| e.to_string())?;
     let mut mesh = Mesh { normals: Some(Vec::new()), ..Default::default() };
     for m in &models {

@@ -159,6 +159,7 @@ impl Scene {
     /// Reads a scene file; relative paths inside it (OBJ files) are resolved beside it.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
         let file = path.display().to_string();
+        crate::format::guard::register_input(path);
         let src =
             std::fs::read_to_string(path).map_err(|source| SceneError::Io { file: file.clone(), source })?;
         let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));

@@ -530,7 +530,8 @@ fn exports_refuse_what_would_not_read_back_and_write_nothing() {
     use photonkit::format::{ColumnSpec, DType, MapInfo, State, write_map};
     let dir = tempfile::tempdir().unwrap();
     let write = |extra: (&str, DType, Vec<u8>)| {
-        let p = dir.path().join("m.phm");
+        // One file per map: a file still mapped is an input, and no output may replace it.
+        let p = dir.path().join(format!("{}.phm", extra.0));
         let pos: Vec<u8> = [0.5f32, 0.25, 0.0].iter().flat_map(|v| v.to_le_bytes()).collect();
         let flux: Vec<u8> = [1f32, 1.0, 1.0].iter().flat_map(|v| v.to_le_bytes()).collect();
         let cols = [

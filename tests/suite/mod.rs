@@ -6,6 +6,7 @@ mod import;
 mod phm_py;
 mod relax;
 mod render;
+mod safety;
 mod samples;
 mod trace;
 mod truth;

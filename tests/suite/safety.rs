@@ -1,0 +1,149 @@
+//! The user's files survive every command: an output that is an input is refused, an
+//! interrupted write leaves nothing behind, and an input truncated underneath is named.
+
+use std::io::{BufRead, BufReader};
+use std::path::Path;
+use std::process::{Command, Stdio};
+
+use super::common::{photonkit, sample_path, stderr};
+
+fn copy_sample(dir: &Path, name: &str) -> std::path::PathBuf {
+    let p = dir.join(name);
+    std::fs::copy(sample_path("collimated-cusp.phm"), &p).unwrap();
+    p
+}
+
+fn temp_files(dir: &Path) -> Vec<String> {
+    std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".tmp"))
+        .collect()
+}
+
+/// Every command that reads a file and writes one refuses to write over its input, under any
+/// name of the same file (`./x`, a symlink), and leaves the input byte for byte as it was.
+#[test]
+fn every_command_refuses_to_overwrite_its_input() {
+    let dir = tempfile::tempdir().unwrap();
+    let x = copy_sample(dir.path(), "x.phm");
+    let original = std::fs::read(&x).unwrap();
+    let link = dir.path().join("link.phm");
+    std::os::unix::fs::symlink(&x, &link).unwrap();
+    let xs = x.to_str().unwrap();
+    let dotted = format!("{}/./x.phm", dir.path().display());
+    let ls = link.to_str().unwrap();
+    let csv = dir.path().join("l.csv");
+    std::fs::write(&csv, "x,y,z,flux_r,flux_g,flux_b\n0,0,0,1,1,1\n1,0,0,1,1,1\n").unwrap();
+    let csv_before = std::fs::read(&csv).unwrap();
+    let cs = csv.to_str().unwrap();
+    let cases: Vec<Vec<&str>> = vec![
+        vec!["inspect", xs, "--sample", "10", "-o", &dotted],
+        vec![
+            "render",
+            xs,
+            "--plane",
+            "z=0",
+            "--rect",
+            "-1,-1,1,1",
+            "--width",
+            "8",
+            "--height",
+            "8",
+            "-o",
+            ls,
+        ],
+        vec!["import", cs, "-o", cs],
+        vec!["detect", xs, "-o", xs],
+        vec!["relax", ls, "-o", xs],
+        vec!["collapse", xs, "-o", ls],
+        vec!["export", xs, "--to", "csv", "-o", xs],
+        vec!["merge", xs, "-o", &dotted],
+    ];
+    for args in cases {
+        let o = photonkit(&args);
+        assert!(!o.status.success(), "{args:?} succeeded");
+        assert!(stderr(&o).contains("refusing to overwrite"), "{args:?}: {}", stderr(&o));
+        assert_eq!(std::fs::read(&x).unwrap(), original, "{args:?} changed the input");
+        assert_eq!(std::fs::read(&csv).unwrap(), csv_before, "{args:?} changed the CSV");
+        assert!(temp_files(dir.path()).is_empty(), "{args:?} left a temporary file");
+    }
+}
+
+/// Runs `args` with a test pause of `ms` at `pause`, waits for the pause to begin, then calls `act`.
+fn during_pause(args: &[&str], pause: &str, ms: u32, act: impl FnOnce(u32)) -> std::process::Output {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_photonkit"))
+        .args(args)
+        .env(format!("PHOTONKIT_TEST_PAUSE_{pause}"), ms.to_string())
+        .stderr(Stdio::piped())
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let mut err = BufReader::new(child.stderr.take().unwrap());
+    let mut seen = String::new();
+    loop {
+        let mut line = String::new();
+        if err.read_line(&mut line).unwrap() == 0 {
+            panic!("{args:?} ended before its pause: {seen}");
+        }
+        seen.push_str(&line);
+        if line.contains("test pause") {
+            break;
+        }
+    }
+    act(child.id());
+    let mut rest = String::new();
+    std::io::Read::read_to_string(&mut err, &mut rest).unwrap();
+    let status = child.wait().unwrap();
+    std::process::Output { status, stdout: Vec::new(), stderr: (seen + &rest).into_bytes() }
+}
+
+/// SIGINT, SIGTERM and SIGHUP during the write remove the finished-but-unrenamed temporary
+/// file and leave no output; the exit status is 128 + the signal.
+#[test]
+fn an_interrupted_write_leaves_no_temporary_file() {
+    use std::os::unix::process::ExitStatusExt;
+    for (sig, name) in [(libc::SIGINT, "INT"), (libc::SIGTERM, "TERM"), (libc::SIGHUP, "HUP")] {
+        let dir = tempfile::tempdir().unwrap();
+        let x = copy_sample(dir.path(), "x.phm");
+        let out = dir.path().join("out.phm");
+        let o = during_pause(
+            &["inspect", x.to_str().unwrap(), "--sample", "100", "-o", out.to_str().unwrap()],
+            "BEFORE_RENAME",
+            20_000,
+            |pid| {
+                assert_eq!(temp_files(dir.path()).len(), 1, "the write is pending");
+                // SAFETY: sending a signal to our own child.
+                unsafe { libc::kill(pid as i32, sig) };
+            },
+        );
+        assert_eq!(o.status.code(), Some(128 + sig), "SIG{name}: {:?} {}", o.status.signal(), stderr(&o));
+        assert!(temp_files(dir.path()).is_empty(), "SIG{name} left {:?}", temp_files(dir.path()));
+        assert!(!out.exists(), "SIG{name} left an output");
+        assert!(stderr(&o).contains("removed 1 unfinished output file"), "{}", stderr(&o));
+    }
+}
+
+/// An input truncated by another process while it is mapped is named in the error, instead
+/// of a bare SIGBUS.
+#[test]
+fn an_input_truncated_underneath_is_named() {
+    let dir = tempfile::tempdir().unwrap();
+    let x = copy_sample(dir.path(), "x.phm");
+    for args in [vec!["inspect", "--dump"], vec!["detect"]] {
+        let mut full = args.clone();
+        full.push(x.to_str().unwrap());
+        let out = dir.path().join("d.phm");
+        if args[0] == "detect" {
+            full.extend(["-o", out.to_str().unwrap()]);
+        }
+        // The pause only has to outlast one truncation.
+        let o = during_pause(&full, "AFTER_MAP", 2_000, |_| {
+            std::fs::OpenOptions::new().write(true).open(&x).unwrap().set_len(0).unwrap();
+        });
+        assert_eq!(o.status.code(), Some(74), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("changed underneath") && stderr(&o).contains("x.phm"), "{}", stderr(&o));
+        assert!(!out.exists());
+        std::fs::copy(sample_path("collimated-cusp.phm"), &x).unwrap();
+    }
+}

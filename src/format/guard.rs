@@ -19,10 +19,14 @@ use std::sync::Mutex;
 use std::sync::atomic::{AtomicPtr, AtomicUsize, Ordering};
 
 struct Input {
+    /// Which registration this is (an inode number alone may be a deleted input's, reused).
+    id: u64,
     dev: u64,
     ino: u64,
     path: PathBuf,
 }
+
+static NEXT_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(0);
 
 static INPUTS: Mutex<Vec<Input>> = Mutex::new(Vec::new());
 /// Temporary files not yet renamed into place, as C strings so a signal handler can unlink them.
@@ -41,14 +45,13 @@ pub fn register_input(path: &Path) {
 /// An input registered while this value lives (a memory-mapped photon map holds one).
 #[derive(Debug)]
 pub struct InputHold {
-    dev: u64,
-    ino: u64,
+    id: u64,
 }
 
 impl Drop for InputHold {
     fn drop(&mut self) {
         let mut inputs = INPUTS.lock().unwrap_or_else(|e| e.into_inner());
-        if let Some(k) = inputs.iter().position(|i| i.dev == self.dev && i.ino == self.ino) {
+        if let Some(k) = inputs.iter().position(|i| i.id == self.id) {
             inputs.swap_remove(k);
         }
     }
@@ -57,12 +60,14 @@ impl Drop for InputHold {
 /// Records `path` as an input until the returned hold is dropped.
 pub fn hold_input(path: &Path) -> Option<InputHold> {
     let m = std::fs::metadata(path).ok()?;
+    let id = NEXT_ID.fetch_add(1, Ordering::Relaxed);
     INPUTS.lock().unwrap_or_else(|e| e.into_inner()).push(Input {
+        id,
         dev: m.dev(),
         ino: m.ino(),
         path: path.to_path_buf(),
     });
-    Some(InputHold { dev: m.dev(), ino: m.ino() })
+    Some(InputHold { id })
 }
 
 /// Records `path` as a memory-mapped input until the hold is dropped; a SIGBUS (the file was

@@ -488,6 +488,36 @@ impl Scene {
         Some(Hit { t: h.t, normal: info.normal, shading, shape: info.surface })
     }
 
+    /// Whether surface `id` is an analytic shape (not a triangle mesh).
+    #[inline(always)]
+    pub fn is_analytic(&self, id: u32) -> bool {
+        matches!(self.surfaces[id as usize].geometry, SurfaceGeometry::Analytic(_))
+    }
+
+    /// The nearest hit of a ray that starts *exactly* on the analytic surface `leaving` (a hit
+    /// point, not offset from it): a hit on `leaving` itself counts only beyond
+    /// [`Self::ray_offset`] (nearer, it is the point just left), every other surface from
+    /// t > 0. An offset origin would instead miss a surface closer than the offset — a glass
+    /// sphere resting on the floor sends the photons that leave it near the contact point
+    /// straight through the floor.
+    #[inline(always)]
+    pub fn intersect_leaving(&self, ray: &Ray, reach: Reach, leaving: u32, t_max: f32) -> Option<Hit> {
+        let mut best: Option<Hit> = None;
+        let mut t_best = t_max;
+        if reach != Reach::Analytic {
+            best = self.intersect_mesh(ray, 0.0, t_max);
+            t_best = best.map_or(t_max, |h| h.t);
+        }
+        for (s, id) in &self.analytic {
+            let t_min = if *id == leaving { self.ray_offset } else { 0.0 };
+            if let Some((t, n)) = s.intersect(ray, t_min, t_best) {
+                t_best = t;
+                best = Some(Hit { t, normal: n, shading: n, shape: *id });
+            }
+        }
+        best
+    }
+
     /// The nearest hit on the analytic shapes alone (the mesh triangles skipped).
     #[inline(always)]
     pub fn intersect_analytic(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<Hit> {

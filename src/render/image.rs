@@ -65,8 +65,11 @@ fn exr_temp(path: &Path, img: &Image, notes: &Notes) -> Result<tempfile::NamedTe
         (p.x, p.y, p.z)
     });
     let mut attrs = LayerAttributes { software_name: Some(Text::from("photonkit")), ..Default::default() };
+    // Header text is written as UTF-8 bytes, as OpenEXR's own readers expect (the exr crate's
+    // `Text::from` takes Latin-1 and panics on any other character).
+    let utf8 = |s: &str| Text::from_slice_unchecked(s.as_bytes());
     for (k, v) in notes {
-        attrs.other.insert(Text::from(k.as_str()), AttributeValue::Text(Text::from(v.as_str())));
+        attrs.other.insert(utf8(k), AttributeValue::Text(utf8(v)));
     }
     let layer = Layer::new((w, img.height as usize), attrs, Encoding::SMALL_LOSSLESS, channels);
     let file = tmp.as_file_mut();
@@ -170,7 +173,10 @@ pub fn read_exr(path: &Path) -> Result<(Image, Notes), RenderError> {
         .other
         .iter()
         .filter_map(|(k, v)| match v {
-            AttributeValue::Text(t) => Some((k.to_string(), t.to_string())),
+            AttributeValue::Text(t) => Some((
+                String::from_utf8_lossy(k.as_slice()).into_owned(),
+                String::from_utf8_lossy(t.as_slice()).into_owned(),
+            )),
             _ => None,
         })
         .collect();

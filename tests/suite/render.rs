@@ -248,3 +248,74 @@ fn the_scene_comes_from_the_maps_history() {
     assert!(!o.status.success() && stderr(&o).contains("--scene"), "{}", stderr(&o));
     assert!(!out.exists());
 }
+
+/// The string attributes of an OpenEXR header, parsed from the bytes as the OpenEXR file
+/// layout defines them (magic, version, then `name\0type\0size value` until an empty name):
+/// an independent reader for what `render` writes.
+fn exr_header_strings(bytes: &[u8]) -> Vec<(Vec<u8>, Vec<u8>)> {
+    assert_eq!(&bytes[..4], &[0x76, 0x2f, 0x31, 0x01], "the OpenEXR magic number");
+    let mut at = 8;
+    let mut out = Vec::new();
+    let cstr = |at: &mut usize| {
+        let end = *at + bytes[*at..].iter().position(|&b| b == 0).unwrap();
+        let s = bytes[*at..end].to_vec();
+        *at = end + 1;
+        s
+    };
+    loop {
+        let name = cstr(&mut at);
+        if name.is_empty() {
+            return out;
+        }
+        let kind = cstr(&mut at);
+        let size = i32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
+        at += 4;
+        if kind == b"string" {
+            out.push((name, bytes[at..at + size].to_vec()));
+        }
+        at += size;
+    }
+}
+
+/// Paths and notes outside Latin-1 (issue 31: a panic) or outside ASCII ("×" was written as
+/// the single byte 0xD7, which OpenEXR's own readers refuse) are written as UTF-8.
+#[test]
+fn exr_header_text_is_utf8_for_any_path() {
+    let dir = tempfile::tempdir().unwrap().keep();
+    let sub = dir.join("caustiques→été");
+    std::fs::create_dir(&sub).unwrap();
+    let map = sub.join("a→b.phm");
+    std::fs::copy(super::common::sample_path("collimated-cusp.phm"), &map).unwrap();
+    let exr = sub.join("ø→x.exr");
+    let o = photonkit(&[
+        "render",
+        map.to_str().unwrap(),
+        "--plane",
+        "z=0",
+        "--rect",
+        "-1,-1,1,1",
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "-o",
+        exr.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let strings = exr_header_strings(&std::fs::read(&exr).unwrap());
+    assert!(!strings.is_empty());
+    for (name, value) in &strings {
+        assert!(std::str::from_utf8(name).is_ok(), "attribute name {name:?} is not UTF-8");
+        assert!(
+            std::str::from_utf8(value).is_ok(),
+            "attribute {:?} is not UTF-8",
+            String::from_utf8_lossy(name)
+        );
+    }
+    let all: String = strings.iter().map(|(_, v)| String::from_utf8_lossy(v).into_owned()).collect();
+    assert!(all.contains("a→b.phm"), "the map's name survives: {all}");
+    // And our own reader reads the text back as written.
+    let (_, notes) = photonkit::render::image::read_exr(&exr).unwrap();
+    assert!(notes.iter().any(|(_, v)| v.contains("a→b.phm")), "{notes:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -56,7 +56,7 @@ pub struct Args {
     #[arg(long, default_value_t = 50)]
     kc: usize,
     /// β of Eq. 1.
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = 3.0)]
     beta: f32,
     /// k of the parameter-space density estimate ρ = k/(π r_k²) of Eq. 1; default Kc.
     #[arg(long, value_name = "K")]
@@ -74,7 +74,7 @@ pub struct Args {
     #[arg(long, default_value_t = 500)]
     diffusion_k: usize,
     /// Control q of diffusion-based photon mapping.
-    #[arg(long, default_value_t = 0.02)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = 0.02)]
     diffusion_q: f32,
     /// Pass counts at which progressive photon mapping is measured.
     #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
@@ -128,7 +128,7 @@ fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(
             "photons" => o.photons = super::trace::parse_count(v).map_err(|e| anyhow::anyhow!(e))?,
             "k" => o.k = v.parse().with_context(bad)?,
             "kc" => o.kc = v.parse().with_context(bad)?,
-            "beta" => o.beta = v.parse().with_context(bad)?,
+            "beta" => o.beta = super::finite_f32(v).map_err(anyhow::Error::msg).with_context(bad)?,
             "k-density" => o.k_density = Some(v.parse().with_context(bad)?),
             "iterations" => {
                 o.iterations = v.parse().with_context(bad)?;

@@ -34,14 +34,14 @@ pub struct Args {
     #[arg(long, default_value_t = 50)]
     kc: usize,
     /// β of Eq. 1: the parameter-space radius in units of the mean photon spacing sqrt(Kc/(πρ)).
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = 3.0)]
     beta: f32,
     /// k of the parameter-space density estimate ρ = k/(π r_k²); default Kc.
     #[arg(long, value_name = "K")]
     k_density: Option<usize>,
     /// Gain of `--method gradient`: the factor along the density gradient is 1 − gain·g, with
     /// g = |∇B̂|·r/B̂ (≈ 1.7 on a hard edge, ≈ 2.8/√Kc from noise alone).
-    #[arg(long, default_value_t = detect::DEFAULT_GAIN)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = detect::DEFAULT_GAIN)]
     gain: f32,
     /// μ(K), σ(K) of the noise filter (Eq. 4–6): `simulated` tabulates them for any Kc under this
     /// implementation's normalisation; `paper` is the paper's fit at K = 100.

@@ -18,3 +18,15 @@ pub(crate) fn refuse_input_as_output(output: &str) -> anyhow::Result<()> {
     }
     Ok(())
 }
+
+/// A finite `f32` command-line value (NaN and infinities are refused, not propagated).
+pub(crate) fn finite_f32(s: &str) -> Result<f32, String> {
+    let v: f32 = s.trim().parse().map_err(|e| format!("{e}"))?;
+    if v.is_finite() { Ok(v) } else { Err(format!("'{s}' is not a finite number")) }
+}
+
+/// A finite `f64` command-line value.
+pub(crate) fn finite_f64(s: &str) -> Result<f64, String> {
+    let v: f64 = s.trim().parse().map_err(|e| format!("{e}"))?;
+    if v.is_finite() { Ok(v) } else { Err(format!("'{s}' is not a finite number")) }
+}

@@ -41,7 +41,7 @@ pub struct Args {
     #[arg(long, default_value_t = 50)]
     kc: usize,
     /// β of Eq. 1 (parameter-space radius in units of the mean photon spacing).
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = 3.0)]
     beta: f32,
     /// R: relaxation iterations before the collapse and again after it.
     #[arg(short = 'R', long, default_value_t = 7)]

@@ -31,10 +31,10 @@ pub struct Args {
     #[arg(long, default_value_t = 16)]
     kf: usize,
     /// ε of Eq. 8 as a fraction of the Kf-th neighbour distance (keeps the force finite).
-    #[arg(long, default_value_t = 1e-3)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = 1e-3)]
     epsilon: f32,
     /// Largest step per iteration as a fraction of the local photon spacing.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = 0.5)]
     step_limit: f32,
     /// The scene the photons were traced in: photons that move are returned to their surface
     /// (the `surface` column), so photons on curved receivers stay on them. Without it,
@@ -45,7 +45,7 @@ pub struct Args {
     /// The 2009 method's flux diffusion: per iteration each photon's flux moves this fraction
     /// (0–1) toward its Kf neighbours' mean, totals kept per channel. 0 keeps every photon's
     /// flux as traced.
-    #[arg(long, value_name = "RATE", default_value_t = 0.0)]
+    #[arg(value_parser = super::finite_f32, long, value_name = "RATE", default_value_t = 0.0)]
     flux_diffusion: f32,
 }
 

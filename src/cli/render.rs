@@ -68,23 +68,23 @@ pub struct Args {
     #[arg(short, default_value_t = 15)]
     k: usize,
     /// Largest kernel radius of the k-NN estimate, metres (fewer than K photons count then).
-    #[arg(long, value_name = "M")]
+    #[arg(value_parser = super::finite_f32, long, value_name = "M")]
     max_radius: Option<f32>,
     /// Neighbours of the diffusion estimator (the paper compares with 500).
     #[arg(long, value_name = "N", default_value_t = 500)]
     diffusion_k: usize,
     /// Anisotropy control q of the diffusion estimator: the diffusivity across a feature is
     /// 1/(1 + (g/q)²), g the relative density gradient; smaller q, sharper and noisier.
-    #[arg(long, value_name = "Q", default_value_t = 0.02)]
+    #[arg(value_parser = super::finite_f32, long, value_name = "Q", default_value_t = 0.02)]
     diffusion_q: f32,
     /// Instead of radiance, draw the photons as dots coloured by a property.
     #[arg(long, value_enum)]
     diagnostic: Option<DiagnosticArg>,
     /// Constraint factor |basis_v| below which --diagnostic constrained paints a photon red.
-    #[arg(long, default_value_t = 0.5)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = 0.5)]
     threshold: f32,
     /// Dot radius of the diagnostic views, metres (default: 0.4 × the local photon spacing).
-    #[arg(long, value_name = "M")]
+    #[arg(value_parser = super::finite_f32, long, value_name = "M")]
     dot_radius: Option<f32>,
     /// Scene-less view: the plane AXIS=VALUE (x=, y= or z=), seen from its positive side.
     #[arg(long, value_name = "AXIS=VALUE", value_parser = parse_plane)]
@@ -94,7 +94,7 @@ pub struct Args {
     #[arg(long, value_name = "U0,V0,U1,V1", value_parser = parse_rect, requires = "plane", allow_hyphen_values = true)]
     rect: Option<[f32; 4]>,
     /// Photons farther than this from the --plane are left out, metres.
-    #[arg(long, value_name = "M", default_value_t = 1e-3, requires = "plane")]
+    #[arg(value_parser = super::finite_f32, long, value_name = "M", default_value_t = 1e-3, requires = "plane")]
     plane_tolerance: f32,
 }
 
@@ -108,7 +108,7 @@ struct Common {
     #[arg(long, conflicts_with = "png")]
     no_png: bool,
     /// Preview exposure in stops: pixel values are multiplied by 2^EXPOSURE before the sRGB curve.
-    #[arg(long, default_value_t = 0.0, allow_negative_numbers = true)]
+    #[arg(value_parser = super::finite_f32, long, default_value_t = 0.0, allow_negative_numbers = true)]
     exposure: f32,
     /// Image width in pixels (default: the camera's).
     #[arg(long)]
@@ -136,10 +136,10 @@ struct Common {
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_vec3, allow_hyphen_values = true)]
     up: Option<Vec3>,
     /// Pinhole camera with this vertical field of view, degrees.
-    #[arg(long, value_name = "DEG", conflicts_with = "ortho")]
+    #[arg(value_parser = super::finite_f32, long, value_name = "DEG", conflicts_with = "ortho")]
     fov: Option<f32>,
     /// Orthographic camera showing this height, metres.
-    #[arg(long, value_name = "M")]
+    #[arg(value_parser = super::finite_f32, long, value_name = "M")]
     ortho: Option<f32>,
     /// Seed of the sub-pixel jitter and sampled Fresnel choices.
     #[arg(long, default_value_t = 0)]
@@ -590,10 +590,10 @@ pub struct ReferenceArgs {
     photons_per_pass: u64,
     /// Initial gather radius r₁, metres (default: the median distance from a first-pass photon
     /// to its 15th nearest neighbour).
-    #[arg(long, value_name = "M")]
+    #[arg(value_parser = super::finite_f32, long, value_name = "M")]
     radius: Option<f32>,
     /// α of the radius reduction, in (0, 1).
-    #[arg(long, default_value_t = 2.0 / 3.0)]
+    #[arg(value_parser = super::finite_f64, long, default_value_t = 2.0 / 3.0)]
     alpha: f64,
     /// Kernel of the gather.
     #[arg(long, value_enum, default_value_t = KernelArg::Epanechnikov)]
@@ -605,7 +605,7 @@ pub struct ReferenceArgs {
     #[arg(long)]
     resume: bool,
     /// Seconds between saves of the running mean.
-    #[arg(long, value_name = "S", default_value_t = 30.0)]
+    #[arg(value_parser = super::finite_f64, long, value_name = "S", default_value_t = 30.0)]
     save_every: f64,
     /// Base seed of the passes' photons.
     #[arg(long, value_name = "N", default_value_t = 1)]

@@ -147,3 +147,20 @@ fn an_input_truncated_underneath_is_named() {
         std::fs::copy(sample_path("collimated-cusp.phm"), &x).unwrap();
     }
 }
+
+/// NaN and infinite option values are refused by the argument parser (issue 31: `--exposure
+/// nan` rendered a black PNG with exit 0).
+#[test]
+fn non_finite_option_values_are_refused() {
+    let map = sample_path("collimated-cusp.phm");
+    let m = map.to_str().unwrap();
+    for args in [
+        vec!["render", m, "--exposure", "nan", "-o", "/nonexistent/x.exr"],
+        vec!["detect", m, "--beta", "inf", "-o", "/nonexistent/x.phm"],
+        vec!["relax", m, "--step-limit=-inf", "-o", "/nonexistent/x.phm"],
+    ] {
+        let o = photonkit(&args);
+        assert_eq!(o.status.code(), Some(2), "{args:?}: {}", stderr(&o));
+        assert!(stderr(&o).contains("not a finite number"), "{args:?}: {}", stderr(&o));
+    }
+}

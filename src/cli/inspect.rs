@@ -38,7 +38,8 @@ pub struct Args {
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
-    let map = PhotonMap::open(&a.file)?;
+    // Checksums are verified by --check (and every stage), reported among its findings.
+    let map = PhotonMap::open_unverified(&a.file)?;
     if let Some(o) = &a.output {
         super::refuse_input_as_output(o)?;
     }
@@ -50,6 +51,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     } else if a.dump || a.head.is_some() {
         inspect::dump_tsv(&map, a.head, &mut out).context("writing TSV")?;
     } else if let Some(n) = a.sample {
+        // The sample is a new file: never from a corrupt map.
+        map.verify_checksums()?;
         let target = Output::parse(a.output.as_deref().expect("clap requires --output"));
         if map.is_empty() {
             bail!("{}: the map holds no photons to sample", map.file_name());

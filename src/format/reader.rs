@@ -38,16 +38,32 @@ impl std::fmt::Debug for PhotonMap {
 }
 
 impl PhotonMap {
-    /// Opens `path`, or standard input when `path` is `-`.
+    /// Opens `path`, or standard input when `path` is `-`, and verifies every column's CRC-32:
+    /// a stage never turns a corrupt input into a new file with fresh checksums.
     pub fn open(path: &str) -> Result<Self> {
+        let map = Self::open_unverified(path)?;
+        map.verify_checksums()?;
+        Ok(map)
+    }
+
+    /// [`Self::open`] without the column checksums (the header is still checked): for
+    /// `inspect`, which reports a checksum failure among its other findings.
+    pub fn open_unverified(path: &str) -> Result<Self> {
         if path == "-" {
             return Self::read_from("<stdin>", std::io::stdin().lock());
         }
-        Self::open_path(Path::new(path))
+        Self::map_path(Path::new(path))
     }
 
-    /// Memory-maps a file and validates it.
+    /// Memory-maps a file, validates it and verifies its column checksums.
     pub fn open_path(path: &Path) -> Result<Self> {
+        let map = Self::map_path(path)?;
+        map.verify_checksums()?;
+        Ok(map)
+    }
+
+    /// Memory-maps a file and validates its header and column table.
+    fn map_path(path: &Path) -> Result<Self> {
         let file = path.display().to_string();
         let io = |source| FormatError::Io { file: file.clone(), source };
         let f = std::fs::File::open(path).map_err(io)?;

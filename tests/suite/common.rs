@@ -57,3 +57,24 @@ pub fn stdout(o: &Output) -> String {
 pub fn stderr(o: &Output) -> String {
     String::from_utf8_lossy(&o.stderr).into_owned()
 }
+
+/// `bytes` (a PHM file whose column bytes were edited) with every column CRC-32 and the
+/// metadata CRC-32 recomputed: a semantic corruption that the checksums no longer catch.
+pub fn with_fixed_checksums(bytes: &[u8]) -> Vec<u8> {
+    let mut out = bytes.to_vec();
+    let meta_len = u64::from_le_bytes(bytes[16..24].try_into().unwrap()) as usize;
+    let region = &bytes[32..32 + meta_len];
+    let mut meta: serde_json::Value = serde_json::from_slice(region).unwrap();
+    for c in meta["columns"].as_array_mut().unwrap() {
+        let (offset, length) =
+            (c["offset"].as_u64().unwrap() as usize, c["length"].as_u64().unwrap() as usize);
+        c["crc32"] = crc32fast::hash(&bytes[offset..offset + length]).into();
+    }
+    let mut text = serde_json::to_vec(&meta).unwrap();
+    assert!(text.len() < meta_len);
+    text.resize(meta_len - 1, b' ');
+    text.push(b'\n');
+    out[32..32 + meta_len].copy_from_slice(&text);
+    out[12..16].copy_from_slice(&crc32fast::hash(&text).to_le_bytes());
+    out
+}

@@ -5,7 +5,7 @@ use std::path::Path;
 use photonkit::format::{PhotonMap, name};
 use photonkit::render::image::read_exr;
 
-use super::common::{photonkit, stderr, write_synthetic};
+use super::common::{photonkit, stderr, with_fixed_checksums, write_synthetic};
 
 fn files_in(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> =
@@ -135,7 +135,7 @@ fn bad_input_fails_cleanly_and_leaves_no_output() {
     let offset = PhotonMap::open_path(&nan).unwrap().meta().column(name::FLUX).unwrap().offset as usize;
     let mut bytes = std::fs::read(&nan).unwrap();
     bytes[offset + 12 * 7 + 4..offset + 12 * 7 + 8].copy_from_slice(&f32::NAN.to_le_bytes());
-    std::fs::write(&nan, bytes).unwrap();
+    std::fs::write(&nan, with_fixed_checksums(&bytes)).unwrap();
     let o = run(&nan);
     assert!(!o.status.success());
     assert!(stderr(&o).contains("photon 7") && stderr(&o).contains("flux"), "{}", stderr(&o));

@@ -164,3 +164,49 @@ fn non_finite_option_values_are_refused() {
         assert!(stderr(&o).contains("not a finite number"), "{args:?}: {}", stderr(&o));
     }
 }
+
+/// A map whose column fails its CRC-32 is refused by every stage (issue 31: a stage used to
+/// write it out again with fresh checksums that pass `--check`), and `inspect --check` names it.
+#[test]
+fn a_corrupt_column_is_refused_not_laundered() {
+    let dir = tempfile::tempdir().unwrap();
+    let x = copy_sample(dir.path(), "x.phm");
+    let map = photonkit::format::PhotonMap::open_path(&x).unwrap();
+    let flux = map.meta().columns.iter().find(|c| c.name == "flux").unwrap().offset as usize;
+    drop(map);
+    let mut bytes = std::fs::read(&x).unwrap();
+    bytes[flux + 5] ^= 0x40;
+    std::fs::write(&x, &bytes).unwrap();
+    let xs = x.to_str().unwrap();
+    let out = dir.path().join("out.phm");
+    let os = out.to_str().unwrap();
+    for args in [
+        vec!["detect", xs, "-o", os],
+        vec!["relax", xs, "-o", os],
+        vec!["collapse", xs, "-o", os],
+        vec!["inspect", xs, "--sample", "5", "-o", os],
+        vec!["export", xs, "--to", "csv", "-o", os],
+        vec![
+            "render",
+            xs,
+            "--plane",
+            "z=0",
+            "--rect",
+            "-1,-1,1,1",
+            "--width",
+            "4",
+            "--height",
+            "4",
+            "-o",
+            os,
+        ],
+    ] {
+        let o = photonkit(&args);
+        assert!(!o.status.success(), "{args:?} accepted a corrupt map");
+        assert!(stderr(&o).contains("fails its checksum"), "{args:?}: {}", stderr(&o));
+        assert!(!out.exists() && temp_files(dir.path()).is_empty(), "{args:?} wrote something");
+    }
+    let o = photonkit(&["inspect", "--check", xs]);
+    assert!(!o.status.success());
+    assert!(super::common::stdout(&o).contains("flux") || stderr(&o).contains("flux"));
+}

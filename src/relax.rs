@@ -649,6 +649,9 @@ pub fn return_to_surface(
     None
 }
 
+/// The most per-iteration measures a relax record keeps (about 200 bytes each).
+pub const MAX_ITERATION_RECORDS: usize = 1000;
+
 /// Writes `map` with its positions replaced by `relaxed`, every other column carried through,
 /// and a stage record holding the parameters and the per-iteration measures.
 pub fn write_relaxed(
@@ -661,11 +664,22 @@ pub fn write_relaxed(
     use crate::format::{StageRecord, name};
     let mut info = map.meta().info();
     let mut rec = StageRecord::now("relax", serde_json::to_value(p).unwrap_or_default());
+    // At most MAX_ITERATION_RECORDS per-iteration measures (every k-th and the last), so a
+    // long run's history stays far below the metadata limit.
+    let every = relaxed.measures.len().div_ceil(MAX_ITERATION_RECORDS).max(1);
+    let kept: Vec<_> = relaxed
+        .measures
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| i % every == 0 || i + 1 == relaxed.measures.len())
+        .map(|(_, m)| m)
+        .collect();
     rec.report = serde_json::json!({
         "space": relaxed.space,
         "constrained": relaxed.constrained,
         "seconds": seconds,
-        "iterations": relaxed.measures,
+        "iterations_recorded_every": every,
+        "iterations": kept,
     });
     info.history.push(rec);
     let columns: Vec<_> = map

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 
 use super::columns::{known_column, name};
 use super::meta::{BoundingBox, ColumnEntry, MapInfo, Metadata};
-use super::preamble::{PREAMBLE_LEN, Preamble, VERSION_MAJOR, VERSION_MINOR, align_up};
+use super::preamble::{MAX_METADATA_LEN, PREAMBLE_LEN, Preamble, VERSION_MAJOR, VERSION_MINOR, align_up};
 use super::reader::{validate, validate_emitters};
 use super::{ColumnSpec, FormatError, Result};
 
@@ -113,6 +113,14 @@ impl PhotonWriter {
         validate_emitters(&tname, &widest)?;
         let json_len = serde_json::to_vec_pretty(&widest).map_err(|e| bad(e.to_string()))?.len() as u64;
         let data_start = align_up(PREAMBLE_LEN as u64 + json_len + 64);
+        // Never write a file the reader refuses: its metadata limit applies here too.
+        if data_start - PREAMBLE_LEN as u64 > MAX_METADATA_LEN {
+            return Err(FormatError::MetadataTooLarge {
+                file: tname.clone(),
+                len: data_start - PREAMBLE_LEN as u64,
+                limit: MAX_METADATA_LEN,
+            });
+        }
         let mut at = data_start;
         for (e, s) in entries.iter_mut().zip(specs) {
             e.offset = at;

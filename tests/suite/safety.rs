@@ -210,3 +210,31 @@ fn a_corrupt_column_is_refused_not_laundered() {
     assert!(!o.status.success());
     assert!(super::common::stdout(&o).contains("flux") || stderr(&o).contains("flux"));
 }
+
+/// The writer refuses what the reader would refuse (issue 31: `relax -R 110000` wrote 26.7 MB
+/// of history, over the reader's 16 MiB metadata limit, with exit 0), and relax keeps at most
+/// 1000 per-iteration records, the last iteration among them.
+#[test]
+fn the_writer_enforces_the_readers_limits() {
+    use photonkit::format::{MapInfo, write_map};
+    let dir = tempfile::tempdir().unwrap();
+    let m = photonkit::synthetic::uniform_square(3, 1, 1.0);
+    let mut info: MapInfo = m.info("test", 0, "2026-12-04T00:00:00Z");
+    info.extra.insert("huge".into(), serde_json::Value::String("x".repeat(17 << 20)));
+    let p = dir.path().join("big.phm");
+    let e = write_map(photonkit::format::Output::Path(p.clone()), info, &m.columns()).unwrap_err();
+    assert!(e.to_string().contains("exceeds the limit"), "{e}");
+    assert!(!p.exists() && temp_files(dir.path()).is_empty());
+
+    let small = dir.path().join("s.phm");
+    super::common::write_synthetic(&m, "test", &small);
+    let out = dir.path().join("r.phm");
+    let o = photonkit(&["relax", small.to_str().unwrap(), "-R", "2500", "-o", out.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let map = photonkit::format::PhotonMap::open_path(&out).unwrap();
+    let rec = map.meta().history.iter().rev().find(|r| r.stage == "relax").unwrap();
+    let its = rec.report["iterations"].as_array().unwrap();
+    assert!(its.len() <= 1000 && its.len() >= 800, "{} records", its.len());
+    let last = its.last().unwrap()["iteration"].as_u64().unwrap();
+    assert!(last >= 2499, "the last iteration is kept (last record: {last})");
+}

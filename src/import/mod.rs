@@ -221,6 +221,19 @@ fn known_field(name: &str) -> Option<(&'static KnownColumn, usize)> {
     KNOWN_COLUMNS.iter().find_map(|k| k.text_names.iter().position(|t| *t == name).map(|i| (k, i)))
 }
 
+/// The name a field is read under: a known name (format-spec/phm-v1.md §7, or a display
+/// colour) in any case and with CloudCompare's `scalar_` prefix becomes that name; any other
+/// name is kept as written.
+pub(crate) fn canonical_name(name: &str) -> String {
+    let lower = name.to_ascii_lowercase();
+    let base = lower.strip_prefix("scalar_").unwrap_or(&lower);
+    if known_field(base).is_some() || COLOUR_NAMES.contains(&base) {
+        base.to_string()
+    } else {
+        name.to_string()
+    }
+}
+
 /// Maps field names to columns: §4.1's text names to their columns, `red green blue` to flux
 /// when there is no `flux_*`, runs `c_0 … c_{n-1}` of other names to one column `c` with n
 /// components, and every other name to a column of its own.
@@ -321,6 +334,8 @@ pub(crate) fn layout(file: &str, fields: &[Field], extra_dtype: &dyn Fn(usize) -
     }
 
     // Other fields become extra columns, kept; `c_0 … c_{n-1}` (n ≥ 2, same type) is one column.
+    // (Names in a set: a table of many thousand columns costs linear time.)
+    let mut spec_names: std::collections::HashSet<String> = specs.iter().map(|s| s.name.clone()).collect();
     let mut i = 0;
     while i < fields.len() {
         let f = &fields[i];
@@ -344,7 +359,7 @@ pub(crate) fn layout(file: &str, fields: &[Field], extra_dtype: &dyn Fn(usize) -
             Some(base) if n >= 2 && !base.is_empty() => (base.to_string(), n),
             _ => (f.name.to_string(), 1),
         };
-        if specs.iter().any(|s| s.name == col_name) || known_field(&col_name).is_some() {
+        if !spec_names.insert(col_name.clone()) || known_field(&col_name).is_some() {
             return Err(bad(f.at, format!("field '{}' would make a second column '{col_name}'", f.name)));
         }
         specs.push(ColumnSpec::new(&col_name, dtype, n as u32));

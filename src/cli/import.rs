@@ -32,6 +32,11 @@ pub struct Args {
     /// Radiance: keep only photons whose caustic flag is set.
     #[arg(long)]
     caustic_only: bool,
+    /// PLY/CSV without flux_* fields: take red green blue as the flux in watts (integer colours
+    /// divided by their maximum). Without it such a file is refused: colours are usually
+    /// display values a viewer wrote, not watts.
+    #[arg(long)]
+    flux_from_colour: bool,
 }
 
 #[derive(Clone, Copy, clap::ValueEnum)]
@@ -62,6 +67,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             Param::None => Parameterisation::None,
         }),
         caustic_only: a.caustic_only,
+        flux_from_colour: a.flux_from_colour,
     };
     let path = Path::new(&a.input);
     let photons = import::import(path, &options)?;

@@ -165,7 +165,9 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
         .iter()
         .map(|n| Field { name: n, dtype: None, colour_max: None, at: At::Line(header_line) })
         .collect();
-    let lay = layout(file, &fields, &|i| infer(rows.iter().map(|(_, r)| r.get(i + first).unwrap_or(""))))?;
+    let lay = layout(file, &fields, options.flux_from_colour, &|i| {
+        infer(rows.iter().map(|(_, r)| r.get(i + first).unwrap_or("")))
+    })?;
     let mut cols = Columns::new(file, lay.specs, rows.len());
     for (ln, record) in &rows {
         cols.begin_row();

@@ -116,6 +116,9 @@ pub struct Options {
     pub parameterisation: Option<Parameterisation>,
     /// Radiance: keep only photons whose caustic flag is set (last segment specular).
     pub caustic_only: bool,
+    /// PLY/CSV without `flux_*` fields: take `red green blue` as the flux, W (without this,
+    /// such a file is refused: colours are display values, not watts).
+    pub flux_from_colour: bool,
 }
 
 /// Photons read from another format, held as PHM columns in memory.
@@ -237,7 +240,12 @@ pub(crate) fn canonical_name(name: &str) -> String {
 /// Maps field names to columns: §4.1's text names to their columns, `red green blue` to flux
 /// when there is no `flux_*`, runs `c_0 … c_{n-1}` of other names to one column `c` with n
 /// components, and every other name to a column of its own.
-pub(crate) fn layout(file: &str, fields: &[Field], extra_dtype: &dyn Fn(usize) -> DType) -> Result<Layout> {
+pub(crate) fn layout(
+    file: &str,
+    fields: &[Field],
+    flux_from_colour: bool,
+    extra_dtype: &dyn Fn(usize) -> DType,
+) -> Result<Layout> {
     let bad = |at: At, message: String| ImportError::Malformed { file: file.to_string(), at, message };
     let mut seen = std::collections::HashMap::new();
     for f in fields {
@@ -250,6 +258,15 @@ pub(crate) fn layout(file: &str, fields: &[Field], extra_dtype: &dyn Fn(usize) -
     }
     let has_flux = fields.iter().any(|f| f.name.starts_with("flux_") && known_field(f.name).is_some());
     let colours_as_flux = !has_flux && COLOUR_NAMES.iter().all(|c| seen.contains_key(c));
+    if colours_as_flux && !flux_from_colour {
+        return Err(ImportError::Invalid {
+            file: file.to_string(),
+            message: "no flux_r flux_g flux_b fields, only red green blue: those are display colours, not \
+                      watts (a viewer may have renamed flux_* on saving). Rename the flux fields, or pass \
+                      --flux-from-colour to take the colours as flux in W"
+                .into(),
+        });
+    }
 
     let mut specs: Vec<ColumnSpec> = Vec::new();
     let mut slots: Vec<Option<Slot>> = vec![None; fields.len()];
@@ -640,7 +657,7 @@ mod tests {
     fn names_map_to_columns_and_extras_group() {
         let f =
             fields(&["x", "y", "z", "flux_r", "flux_g", "flux_b", "w_0", "w_1", "q", "red", "green", "blue"]);
-        let l = layout("t", &f, &|_| DType::F32).unwrap();
+        let l = layout("t", &f, true, &|_| DType::F32).unwrap();
         let names: Vec<_> = l.specs.iter().map(|s| (s.name.as_str(), s.components)).collect();
         assert_eq!(names, [("position", 3), ("flux", 3), ("w", 2), ("q", 1)]);
         assert!(l.slots[9].is_none(), "display colours beside flux are dropped");
@@ -649,10 +666,12 @@ mod tests {
     #[test]
     fn colours_become_flux_and_missing_components_are_named() {
         let f = fields(&["x", "y", "z", "red", "green", "blue"]);
-        let l = layout("t", &f, &|_| DType::F32).unwrap();
+        let l = layout("t", &f, true, &|_| DType::F32).unwrap();
         assert_eq!(l.specs[1].name, "flux");
+        let e = layout("t", &f, false, &|_| DType::F32).unwrap_err().to_string();
+        assert!(e.contains("--flux-from-colour"), "colours are flux only when asked: {e}");
         let f = fields(&["x", "y", "flux_r", "flux_g", "flux_b"]);
-        let e = layout("t", &f, &|_| DType::F32).unwrap_err().to_string();
+        let e = layout("t", &f, true, &|_| DType::F32).unwrap_err().to_string();
         assert!(e.contains("missing: z"), "{e}");
     }
 

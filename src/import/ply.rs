@@ -173,8 +173,10 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
         message: "the PLY file has no 'vertex' element".into(),
     })?;
     let vertex = &h.elements[vi];
+    // Known names in any case and with CloudCompare's `scalar_` prefix (`scalar_flux_r`).
+    let names: Vec<String> = vertex.props.iter().map(|p| super::canonical_name(&p.name)).collect();
     let mut fields = Vec::with_capacity(vertex.props.len());
-    for p in &vertex.props {
+    for (p, name) in vertex.props.iter().zip(&names) {
         let Kind::Scalar(t) = p.kind else {
             return Err(ImportError::Malformed {
                 file: file.into(),
@@ -187,9 +189,9 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
             DType::U16 => Some(65535.0),
             _ => None,
         };
-        fields.push(Field { name: &p.name, dtype: Some(t), colour_max, at: At::Line(p.line) });
+        fields.push(Field { name, dtype: Some(t), colour_max, at: At::Line(p.line) });
     }
-    let lay = layout(file, &fields, &|_| DType::F32)?;
+    let lay = layout(file, &fields, options.flux_from_colour, &|_| DType::F32)?;
     let columns = match h.encoding {
         Encoding::Ascii => read_ascii(file, bytes, &h, vi, lay)?,
         Encoding::BinaryLe | Encoding::BinaryBe => read_binary(file, bytes, &h, vi, lay)?,
@@ -457,9 +459,13 @@ mod tests {
         property float y\nproperty float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\n\
         property float weight\nend_header\n0 1 2 255 0 51 0.5\n3 4 5.5 0 255 0 1\n";
 
+    fn colours_as_flux() -> Options {
+        Options { flux_from_colour: true, ..Options::default() }
+    }
+
     #[test]
     fn ascii_vertices_become_photons() {
-        let m = read("t.ply", ASCII.as_bytes(), &Options::default()).unwrap();
+        let m = read("t.ply", ASCII.as_bytes(), &colours_as_flux()).unwrap();
         assert_eq!(m.len(), 2);
         let pos: &[f32] = bytemuck::cast_slice(m.column("position").unwrap());
         assert_eq!(pos, [0.0, 1.0, 2.0, 3.0, 4.0, 5.5]);
@@ -472,10 +478,24 @@ mod tests {
     #[test]
     fn header_errors_name_the_line() {
         let bad = ASCII.replace("property uchar blue", "property uchar");
-        let e = read("t.ply", bad.as_bytes(), &Options::default()).unwrap_err().to_string();
+        let e = read("t.ply", bad.as_bytes(), &colours_as_flux()).unwrap_err().to_string();
         assert!(e.contains("line 10"), "{e}");
         let bad = ASCII.replace("element vertex 2", "element vertex 1000000000");
-        let e = read("t.ply", bad.as_bytes(), &Options::default()).unwrap_err().to_string();
+        let e = read("t.ply", bad.as_bytes(), &colours_as_flux()).unwrap_err().to_string();
         assert!(e.contains("1000000000") && e.contains("ends after 2"), "{e}");
+    }
+
+    /// CloudCompare re-saves flux_* as scalar_flux_*: read as flux. A file with only display
+    /// colours is refused unless they are asked for as flux (issue 31: 91 454 W instead of 5.9).
+    #[test]
+    fn scalar_prefixed_flux_is_flux_and_colours_are_not_silently_watts() {
+        let cc = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nproperty float z\n\
+            property float scalar_flux_r\nproperty float scalar_flux_g\nproperty float scalar_flux_b\n\
+            property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n0 1 2 0.5 0.25 0.125 255 255 255\n";
+        let m = read("t.ply", cc.as_bytes(), &Options::default()).unwrap();
+        let flux: &[f32] = bytemuck::cast_slice(m.column("flux").unwrap());
+        assert_eq!(flux, [0.5, 0.25, 0.125]);
+        let e = read("t.ply", ASCII.as_bytes(), &Options::default()).unwrap_err().to_string();
+        assert!(e.contains("display colours") && e.contains("--flux-from-colour"), "{e}");
     }
 }

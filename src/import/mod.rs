@@ -162,14 +162,12 @@ impl Imported {
 pub fn import(path: &Path, options: &Options) -> Result<Imported> {
     let stdin = path == Path::new("-");
     let file = if stdin { "<stdin>".to_string() } else { path.display().to_string() };
+    let io = |source| ImportError::Io { file: file.clone(), source };
     let bytes = if stdin {
-        let mut bytes = Vec::new();
-        std::io::Read::read_to_end(&mut std::io::stdin().lock(), &mut bytes)
-            .map_err(|source| ImportError::Io { file: file.clone(), source })?;
-        bytes
+        read_bounded(&file, path, options.format, std::io::stdin().lock())?
     } else {
         crate::format::guard::register_input(path);
-        std::fs::read(path).map_err(|source| ImportError::Io { file: file.clone(), source })?
+        read_bounded(&file, path, options.format, std::fs::File::open(path).map_err(io)?)?
     };
     let format = match options.format {
         Some(f) => f,
@@ -187,6 +185,140 @@ pub fn import(path: &Path, options: &Options) -> Result<Imported> {
         SourceFormat::Csv => csv::read(&file, &bytes, options),
         SourceFormat::Radiance => radiance::read(path, &bytes, options),
     }
+}
+
+/// Makes imported columns satisfy format-spec/phm-v1.md §5, or refuses them: a negative or
+/// non-finite flux is refused (with its photon); `normal` and `incident` vectors of non-unit
+/// length are normalised (MeshLab writes unnormalised normals), zero or non-finite ones refused;
+/// sparse emitter ids (`emitter = 65535` on one photon) are renumbered 0, 1, … in order.
+/// Returns notes of what was changed.
+fn sanitise(file: &str, columns: &mut [(ColumnSpec, Vec<u8>)]) -> Result<Vec<String>> {
+    let invalid = |message: String| ImportError::Invalid { file: file.to_string(), message };
+    let mut notes = Vec::new();
+    // Columns are little-endian bytes of no particular alignment: read and write by value.
+    let f32s = |b: &[u8]| -> Vec<f32> {
+        b.chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect()
+    };
+    for (spec, bytes) in columns.iter_mut() {
+        if spec.name == name::FLUX {
+            let flux = f32s(bytes);
+            if let Some(k) = flux.iter().position(|&c| !(c >= 0.0 && c.is_finite())) {
+                let i = k / 3;
+                return Err(invalid(format!(
+                    "photon {i} has flux {:?} W: flux must be finite and non-negative",
+                    &flux[3 * i..3 * i + 3]
+                )));
+            }
+        } else if (spec.name == name::NORMAL || spec.name == name::INCIDENT) && spec.components == 3 {
+            let mut v = f32s(bytes);
+            let mut fixed = 0usize;
+            for (i, x) in v.chunks_exact_mut(3).enumerate() {
+                let len = x.iter().map(|c| (*c as f64) * (*c as f64)).sum::<f64>().sqrt();
+                if !(len > 0.0 && len.is_finite()) {
+                    return Err(invalid(format!(
+                        "photon {i} has a '{}' vector {x:?} of no direction: it must be a unit vector",
+                        spec.name
+                    )));
+                }
+                if (len - 1.0).abs() > crate::format::UNIT_TOLERANCE as f64 {
+                    x.iter_mut().for_each(|c| *c = (*c as f64 / len) as f32);
+                    fixed += 1;
+                }
+            }
+            if fixed > 0 {
+                *bytes = v.iter().flat_map(|c| c.to_le_bytes()).collect();
+                notes.push(format!("{fixed} '{}' vectors of non-unit length normalised", spec.name));
+            }
+        } else if spec.name == name::EMITTER {
+            let ids: Vec<u16> = bytes.chunks_exact(2).map(|c| u16::from_le_bytes([c[0], c[1]])).collect();
+            let mut distinct = ids.clone();
+            distinct.sort_unstable();
+            distinct.dedup();
+            if distinct.last().is_some_and(|&m| m as usize + 1 != distinct.len()) {
+                let map: std::collections::HashMap<u16, u16> =
+                    distinct.iter().enumerate().map(|(k, &id)| (id, k as u16)).collect();
+                *bytes = ids.iter().flat_map(|id| map[id].to_le_bytes()).collect();
+                let shown: Vec<String> = distinct.iter().take(8).map(u16::to_string).collect();
+                notes.push(format!(
+                    "emitter ids {}{} renumbered 0 to {}",
+                    shown.join(", "),
+                    if distinct.len() > 8 { ", …" } else { "" },
+                    distinct.len() - 1
+                ));
+            }
+        }
+    }
+    Ok(notes)
+}
+
+/// Longest text a header (PLY, Radiance) or a CSV line may be: anything longer is not a photon
+/// file, and is refused before it is read whole (`/dev/zero`, a 200 MB comment line).
+pub const MAX_TEXT_LINE: usize = 1 << 20;
+
+/// Reads a whole input, refusing early what cannot be a photon file of its format: a PLY or
+/// Radiance header that does not end within [`MAX_TEXT_LINE`] bytes, a CSV line longer than that.
+fn read_bounded(
+    file: &str,
+    path: &Path,
+    format: Option<SourceFormat>,
+    mut r: impl std::io::Read,
+) -> Result<Vec<u8>> {
+    let mut bytes = Vec::new();
+    let mut chunk = vec![0u8; 1 << 16];
+    // The format as far as it can be told (from the option, the first bytes, the extension).
+    let mut known: Option<SourceFormat> = format;
+    let mut header_done = false;
+    let mut line_start = 0usize;
+    let refuse = |message: String| ImportError::Invalid { file: file.to_string(), message };
+    loop {
+        let n = match r.read(&mut chunk) {
+            Ok(0) => break,
+            Ok(n) => n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => continue,
+            Err(source) => return Err(ImportError::Io { file: file.to_string(), source }),
+        };
+        let from = bytes.len();
+        bytes.extend_from_slice(&chunk[..n]);
+        if known.is_none() && bytes.len() >= 16 {
+            // Told from the first bytes or the extension: if not now, never.
+            known = Some(
+                SourceFormat::detect(path, &bytes)
+                    .ok_or(ImportError::UnknownFormat { file: file.to_string() })?,
+            );
+        }
+        match known {
+            Some(SourceFormat::Ply | SourceFormat::Radiance) if !header_done => {
+                let end: &[u8] = if known == Some(SourceFormat::Ply) { b"end_header" } else { b"\n\n" };
+                let look = from.saturating_sub(end.len());
+                if bytes[look..].windows(end.len()).any(|w| w == end) {
+                    header_done = true;
+                } else if bytes.len() > MAX_TEXT_LINE {
+                    let what = if known == Some(SourceFormat::Ply) { "'end_header'" } else { "a blank line" };
+                    return Err(refuse(format!(
+                        "no {what} ending the header in the first {} MiB: not a {} file",
+                        MAX_TEXT_LINE >> 20,
+                        known.map_or("", |k| k.name())
+                    )));
+                }
+            }
+            Some(SourceFormat::Csv) => {
+                for (i, &b) in bytes[from..].iter().enumerate() {
+                    if b == b'\n' {
+                        line_start = from + i + 1;
+                    }
+                }
+                if bytes.len() - line_start > MAX_TEXT_LINE {
+                    let line = bytes[..line_start].iter().filter(|&&b| b == b'\n').count() + 1;
+                    return Err(refuse(format!(
+                        "line {line} is longer than {} MiB: not a photon table",
+                        MAX_TEXT_LINE >> 20
+                    )));
+                }
+            }
+            _ => {}
+        }
+    }
+    Ok(bytes)
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -541,6 +673,17 @@ pub(crate) fn with_emitters(
     report: Value,
 ) -> Result<Imported> {
     let invalid = |message: String| ImportError::Invalid { file: file.to_string(), message };
+    let mut columns = columns;
+    let mut report = report;
+    let notes = sanitise(file, &mut columns)?;
+    if !notes.is_empty() {
+        for n in &notes {
+            eprintln!("photonkit import: {file}: {n}");
+        }
+        if let Some(r) = report.as_object_mut() {
+            r.insert("sanitised".into(), notes.into());
+        }
+    }
     let params: Option<(usize, Vec<f32>)> =
         columns.iter().find(|(s, _)| s.name == name::PARAMS).map(|(s, b)| {
             let v = b.chunks_exact(4).map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]])).collect();

@@ -607,3 +607,76 @@ fn radiance_float_flux_variant_reads_like_rgbe() {
         assert!(float.column(c) == rgbe.column(c), "column {c}");
     }
 }
+
+/// Inputs that cannot be photon files are refused after a bounded read (issue 31: `import
+/// --from ply /dev/zero` grew to 2.1 GB; a 200 MB comment line took 200 MB), and standard
+/// input is read like a file.
+#[test]
+fn endless_or_absurd_inputs_are_refused_early_and_stdin_reads() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.phm");
+    let os = out.to_str().unwrap();
+    for from in ["ply", "csv", "radiance"] {
+        let o = photonkit(&["import", "--from", from, "/dev/zero", "-o", os]);
+        assert!(!o.status.success(), "{from}");
+        assert!(stderr(&o).contains("MiB"), "{from}: {}", stderr(&o));
+    }
+    let long = dir.path().join("long.csv");
+    let mut text = String::from("x,y,z,flux_r,flux_g,flux_b\n# ");
+    text.push_str(&"c".repeat(3 << 20));
+    text.push_str("\n0,0,0,1,1,1\n");
+    std::fs::write(&long, text).unwrap();
+    let o = photonkit(&["import", long.to_str().unwrap(), "-o", os]);
+    assert!(stderr(&o).contains("line 2 is longer than 1 MiB"), "{}", stderr(&o));
+    assert!(!out.exists());
+
+    use std::io::Write;
+    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_photonkit"))
+        .args(["import", "--from", "csv", "-", "-o", os])
+        .stdin(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    child.stdin.take().unwrap().write_all(b"x,y,z,flux_r,flux_g,flux_b\n1,2,3,4,5,6\n").unwrap();
+    let o = child.wait_with_output().unwrap();
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert_eq!(PhotonMap::open_path(&out).unwrap().len(), 1);
+}
+
+/// What MeshLab and hand-written tables contain is made valid or refused, so an import exit 0
+/// always gives a map that passes `inspect --check` (issue 31): unnormalised normals are
+/// normalised, zero normals and negative flux refused, sparse emitter ids renumbered.
+#[test]
+fn imports_pass_their_own_check_or_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("o.phm");
+    let os = out.to_str().unwrap();
+    let csv = |name: &str, text: &str| {
+        let p = dir.path().join(name);
+        std::fs::write(&p, text).unwrap();
+        p.to_str().unwrap().to_string()
+    };
+    let ok = csv(
+        "n.csv",
+        "x,y,z,flux_r,flux_g,flux_b,nx,ny,nz,emitter\n0,0,0,1,1,1,0,0,2,65535\n1,0,0,1,1,1,0,3,4,7\n",
+    );
+    let o = photonkit(&["import", &ok, "-o", os]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(stderr(&o).contains("normalised") && stderr(&o).contains("renumbered"), "{}", stderr(&o));
+    let check = photonkit(&["inspect", "--check", os]);
+    assert!(check.status.success(), "{}{}", stdout(&check), stderr(&check));
+    let map = PhotonMap::open_path(&out).unwrap();
+    assert_eq!(map.meta().emitters.len(), 2, "two emitters, not 65 536");
+    let normals = map.column::<[f32; 3]>("normal").unwrap().unwrap();
+    assert_eq!(normals[1], [0.0, 0.6, 0.8]);
+    std::fs::remove_file(&out).unwrap();
+    for (name, text, want) in [
+        ("neg.csv", "x,y,z,flux_r,flux_g,flux_b\n0,0,0,1,-1,1\n", "non-negative"),
+        ("zero.csv", "x,y,z,flux_r,flux_g,flux_b,nx,ny,nz\n0,0,0,1,1,1,0,0,0\n", "no direction"),
+    ] {
+        let o = photonkit(&["import", &csv(name, text), "-o", os]);
+        assert!(!o.status.success(), "{name}");
+        assert!(stderr(&o).contains(want), "{name}: {}", stderr(&o));
+        assert!(!out.exists());
+    }
+}

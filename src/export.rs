@@ -68,6 +68,26 @@ pub fn export(map: &PhotonMap, to: ExportFormat, target: &Output) -> Result<()> 
 
 /// Writes the export to any stream; `file` names it in errors.
 pub fn write(map: &PhotonMap, to: ExportFormat, out: &mut dyn Write, file: &str) -> Result<()> {
+    // A value `import` refuses is refused here too, before anything is written.
+    for (spec, bytes) in map.columns() {
+        let width = match spec.dtype {
+            DType::F32 => 4,
+            DType::F64 => 8,
+            _ => continue,
+        };
+        let finite = |c: &[u8]| match width {
+            4 => f32::from_le_bytes(c.try_into().unwrap()).is_finite(),
+            _ => f64::from_le_bytes(c.try_into().unwrap()).is_finite(),
+        };
+        if let Some(k) = bytes.chunks_exact(width).position(|c| !finite(c)) {
+            return Err(ExportError::Value {
+                file: map.file_name().to_string(),
+                column: spec.name.clone(),
+                photon: k / spec.components.max(1) as usize,
+                message: "not a finite number (`import` would refuse the file)".into(),
+            });
+        }
+    }
     match to {
         ExportFormat::Ply => write_ply(map, out, file),
         ExportFormat::Csv => write_csv(map, out, file),

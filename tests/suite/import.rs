@@ -680,3 +680,21 @@ fn imports_pass_their_own_check_or_are_refused() {
         assert!(!out.exists());
     }
 }
+
+/// `export` refuses a non-finite value that `import` would refuse (issue 31: NaN positions
+/// were written to CSV), and writes nothing.
+#[test]
+fn export_refuses_what_import_refuses() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = dir.path().join("nan.phm");
+    super::common::write_synthetic(&photonkit::synthetic::uniform_square(10, 1, 1.0), "t", &p);
+    let offset = PhotonMap::open_path(&p).unwrap().meta().column("position").unwrap().offset as usize;
+    let mut bytes = std::fs::read(&p).unwrap();
+    bytes[offset + 12 * 3..offset + 12 * 3 + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+    std::fs::write(&p, super::common::with_fixed_checksums(&bytes)).unwrap();
+    let out = dir.path().join("nan.csv");
+    let o = photonkit(&["export", p.to_str().unwrap(), "--to", "csv", "-o", out.to_str().unwrap()]);
+    assert!(!o.status.success());
+    assert!(stderr(&o).contains("photon 3") && stderr(&o).contains("position"), "{}", stderr(&o));
+    assert!(!out.exists());
+}

@@ -802,7 +802,7 @@ pub fn write_detected(
     let mut rec = StageRecord::now("detect", serde_json::to_value(p).unwrap_or_default());
     let s = &d.summary;
     rec.report = serde_json::json!({
-        "seconds": seconds,
+        "seconds": crate::format::meta::reported_seconds(seconds),
         "photons": s.photons,
         "constrained_fraction": s.constrained_fraction(),
         "mean_factor": s.mean_factor,

@@ -195,7 +195,10 @@ pub fn check(map: &PhotonMap) -> Vec<Violation> {
         }
         if lo != b.min || hi != b.max {
             out.push(Violation {
-                rule: format!("bounding_box {b:?} equals the positions' box min {lo:?} max {hi:?}"),
+                rule: format!(
+                    "bounding_box {b} equals the positions' box ({}, {}, {}) .. ({}, {}, {})",
+                    lo[0], lo[1], lo[2], hi[0], hi[1], hi[2]
+                ),
                 photons: 0,
                 first: None,
             });

@@ -677,7 +677,7 @@ pub fn write_relaxed(
     rec.report = serde_json::json!({
         "space": relaxed.space,
         "constrained": relaxed.constrained,
-        "seconds": seconds,
+        "seconds": crate::format::meta::reported_seconds(seconds),
         "iterations_recorded_every": every,
         "iterations": kept,
     });

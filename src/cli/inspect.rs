@@ -87,7 +87,7 @@ fn print_summary(s: &inspect::Summary, o: &mut dyn Write) -> std::io::Result<()>
     writeln!(o, "{}: PHM {}, {} photons, state {}", s.file, s.version, s.photon_count, s.state)?;
     writeln!(o, "units: length {}, flux {}", s.units.length, s.units.flux)?;
     match &s.bounding_box {
-        Some(b) => writeln!(o, "bounding box: {:?} .. {:?}", b.min, b.max)?,
+        Some(b) => writeln!(o, "bounding box: {b}")?,
         None => writeln!(o, "bounding box: (empty map)")?,
     }
     let t = s.total_flux_w;
@@ -99,13 +99,15 @@ fn print_summary(s: &inspect::Summary, o: &mut dyn Write) -> std::io::Result<()>
     for e in &s.emitters {
         writeln!(
             o,
-            "  {:>3}  {:<10} {:<10} {} param dims  {} W  colour {:?}",
+            "  {:>3}  {:<10} {:<10} {} param dims  {} W  colour ({}, {}, {})",
             e.id,
             serde_json::to_value(e.kind)?.as_str().unwrap_or("?").to_string(),
             serde_json::to_value(e.parameterisation)?.as_str().unwrap_or("?").to_string(),
             e.param_dims,
             e.power_w,
-            e.colour
+            e.colour[0],
+            e.colour[1],
+            e.colour[2]
         )?;
     }
     writeln!(o, "\ncolumns:")?;

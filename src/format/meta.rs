@@ -161,6 +161,15 @@ pub struct BoundingBox {
     pub max: [f32; 3],
 }
 
+impl std::fmt::Display for BoundingBox {
+    /// `(x, y, z) .. (x, y, z) m`, each number as its shortest round-trip text.
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let [a, b, c] = self.min;
+        let [d, e, g] = self.max;
+        write!(f, "({a}, {b}, {c}) .. ({d}, {e}, {g}) m")
+    }
+}
+
 /// Where a photon map is in the pipeline.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -205,12 +214,15 @@ pub struct StageRecord {
 }
 
 impl StageRecord {
-    /// A record for `stage` stamped with this build's version and the current time.
+    /// A record for `stage` stamped with this build's version and the current time (the time
+    /// `SOURCE_DATE_EPOCH` gives, when set: [`source_date`]).
     pub fn now(stage: &str, parameters: Value) -> Self {
         StageRecord {
             stage: stage.to_string(),
             version: env!("CARGO_PKG_VERSION").to_string(),
-            time: humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string(),
+            time: source_date().unwrap_or_else(|| {
+                humantime::format_rfc3339_seconds(std::time::SystemTime::now()).to_string()
+            }),
             parameters,
             report: Value::Null,
             extra: Map::new(),
@@ -250,4 +262,18 @@ impl Metadata {
     pub fn column(&self, name: &str) -> Option<&ColumnEntry> {
         self.columns.iter().find(|c| c.name == name)
     }
+}
+
+/// The time from `SOURCE_DATE_EPOCH` (seconds since 1970), if set: every stage then writes the
+/// same bytes for the same input (reproducible-builds.org's convention).
+pub fn source_date() -> Option<String> {
+    let secs: u64 = std::env::var("SOURCE_DATE_EPOCH").ok()?.trim().parse().ok()?;
+    let t = std::time::UNIX_EPOCH.checked_add(std::time::Duration::from_secs(secs))?;
+    Some(humantime::format_rfc3339_seconds(t).to_string())
+}
+
+/// A stage's run time for its record: `null` when `SOURCE_DATE_EPOCH` asks for reproducible
+/// files (a time measured differs on every run).
+pub fn reported_seconds(seconds: f64) -> Value {
+    if source_date().is_some() { Value::Null } else { seconds.into() }
 }

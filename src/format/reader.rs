@@ -375,7 +375,7 @@ pub(super) fn validate(file: &str, pre: &Preamble, meta: &Metadata) -> Result<()
         (Some(b), n) if n > 0 => {
             let ok = (0..3).all(|k| b.min[k].is_finite() && b.max[k].is_finite() && b.min[k] <= b.max[k]);
             if !ok {
-                return Err(invalid(file, format!("bounding_box {b:?} is not a finite box with min ≤ max")));
+                return Err(invalid(file, format!("bounding_box {b} is not a finite box with min ≤ max")));
             }
         }
         (Some(_), _) => return Err(invalid(file, "bounding_box must be null for an empty map".into())),

@@ -507,11 +507,9 @@ pub fn map_info(
     info
 }
 
-/// The time from `SOURCE_DATE_EPOCH` (seconds since 1970), if set: for reproducible files.
+/// The time from `SOURCE_DATE_EPOCH`, if set ([`crate::format::meta::source_date`]).
 pub fn source_date() -> Option<String> {
-    let secs: u64 = std::env::var("SOURCE_DATE_EPOCH").ok()?.trim().parse().ok()?;
-    let t = std::time::UNIX_EPOCH.checked_add(std::time::Duration::from_secs(secs))?;
-    Some(humantime::format_rfc3339_seconds(t).to_string())
+    crate::format::meta::source_date()
 }
 
 /// Per-emitter constants of the tracer.

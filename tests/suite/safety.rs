@@ -238,3 +238,33 @@ fn the_writer_enforces_the_readers_limits() {
     let last = its.last().unwrap()["iteration"].as_u64().unwrap();
     assert!(last >= 2499, "the last iteration is kept (last record: {last})");
 }
+
+/// With `SOURCE_DATE_EPOCH` set, every stage writes the same bytes on every run (issue 31:
+/// detect, relax and collapse stamped the wall-clock time and their run time).
+#[test]
+fn every_stage_is_byte_reproducible_under_source_date_epoch() {
+    let dir = tempfile::tempdir().unwrap();
+    let x = copy_sample(dir.path(), "x.phm");
+    let run = |args: &[&str]| {
+        let o = Command::new(env!("CARGO_BIN_EXE_photonkit"))
+            .args(args)
+            .env("SOURCE_DATE_EPOCH", "1700000000")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "{args:?}: {}", String::from_utf8_lossy(&o.stderr));
+    };
+    let p = |n: &str| dir.path().join(n).to_str().unwrap().to_string();
+    for round in ["a", "b"] {
+        run(&["detect", x.to_str().unwrap(), "-o", &p(&format!("d{round}.phm"))]);
+        run(&["relax", &p(&format!("d{round}.phm")), "-R", "5", "-o", &p(&format!("r{round}.phm"))]);
+        run(&["collapse", &p(&format!("r{round}.phm")), "-o", &p(&format!("c{round}.phm"))]);
+    }
+    for stage in ["d", "r", "c"] {
+        let (a, b) = (
+            std::fs::read(p(&format!("{stage}a.phm"))).unwrap(),
+            std::fs::read(p(&format!("{stage}b.phm"))).unwrap(),
+        );
+        assert!(a == b, "{stage}: two runs differ");
+        assert!(String::from_utf8_lossy(&a).contains("2023-11-14T22:13:20Z"), "{stage}: the record's time");
+    }
+}

@@ -124,6 +124,8 @@ pub enum DetectError {
     Input { file: String, message: String },
     #[error("invalid parameter: {0}")]
     Parameter(String),
+    #[error("{file}: {source}")]
+    Photons { file: String, source: SpatialError },
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -506,6 +508,20 @@ pub fn work_units(input: &DetectInput, method: Method) -> u64 {
     (input.positions.len() * passes) as u64
 }
 
+impl DetectParams {
+    /// These parameters with Kc and the density's k capped at `photons` (at least their
+    /// minimums): a search for more neighbours than there are photons finds them all anyway,
+    /// so the result is the same, without buffers sized for the request (issue 31, item 6:
+    /// `--kc 100000000` hung).
+    pub fn capped(&self, photons: usize) -> DetectParams {
+        DetectParams {
+            kc: self.kc.min(photons.max(3)),
+            k_density: self.k_density.map(|k| k.min(photons.max(2))),
+            ..*self
+        }
+    }
+}
+
 fn check_params(p: &DetectParams) -> Result<(), DetectError> {
     let bad = |m: &str| Err(DetectError::Parameter(m.to_string()));
     if p.kc < 3 {
@@ -571,6 +587,7 @@ pub fn detect(
 ) -> Result<Detection, DetectError> {
     use crate::spatial::order::{locality_order, permuted, unpermuted};
     check_params(p)?;
+    let p = &p.capped(input.positions.len());
     let order = locality_order(input.positions);
     let positions = permuted(input.positions, &order, 1);
     let normals = input.normals.map(|v| permuted(v, &order, 1));
@@ -784,6 +801,7 @@ pub fn detect_map(
     input.params = input.params.map(|c| ParamColumn { dims: &dims, ..c });
     detect(&input, p, progress).map_err(|e| match e {
         DetectError::NoParameters { .. } => DetectError::NoParameters { file: map.file_name().into() },
+        DetectError::Spatial(source) => DetectError::Photons { file: map.file_name().into(), source },
         e => e,
     })
 }

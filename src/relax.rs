@@ -180,6 +180,7 @@ pub fn iterate(
     scratch: &mut Scratch,
 ) -> IterationMeasure {
     let n = pos.len();
+    let p = &p.capped(n);
     let Scratch { step, nn, spacing: spacing_slot, limit } = scratch;
     step.resize(n, [0.0; 3]);
     nn.resize(n, 0.0);
@@ -291,6 +292,22 @@ pub enum RelaxError {
     Spatial(#[from] crate::spatial::SpatialError),
     #[error("{file}: {message}")]
     Input { file: String, message: String },
+    #[error("{file}: {source}")]
+    Photons { file: String, source: crate::spatial::SpatialError },
+}
+
+/// The most iterations one `relax` runs. Each leaves a measure of about 250 bytes in the map's
+/// history, so this keeps the metadata far below the reader's 16 MiB limit, and a mistyped
+/// `-R 1000000000` is refused instead of aborting on its allocation (issue 31, item 4).
+pub const MAX_ITERATIONS: usize = 10_000;
+
+impl RelaxParams {
+    /// These parameters with Kf capped at `photons` − 1 (at least 1): a photon has no more
+    /// neighbours than that, so the result is the same without buffers sized for the request
+    /// (issue 31, item 6).
+    pub fn capped(&self, photons: usize) -> RelaxParams {
+        RelaxParams { kf: self.kf.min(photons.saturating_sub(1).max(1)), ..*self }
+    }
 }
 
 /// Which neighbours relaxation uses, from the map's state.
@@ -452,6 +469,13 @@ pub fn relax_map_on(
     if p.kf == 0 {
         return Err(input("Kf must be at least 1".into()));
     }
+    if p.iterations > MAX_ITERATIONS {
+        return Err(input(format!(
+            "{} iterations requested; at most {MAX_ITERATIONS} are allowed (each is recorded in the map's history)",
+            p.iterations
+        )));
+    }
+    let p = &p.capped(map.len());
     let meta = map.meta();
     // Photons are worked on in spatial order (see [`crate::spatial::order`]): every column
     // the iterations read is relabelled here, and what they change is put back at the end.
@@ -499,6 +523,13 @@ pub fn relax_map_on(
     let emitters = map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, &order, 1));
     let emitters = emitters.as_deref();
     let mut positions = permuted(map.positions(), &order, 1);
+    // Coordinates far from 1 (near 1e30, or 1e-30) overflow or underflow squared distances in
+    // f32; without a scene to return to, the photons are worked on scaled by a power of two
+    // (exact) and scaled back at the end (issue 31, item 7).
+    let scale = if scene.is_none() { working_scale(&positions) } else { 1.0 };
+    if scale != 1.0 {
+        positions.iter_mut().flatten().for_each(|x| *x *= scale);
+    }
     let mut next = positions.clone();
     let surfaces = map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, &order, 1));
     let surfaces = surfaces.as_deref();
@@ -523,7 +554,10 @@ pub fn relax_map_on(
             emitters: if space == RelaxSpace::WorldParams { emitters } else { None },
         };
         let sp = if space == RelaxSpace::WorldParams { Space::WorldParams } else { Space::World };
-        index_positions(&mut index, &points, sp, it).map_err(|e| e.in_file_order(&order))?;
+        index_positions(&mut index, &points, sp, it).map_err(|e| RelaxError::Photons {
+            file: map.file_name().to_string(),
+            source: e.in_file_order(&order),
+        })?;
         let search = IndexSearch {
             index: index.as_ref().expect("built above"),
             points: &points,
@@ -539,8 +573,16 @@ pub fn relax_map_on(
             refused_moves += back_to_surfaces(scene, surf, &positions, &mut next, ns);
         }
         std::mem::swap(&mut positions, &mut next);
+        let m = IterationMeasure {
+            mean_displacement: m.mean_displacement / scale as f64,
+            max_displacement: m.max_displacement / scale as f64,
+            ..m
+        };
         on_iteration(&m);
         measures.push(m);
+    }
+    if scale != 1.0 {
+        positions.iter_mut().flatten().for_each(|x| *x /= scale);
     }
     Ok(Relaxed {
         positions: unpermuted(&positions, &order),
@@ -551,6 +593,17 @@ pub fn relax_map_on(
         refused_moves,
         flux: flux.map(|f| unpermuted(&f, &order)),
     })
+}
+
+/// The power of two relax scales `positions` by so that their largest coordinate lies within
+/// 2^±40 of 1, where squared distances between them neither overflow nor underflow in f32
+/// (1 when it already does, or when every coordinate is 0 or non-finite).
+fn working_scale(positions: &[[f32; 3]]) -> f32 {
+    let far = positions.iter().flatten().filter(|x| x.is_finite()).fold(0f32, |m, x| m.max(x.abs()));
+    if far == 0.0 || (2f32.powi(-40)..=2f32.powi(40)).contains(&far) {
+        return 1.0;
+    }
+    2f32.powi(-(far.log2().floor() as i32).clamp(-126, 126))
 }
 
 /// Flux diffusion (photon relaxation, 2009): every photon's flux moves the fraction `rate` of

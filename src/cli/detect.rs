@@ -91,6 +91,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             NoiseArg::Paper => NoiseModel::Paper,
         },
     };
+    let capped = p.capped(map.len());
+    if capped.kc < p.kc {
+        eprintln!("note: --kc {} exceeds the map's {} photons: using Kc = {}", p.kc, map.len(), capped.kc);
+    }
+    let p = capped;
     let units = detect::work_units(&detect::map_input(&map)?, p.method);
     let bar = ProgressBar::with_draw_target(
         Some(units),

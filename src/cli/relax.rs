@@ -77,6 +77,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             && (0.0..=1.0).contains(&p.flux_diffusion),
         "--epsilon must be ≥ 0, --step-limit > 0 and --flux-diffusion in [0, 1]"
     );
+    let capped = p.capped(map.len());
+    if capped.kf < p.kf {
+        eprintln!(
+            "note: --kf {} exceeds the {} other photons in the map: using Kf = {}",
+            p.kf, capped.kf, capped.kf
+        );
+    }
+    let p = capped;
     let bar = ProgressBar::new(p.iterations as u64).with_style(
         ProgressStyle::with_template("relax {bar:30} {pos}/{len} iterations {elapsed} {msg}")
             .expect("valid template"),

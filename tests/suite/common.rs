@@ -77,4 +77,50 @@ pub fn with_fixed_checksums(bytes: &[u8]) -> Vec<u8> {
     out[32..32 + meta_len].copy_from_slice(&text);
     out[12..16].copy_from_slice(&crc32fast::hash(&text).to_le_bytes());
     out
+/// Every attribute of an EXR file's (single-part) header as (name, type, value bytes), parsed
+/// from the bytes by the OpenEXR file layout alone, independently of the `exr` crate: magic
+/// 76 2f 31 01, a 4-byte version, then `name\0type\0` + little-endian i32 size + value, until
+/// an empty name.
+pub fn exr_header(path: &Path) -> Vec<(String, String, Vec<u8>)> {
+    let bytes = std::fs::read(path).unwrap();
+    assert_eq!(bytes[..4], [0x76, 0x2f, 0x31, 0x01], "{}: not an EXR file", path.display());
+    assert_eq!(bytes[4], 2, "{}: EXR version 2", path.display());
+    let mut at = 8;
+    let mut attrs = Vec::new();
+    let mut cstr = |at: &mut usize| {
+        let end = *at + bytes[*at..].iter().position(|&b| b == 0).expect("a NUL-terminated name");
+        let s = std::str::from_utf8(&bytes[*at..end]).expect("an attribute name in UTF-8").to_string();
+        *at = end + 1;
+        s
+    };
+    loop {
+        let name = cstr(&mut at);
+        if name.is_empty() {
+            return attrs;
+        }
+        let kind = cstr(&mut at);
+        let size = i32::from_le_bytes(bytes[at..at + 4].try_into().unwrap());
+        assert!(size >= 0, "{}: attribute {name} has size {size}", path.display());
+        let value = bytes[at + 4..at + 4 + size as usize].to_vec();
+        at += 4 + size as usize;
+        attrs.push((name, kind, value));
+    }
+}
+
+/// [`photonkit::render::image::read_exr`], after checking with [`exr_header`] that the header
+/// holds the attributes every EXR reader requires and that each text attribute is UTF-8
+/// (OpenEXR's own bindings refuse anything else; issue 31, items 10 and 13).
+pub fn read_exr(path: &Path) -> (photonkit::render::Image, Vec<(String, String)>) {
+    let attrs = exr_header(path);
+    for required in
+        ["channels", "compression", "dataWindow", "displayWindow", "lineOrder", "pixelAspectRatio"]
+    {
+        assert!(attrs.iter().any(|(n, _, _)| n == required), "{}: no {required}", path.display());
+    }
+    for (name, kind, value) in &attrs {
+        if kind == "string" {
+            assert!(std::str::from_utf8(value).is_ok(), "{}: attribute {name} is not UTF-8", path.display());
+        }
+    }
+    photonkit::render::image::read_exr(path).unwrap()
 }

@@ -265,7 +265,7 @@ fn cli_stages(dir: &Path) -> Vec<&'static str> {
             break; // the later stages have no input
         }
         if out.is_empty() {
-            let (img, _) = photonkit::render::image::read_exr(&dir.join("e.exr")).unwrap();
+            let (img, _) = read_exr(&dir.join("e.exr"));
             assert!(img.pixels.iter().all(|p| p.is_finite()), "render: a pixel is not finite");
         } else {
             let m = PhotonMap::open_path(&dir.join(out)).unwrap();
@@ -444,8 +444,7 @@ fn the_pipeline_command_runs_on_scaled_scenes() {
         ];
         let (ok, err) = cli(dir.path(), &args);
         assert!(ok, "scale {s}: {err}");
-        let (img, _) =
-            photonkit::render::image::read_exr(&dir.path().join(format!("p{s}/render.exr"))).unwrap();
+        let (img, _) = read_exr(&dir.path().join(format!("p{s}/render.exr")));
         assert!(img.pixels.iter().all(|p| p.is_finite()) && img.mean().x > 0.0, "scale {s}");
     }
 }

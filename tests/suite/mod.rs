@@ -8,5 +8,6 @@ mod relax;
 mod render;
 mod safety;
 mod samples;
+mod stages;
 mod trace;
 mod truth;

@@ -3,9 +3,8 @@
 use std::path::Path;
 
 use photonkit::format::{PhotonMap, name};
-use photonkit::render::image::read_exr;
 
-use super::common::{photonkit, stderr, with_fixed_checksums, write_synthetic};
+use super::common::{photonkit, read_exr, stderr, with_fixed_checksums, write_synthetic};
 
 fn files_in(dir: &Path) -> Vec<String> {
     let mut v: Vec<String> =
@@ -35,7 +34,7 @@ fn renders_a_traced_map_to_exr_and_png() {
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("24×16"), "{}", stderr(&o));
-    let (img, notes) = read_exr(&out).unwrap();
+    let (img, notes) = read_exr(&out);
     assert_eq!((img.width, img.height), (24, 16));
     assert!(img.pixels.iter().all(|p| p.is_finite() && p.min_element() >= 0.0));
     assert!(img.mean().x > 0.0);
@@ -88,7 +87,7 @@ fn plane_view_measures_the_irradiance_of_a_uniform_map() {
         "50",
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let (img, notes) = read_exr(&out).unwrap();
+    let (img, notes) = read_exr(&out);
     assert_eq!((img.width, img.height), (20, 20));
     let m = img.mean();
     // Random photons, K = 50: each estimate has ≈ 14 % noise; the mean over 1600 lookups, ≈ 1 %.
@@ -184,7 +183,7 @@ fn reference_runs_saves_and_resumes() {
     let run = |v: Vec<String>| photonkit(&v.iter().map(String::as_str).collect::<Vec<_>>());
     let o = run(args("3"));
     assert!(o.status.success(), "{}", stderr(&o));
-    let (_, notes) = read_exr(&out).unwrap();
+    let (_, notes) = read_exr(&out);
     let state = |notes: &[(String, String)]| -> serde_json::Value {
         serde_json::from_str(&notes.iter().find(|(k, _)| k == "photonkit:reference_state").unwrap().1)
             .unwrap()
@@ -195,7 +194,7 @@ fn reference_runs_saves_and_resumes() {
     let o = run(more.clone());
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("passes 4..5"), "{}", stderr(&o));
-    let (img, notes) = read_exr(&out).unwrap();
+    let (img, notes) = read_exr(&out);
     assert_eq!(state(&notes)["passes"], 5);
     assert!((img.mean().x - 2.0).abs() < 0.05, "{}", img.mean());
     // Resuming with other settings is refused and leaves the saved run alone.
@@ -204,7 +203,7 @@ fn reference_runs_saves_and_resumes() {
     other[5] = "9".into(); // --passes
     let o = run(other);
     assert!(!o.status.success() && stderr(&o).contains("other settings"), "{}", stderr(&o));
-    assert_eq!(read_exr(&out).unwrap().0, img);
+    assert_eq!(read_exr(&out).0, img);
 }
 
 #[test]
@@ -239,7 +238,7 @@ fn the_scene_comes_from_the_maps_history() {
     };
     let o = render();
     assert!(o.status.success(), "{}", stderr(&o));
-    let (img, notes) = read_exr(&out).unwrap();
+    let (img, notes) = read_exr(&out);
     assert!(notes.iter().any(|(k, v)| k == "photonkit:scene" && v.ends_with("spot.toml")), "{notes:?}");
     assert_eq!((img.width, img.height), (8, 8)); // the scene's camera is 600×600: the aspect is kept
     std::fs::remove_file(&scene).unwrap();

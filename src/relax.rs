@@ -296,9 +296,9 @@ pub enum RelaxError {
     Photons { file: String, source: crate::spatial::SpatialError },
 }
 
-/// The most iterations one `relax` runs. Each leaves a measure of about 250 bytes in the map's
-/// history, so this keeps the metadata far below the reader's 16 MiB limit, and a mistyped
-/// `-R 1000000000` is refused instead of aborting on its allocation (issue 31, item 4).
+/// The most iterations one `relax` runs. Relaxation settles within tens of iterations (the
+/// paper runs 7 + 7), so more than this is a mistyped count: `-R 1000000000` is refused here
+/// instead of aborting on its allocation (issue 31, item 4).
 pub const MAX_ITERATIONS: usize = 10_000;
 
 impl RelaxParams {
@@ -471,7 +471,7 @@ pub fn relax_map_on(
     }
     if p.iterations > MAX_ITERATIONS {
         return Err(input(format!(
-            "{} iterations requested; at most {MAX_ITERATIONS} are allowed (each is recorded in the map's history)",
+            "{} iterations requested; at most {MAX_ITERATIONS} are allowed (relaxation settles within tens)",
             p.iterations
         )));
     }

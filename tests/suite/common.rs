@@ -77,6 +77,8 @@ pub fn with_fixed_checksums(bytes: &[u8]) -> Vec<u8> {
     out[32..32 + meta_len].copy_from_slice(&text);
     out[12..16].copy_from_slice(&crc32fast::hash(&text).to_le_bytes());
     out
+}
+
 /// Every attribute of an EXR file's (single-part) header as (name, type, value bytes), parsed
 /// from the bytes by the OpenEXR file layout alone, independently of the `exr` crate: magic
 /// 76 2f 31 01, a 4-byte version, then `name\0type\0` + little-endian i32 size + value, until

@@ -46,7 +46,7 @@ pub enum FormatError {
     MetadataTooLarge { file: String, len: u64, limit: u64 },
     #[error("{file}: metadata checksum mismatch (bytes 32..{end}): the header is corrupt")]
     MetadataChecksum { file: String, end: u64 },
-    #[error("{file}: metadata is not valid JSON (byte {offset}): {message}")]
+    #[error("{file}: metadata (byte {offset}): {message}")]
     MetadataJson { file: String, offset: u64, message: String },
     #[error("{file}: invalid metadata: {message}")]
     Invalid { file: String, message: String },

@@ -9,6 +9,9 @@ use super::meta::Metadata;
 use super::preamble::{MAGIC, MAX_METADATA_LEN, PREAMBLE_LEN, Preamble, VERSION_MAJOR};
 use super::{ColumnSpec, FormatError, Result};
 
+/// Deepest nesting of arrays and objects the metadata may have (serde_json's recursion limit).
+pub const MAX_JSON_DEPTH: usize = 128;
+
 /// Largest component count accepted for any column.
 const MAX_COMPONENTS: u32 = 64;
 
@@ -265,16 +268,31 @@ fn parse(file: &str, bytes: &[u8]) -> Result<(Preamble, Metadata)> {
         offset: PREAMBLE_LEN as u64 + e.valid_up_to() as u64,
         message: "not UTF-8".into(),
     })?;
-    let meta: Metadata = serde_json::from_str(text).map_err(|e| {
-        // serde_json reports line and column; turn them into a byte offset in the file.
-        let line_start: usize =
-            text.split_inclusive('\n').take(e.line().saturating_sub(1)).map(str::len).sum();
-        FormatError::MetadataJson {
-            file: file_s(),
-            offset: (PREAMBLE_LEN + line_start + e.column().saturating_sub(1)) as u64,
-            message: e.to_string(),
-        }
-    })?;
+    // Deserialised through serde_path_to_error, so a wrong type names its field
+    // (`emitters[0].power_w`); serde_json's nesting limit (128 levels) is the spec's (§3).
+    let mut de = serde_json::Deserializer::from_str(text);
+    let meta: Metadata = serde_path_to_error::deserialize(&mut de)
+        .map_err(|e| (e.path().to_string(), e.into_inner()))
+        .and_then(|m| de.end().map(|()| m).map_err(|e| (String::new(), e)))
+        .map_err(|(path, e)| {
+            // serde_json reports line and column; turn them into a byte offset in the file.
+            let line_start: usize =
+                text.split_inclusive('\n').take(e.line().saturating_sub(1)).map(str::len).sum();
+            let mut message = match e.classify() {
+                serde_json::error::Category::Data => format!("invalid: {e}"),
+                _ => format!("not valid JSON: {e}"),
+            };
+            if message.contains("recursion limit") {
+                message = format!("nested deeper than {MAX_JSON_DEPTH} levels (format-spec/phm-v1.md §3)");
+            } else if path != "." && !path.is_empty() {
+                message = format!("field '{path}': {message}");
+            }
+            FormatError::MetadataJson {
+                file: file_s(),
+                offset: (PREAMBLE_LEN + line_start + e.column().saturating_sub(1)) as u64,
+                message,
+            }
+        })?;
     validate(file, &pre, &meta)?;
     Ok((pre, meta))
 }

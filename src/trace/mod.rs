@@ -36,6 +36,9 @@ pub use merge::merge;
 /// Emission numbers per unit of parallel work.
 pub const CHUNK: u64 = 4096;
 
+/// Chunks traced in parallel between two checks of the memory budget (16 M photons).
+const BATCH_CHUNKS: u64 = 4096;
+
 /// Everything that can go wrong while tracing or merging.
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
@@ -53,6 +56,24 @@ pub enum TraceError {
     NothingStored { emitted: u64 },
     #[error("{file}: cannot merge: {message}")]
     Merge { file: String, message: String },
+    #[error(
+        "{what} would need about {need_gb:.1} GB for the stored photons, more than the {avail_gb:.1} GB of memory \
+         available: trace fewer photons, or split the run with --shard i/n and join the shards with `photonkit merge`"
+    )]
+    OutOfMemory { what: String, need_gb: f64, avail_gb: f64 },
+}
+
+/// Memory the stored photons may take: 80 % of what the system reports available
+/// (`MemAvailable` in /proc/meminfo), or unbounded where that is unknown.
+fn memory_budget() -> Option<u64> {
+    // A hidden override for tests of the refusal.
+    if let Some(b) = std::env::var("PHOTONKIT_TEST_MEMORY_BUDGET").ok().and_then(|b| b.parse().ok()) {
+        return Some(b);
+    }
+    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
+    let kib: u64 =
+        text.lines().find(|l| l.starts_with("MemAvailable:"))?.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib * 1024 / 10 * 8)
 }
 
 /// What to trace until.
@@ -549,7 +570,7 @@ pub fn trace(
     match opts.budget {
         Budget::Emitted(n) => {
             let range = opts.shard.map_or(0..n, |s| s.range(n));
-            let (chunks, limited) = tracer.run(range.clone(), progress);
+            let (chunks, limited) = tracer.run(range.clone(), 0, progress)?;
             traced.stored = chunks.iter().map(|c| c.len() as u64).sum();
             traced.chunks = chunks;
             traced.range = range;
@@ -557,6 +578,16 @@ pub fn trace(
             traced.bounce_limited = limited;
         }
         Budget::Stored(target) => {
+            if let Some(avail) = memory_budget() {
+                let need = target.saturating_mul(tracer.bytes_per_photon());
+                if need > avail {
+                    return Err(TraceError::OutOfMemory {
+                        what: format!("storing {target} photons"),
+                        need_gb: need as f64 / 1e9,
+                        avail_gb: avail as f64 / 1e9,
+                    });
+                }
+            }
             let mut next = 0u64;
             let mut stored = 0u64;
             let mut limited = 0;
@@ -572,7 +603,8 @@ pub fn trace(
                     (((target - stored) as f64 / rate * 1.05) as u64).clamp(CHUNK, 1 << 26)
                 };
                 let round = round.div_ceil(CHUNK) * CHUNK;
-                let (chunks, l) = tracer.run(next..next + round, progress);
+                let (chunks, l) =
+                    tracer.run(next..next + round, stored * tracer.bytes_per_photon(), progress)?;
                 limited += l;
                 next += round;
                 for c in chunks {
@@ -687,23 +719,65 @@ impl<'a> Tracer<'a> {
 impl Tracer<'_> {
     /// Traces `range` in chunks on rayon's pool; the chunks come back in emission order, with
     /// the number of photons dropped at the bounce limit.
-    fn run(&self, range: Range<u64>, progress: &(dyn Fn(u64, u64) + Sync)) -> (Vec<Chunk>, u64) {
+    ///
+    /// Chunks are traced in batches of [`BATCH_CHUNKS`] (nothing is sized by the whole range),
+    /// and the run stops with [`TraceError::OutOfMemory`] when the photons stored so far
+    /// (`held` bytes before it began) outgrow the memory budget.
+    fn run(
+        &self,
+        range: Range<u64>,
+        held: u64,
+        progress: &(dyn Fn(u64, u64) + Sync),
+    ) -> Result<(Vec<Chunk>, u64), TraceError> {
         let n_chunks = (range.end - range.start).div_ceil(CHUNK);
-        let out: Vec<(Chunk, u64)> = (0..n_chunks)
-            .into_par_iter()
-            .map_init(
-                || Scratch::new(self.dims),
-                |scratch, k| {
-                    let a = range.start + k * CHUNK;
-                    let b = (a + CHUNK).min(range.end);
-                    let limited = self.chunk(a..b, scratch);
-                    progress(b - a, scratch.len as u64);
-                    (scratch.to_chunk(self.emitter_column), limited)
-                },
-            )
-            .collect();
-        let limited = out.iter().map(|(_, l)| l).sum();
-        (out.into_iter().map(|(p, _)| p).collect(), limited)
+        let budget = memory_budget();
+        let (mut chunks, mut limited, mut bytes) = (Vec::new(), 0u64, held);
+        let mut first = 0u64;
+        while first < n_chunks {
+            let last = (first + BATCH_CHUNKS).min(n_chunks);
+            let out: Vec<(Chunk, u64)> = (first..last)
+                .into_par_iter()
+                .map_init(
+                    || Scratch::new(self.dims),
+                    |scratch, k| {
+                        let a = range.start + k * CHUNK;
+                        let b = (a + CHUNK).min(range.end);
+                        let limited = self.chunk(a..b, scratch);
+                        progress(b - a, scratch.len as u64);
+                        (scratch.to_chunk(self.emitter_column), limited)
+                    },
+                )
+                .collect();
+            for (c, l) in out {
+                bytes += c.len() as u64 * self.bytes_per_photon();
+                limited += l;
+                chunks.push(c);
+            }
+            first = last;
+            // The whole run's need, extrapolated from the photons stored so far (the Halton
+            // sequence spreads every batch over the whole emitter): refused as soon as it is
+            // known not to fit, not when memory runs out.
+            let done = (range.start + first * CHUNK).min(range.end) - range.start;
+            let need =
+                held as f64 + (bytes - held) as f64 * (range.end - range.start) as f64 / done.max(1) as f64;
+            if let Some(avail) = budget
+                && need > avail as f64
+            {
+                return Err(TraceError::OutOfMemory {
+                    what: format!("tracing {} photons", range.end - range.start),
+                    need_gb: need / 1e9,
+                    avail_gb: avail as f64 / 1e9,
+                });
+            }
+        }
+        Ok((chunks, limited))
+    }
+
+    /// Bytes one stored photon takes in memory (its columns in a [`Chunk`]).
+    fn bytes_per_photon(&self) -> u64 {
+        // position, normal, flux, incident (4 × 12), path length and surface (2 × 4), bounces,
+        // emission offset (2), emitter (2), and the trajectory parameters.
+        (48 + 8 + 1 + 2 + 2 + 4 * self.dims) as u64
     }
 
     /// Traces `range` into `out` (emptied first); returns the number dropped at the bounce limit.

@@ -184,6 +184,96 @@ impl Ctx<'_> {
     }
 }
 
+/// Fields that hold a fixed number of numbers, and how many.
+const FIXED_ARRAYS: [(&str, usize); 23] = [
+    ("eye", 3),
+    ("look_at", 3),
+    ("up", 3),
+    ("albedo", 3),
+    ("reflectance", 3),
+    ("tint", 3),
+    ("colour", 3),
+    ("position", 3),
+    ("direction", 3),
+    ("center", 3),
+    ("origin", 3),
+    ("edge_u", 3),
+    ("edge_v", 3),
+    ("point", 3),
+    ("normal", 3),
+    ("base", 3),
+    ("axis", 3),
+    ("rotate_deg", 3),
+    ("translate", 3),
+    ("resolution", 2),
+    ("size", 2),
+    ("cells", 2),
+    ("z_range", 2),
+];
+
+/// Refuses an array field with the wrong number of elements (`size = [1, 1, 1]` for a
+/// rectangle's two sides), which deserialising into a fixed-size array lets through: named by
+/// its path, at the first line where that key has such an array.
+fn check_array_lengths(cx: &Ctx) -> Result<(), SceneError> {
+    fn walk(v: &toml::Value, path: &str, bad: &mut Option<(String, String, usize, usize)>) {
+        match v {
+            toml::Value::Table(t) => {
+                for (k, v) in t {
+                    let p = if path.is_empty() { k.clone() } else { format!("{path}.{k}") };
+                    if let (toml::Value::Array(a), Some((_, n))) =
+                        (v, FIXED_ARRAYS.iter().find(|(f, _)| f == k))
+                    {
+                        if a.len() != *n && bad.is_none() {
+                            *bad = Some((p.clone(), k.clone(), *n, a.len()));
+                        }
+                    } else if let (toml::Value::Array(a), "profile" | "outline") = (v, k.as_str()) {
+                        if let Some(i) = a.iter().position(|x| x.as_array().is_some_and(|x| x.len() != 2)) {
+                            let len = a[i].as_array().map_or(0, Vec::len);
+                            bad.get_or_insert((format!("{p}[{i}]"), k.clone(), 2, len));
+                        }
+                    } else {
+                        walk(v, &p, bad);
+                    }
+                }
+            }
+            toml::Value::Array(a) => {
+                for (i, x) in a.iter().enumerate() {
+                    walk(x, &format!("{path}[{i}]"), bad);
+                }
+            }
+            _ => {}
+        }
+    }
+    let Ok(doc) = cx.src.parse::<toml::Table>() else { return Ok(()) };
+    let mut bad = None;
+    walk(&toml::Value::Table(doc), "", &mut bad);
+    let Some((path, key, want, got)) = bad else { return Ok(()) };
+    // The line: the first `key = [` whose array has the wrong length (else the first `key =`).
+    let mut at = 0;
+    let mut offset = 0;
+    for line in cx.src.split_inclusive('\n') {
+        let t = line.trim_start();
+        if let Some(rest) = t.strip_prefix(key.as_str())
+            && let Some(value) = rest.trim_start().strip_prefix('=')
+        {
+            let len = format!("v = {}", value.trim()).parse::<toml::Table>().ok().and_then(|t| {
+                t.get("v")
+                    .and_then(|v| v.as_array())
+                    .map(|a| if key == "profile" || key == "outline" { usize::MAX } else { a.len() })
+            });
+            if at == 0 {
+                at = offset + (line.len() - t.len());
+            }
+            if len == Some(got) {
+                at = offset + (line.len() - t.len());
+                break;
+            }
+        }
+        offset += line.len();
+    }
+    Err(cx.err(at..at, path, format!("expected {want} numbers, found {got}")))
+}
+
 /// 1-based line and column of byte `at`.
 fn line_column(src: &str, at: usize) -> (usize, usize) {
     let at = at.min(src.len());
@@ -222,7 +312,22 @@ fn field_at(src: &str, span: Range<usize>) -> Option<String> {
 /// Reads a scene from TOML text; `file` names it in errors and `dir` resolves relative paths.
 pub(super) fn parse(src: &str, file: &str, dir: &Path) -> Result<Scene, SceneError> {
     let cx = Ctx { file, src };
-    let raw: RawScene = toml::from_str(src).map_err(|e| cx.toml(&e))?;
+    // Through serde_path_to_error, so a wrong type names its full field (`shapes[1].radius`).
+    let de = toml::Deserializer::parse(src).map_err(|e| cx.toml(&e))?;
+    let raw: RawScene = serde_path_to_error::deserialize(de).map_err(|e| {
+        // (toml's spans appear in the path as private segments: left out.)
+        let path: Vec<String> =
+            e.path().to_string().split('.').filter(|s| !s.starts_with("$__")).map(str::to_string).collect();
+        let path = path.join(".");
+        let err = cx.toml(e.inner());
+        match err {
+            SceneError::Invalid { file, line, column, message, .. } if path != "." && !path.is_empty() => {
+                SceneError::Invalid { file, line, column, field: path, message }
+            }
+            err => err,
+        }
+    })?;
+    check_array_lengths(&cx)?;
 
     let scale = match &raw.scale {
         Some(f) if !(*f.get_ref() > 0.0 && f.get_ref().is_finite()) => {
@@ -484,6 +589,9 @@ fn material(cx: &Ctx, name: &str, m: &Sp<RawMaterial>) -> Result<Material, Scene
     })
 }
 
+/// The largest emitter power accepted, W (photon flux is f32; a photon's share stays finite).
+pub const MAX_POWER_W: f64 = 1e30;
+
 fn emitter(cx: &Ctx, i: usize, e: &Sp<RawEmitter>) -> Result<Emitter, SceneError> {
     let what = format!("emitters[{i}]");
     let (span, r) = (e.span(), e.get_ref());
@@ -492,6 +600,14 @@ fn emitter(cx: &Ctx, i: usize, e: &Sp<RawEmitter>) -> Result<Emitter, SceneError
         r.power_w.as_ref().ok_or_else(|| cx.err(span.clone(), format!("{what}.power_w"), "missing"))?;
     if !(power.get_ref().is_finite() && *power.get_ref() > 0.0) {
         return Err(cx.err(power.span(), format!("{what}.power_w"), "must be a positive number of watts"));
+    }
+    // Photon flux is stored in f32: a power beyond this would overflow it.
+    if *power.get_ref() > MAX_POWER_W {
+        return Err(cx.err(
+            power.span(),
+            format!("{what}.power_w"),
+            format!("{:e} W is beyond the {MAX_POWER_W:e} W photon flux can hold (f32)", power.get_ref()),
+        ));
     }
     let colour = match &r.colour {
         Some(c)

@@ -237,11 +237,45 @@ pub fn paraboloid(focal: f32, r_min: f32, r_max: f32, rings: u32, segments: u32)
     m
 }
 
+/// Largest vertex coordinate accepted from an OBJ file, in the file's units.
+pub const MAX_OBJ_COORDINATE: f32 = 1e30;
+
+/// What tobj lets through and a scene cannot use, refused by line: a vertex coordinate that
+/// is not a finite number of at most [`MAX_OBJ_COORDINATE`] in size, a face of fewer than three
+/// vertices.
+fn check_obj_text(bytes: &[u8]) -> Result<(), String> {
+    let text = String::from_utf8_lossy(bytes);
+    for (i, line) in text.lines().enumerate() {
+        let mut words = line.split_whitespace();
+        match words.next() {
+            Some("v") => {
+                for w in words.take(3) {
+                    match w.parse::<f32>() {
+                        Ok(x) if x.is_finite() && x.abs() <= MAX_OBJ_COORDINATE => {}
+                        _ => {
+                            return Err(format!(
+                                "line {}: vertex coordinate '{w}' is not a finite number of at most {MAX_OBJ_COORDINATE:e}",
+                                i + 1
+                            ));
+                        }
+                    }
+                }
+            }
+            Some("f") if words.count() < 3 => {
+                return Err(format!("line {}: a face needs at least three vertices", i + 1));
+            }
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
 /// Loads every object of an OBJ file as one mesh (triangulated), with its normals if it has
 /// them for every vertex.
 pub fn load_obj(path: &std::path::Path) -> Result<Mesh, String> {
     let opts = tobj::LoadOptions { triangulate: true, single_index: true, ..Default::default() };
     crate::format::guard::register_input(path);
+    check_obj_text(&std::fs::read(path).map_err(|e| e.to_string())?)?;
     let (models, _materials) = tobj::load_obj(path, &opts).map_err(|e| e.to_string())?;
     let mut mesh = Mesh { normals: Some(Vec::new()), ..Default::default() };
     for m in &models {

@@ -596,9 +596,9 @@ material = "floor"
         let (l, f, _) = bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glas\"\nradius = 1\n");
         assert_eq!((l, f.as_str()), (n + 4, "shapes[1].material"));
         let (l, f, m) = bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\nradus = 1\n");
-        assert_eq!((l, f.as_str()), (n + 5, "radus"), "{m}");
+        assert_eq!((l, f.as_str()), (n + 5, "shapes[1].radus"), "{m}");
         let (l, f, _) = bad("\n[[shapes]]\nkind = \"sphere\"\nmaterial = \"glass\"\nradius = \"big\"\n");
-        assert_eq!((l, f.as_str()), (n + 5, "radius"));
+        assert_eq!((l, f.as_str()), (n + 5, "shapes[1].radius"));
         // Missing keys point at the table's header.
         let (l, f, _) = bad("\n[[shapes]]\nkind = \"disc\"\nmaterial = \"glass\"\n");
         assert_eq!((l, f.as_str()), (n + 2, "shapes[1].radius"));

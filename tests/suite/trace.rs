@@ -558,3 +558,36 @@ fn counts_beyond_memory_are_refused_not_aborted() {
     let o = run(&["trace", "--photons", "100000", "-o", os], None);
     assert!(o.status.success(), "{}", stderr(&o));
 }
+
+/// Scene mistakes are named by their full field path and refused before tracing (issue 31):
+/// a wrong type, an array of the wrong length, a power f32 flux cannot hold, and OBJ vertices
+/// that are not finite or faces of two vertices.
+#[test]
+fn scene_mistakes_name_their_field() {
+    let dir = tempfile::tempdir().unwrap();
+    let base = "[materials.floor]\nkind = \"diffuse\"\n[[emitters]]\nkind = \"collimated\"\ncenter = [0, 0, 2]\n\
+                size = [1, 1]\ndirection = [0, 0, -1]\npower_w = 1\n[[shapes]]\nkind = \"plane\"\nnormal = [0, 0, 1]\n\
+                material = \"floor\"\n[[shapes]]\nkind = \"sphere\"\ncenter = [0, 0, 1]\nradius = 0.5\nmaterial = \"floor\"\n";
+    assert!(Scene::parse(base, "t.toml", dir.path()).is_ok());
+    for (from, to, want) in [
+        ("radius = 0.5", "radius = \"big\"", "t.toml:16:10: shapes[1].radius: invalid type"),
+        ("size = [1, 1]", "size = [1, 1, 1]", "t.toml:6:1: emitters[0].size: expected 2 numbers, found 3"),
+        ("power_w = 1\n", "power_w = 1e308\n", "emitters[0].power_w: 1e308 W is beyond"),
+    ] {
+        let e = Scene::parse(&base.replace(from, to), "t.toml", dir.path()).unwrap_err().to_string();
+        assert!(e.contains(want), "{to}: {e}");
+    }
+    for (obj, want) in [
+        ("v nan 0 1\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "line 1: vertex coordinate 'nan'"),
+        ("v 0 0 1e308\nv 1 0 0\nv 0 1 0\nf 1 2 3\n", "line 1: vertex coordinate '1e308'"),
+        ("v 0 0 1\nv 1 0 0\nv 0 1 0\nf 1 2\nf 1 2 3\n", "line 4: a face needs at least three vertices"),
+    ] {
+        std::fs::write(dir.path().join("m.obj"), obj).unwrap();
+        let src = base.replace(
+            "kind = \"sphere\"\ncenter = [0, 0, 1]\nradius = 0.5",
+            "kind = \"obj\"\nfile = \"m.obj\"",
+        );
+        let e = Scene::parse(&src, "t.toml", dir.path()).unwrap_err().to_string();
+        assert!(e.contains("shapes[1].file") && e.contains(want), "{obj:?}: {e}");
+    }
+}

@@ -745,7 +745,6 @@ pub(crate) fn with_emitters(
         sums.iter().enumerate().map(|(id, s)| external_emitter(id as u32, open[id][0], *s)).collect();
     // Three fields but only `rect_uv` emitters: the column holds (u, v, 0) and must have the
     // largest param_dims (2) components (§4.1), so the zeros go.
-    let mut columns = columns;
     if dims == 3
         && emitters.iter().all(|e| e.param_dims < 3)
         && let Some((s, b)) = columns.iter_mut().find(|(s, _)| s.name == name::PARAMS)

@@ -89,7 +89,7 @@ pub fn exr_header(path: &Path) -> Vec<(String, String, Vec<u8>)> {
     assert_eq!(bytes[4], 2, "{}: EXR version 2", path.display());
     let mut at = 8;
     let mut attrs = Vec::new();
-    let mut cstr = |at: &mut usize| {
+    let cstr = |at: &mut usize| {
         let end = *at + bytes[*at..].iter().position(|&b| b == 0).expect("a NUL-terminated name");
         let s = std::str::from_utf8(&bytes[*at..end]).expect("an attribute name in UTF-8").to_string();
         *at = end + 1;

@@ -248,34 +248,6 @@ fn the_scene_comes_from_the_maps_history() {
     assert!(!out.exists());
 }
 
-/// The string attributes of an OpenEXR header, parsed from the bytes as the OpenEXR file
-/// layout defines them (magic, version, then `name\0type\0size value` until an empty name):
-/// an independent reader for what `render` writes.
-fn exr_header_strings(bytes: &[u8]) -> Vec<(Vec<u8>, Vec<u8>)> {
-    assert_eq!(&bytes[..4], &[0x76, 0x2f, 0x31, 0x01], "the OpenEXR magic number");
-    let mut at = 8;
-    let mut out = Vec::new();
-    let cstr = |at: &mut usize| {
-        let end = *at + bytes[*at..].iter().position(|&b| b == 0).unwrap();
-        let s = bytes[*at..end].to_vec();
-        *at = end + 1;
-        s
-    };
-    loop {
-        let name = cstr(&mut at);
-        if name.is_empty() {
-            return out;
-        }
-        let kind = cstr(&mut at);
-        let size = i32::from_le_bytes(bytes[at..at + 4].try_into().unwrap()) as usize;
-        at += 4;
-        if kind == b"string" {
-            out.push((name, bytes[at..at + size].to_vec()));
-        }
-        at += size;
-    }
-}
-
 /// Paths and notes outside Latin-1 (issue 31: a panic) or outside ASCII ("×" was written as
 /// the single byte 0xD7, which OpenEXR's own readers refuse) are written as UTF-8.
 #[test]
@@ -301,15 +273,15 @@ fn exr_header_text_is_utf8_for_any_path() {
         exr.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", stderr(&o));
-    let strings = exr_header_strings(&std::fs::read(&exr).unwrap());
+    // (super::common::exr_header parses the header bytes independently of the exr crate.)
+    let strings: Vec<(String, Vec<u8>)> = super::common::exr_header(&exr)
+        .into_iter()
+        .filter(|(_, kind, _)| kind == "string")
+        .map(|(name, _, value)| (name, value))
+        .collect();
     assert!(!strings.is_empty());
     for (name, value) in &strings {
-        assert!(std::str::from_utf8(name).is_ok(), "attribute name {name:?} is not UTF-8");
-        assert!(
-            std::str::from_utf8(value).is_ok(),
-            "attribute {:?} is not UTF-8",
-            String::from_utf8_lossy(name)
-        );
+        assert!(std::str::from_utf8(value).is_ok(), "attribute {name} is not UTF-8");
     }
     let all: String = strings.iter().map(|(_, v)| String::from_utf8_lossy(v).into_owned()).collect();
     assert!(all.contains("a→b.phm"), "the map's name survives: {all}");

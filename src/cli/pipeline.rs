@@ -49,10 +49,26 @@ pub struct Args {
     /// Kf: neighbours in the repulsion force.
     #[arg(long, default_value_t = 16)]
     kf: usize,
+    /// Render the relaxed map even when fewer photons than `--min-relax-photons` were stored.
+    #[arg(long)]
+    relax_anyway: bool,
+    /// Below this many stored photons the image is rendered from the traced map, not the
+    /// relaxed one (with so few photons relaxation spreads the caustic; measured on the glass
+    /// sphere, see MIN_RELAX_PHOTONS in src/cli/pipeline.rs).
+    #[arg(long, value_name = "N", default_value_t = MIN_RELAX_PHOTONS)]
+    min_relax_photons: u64,
     /// Options passed on to `photonkit render` (after `--`), e.g. `-- --width 300 --height 300`.
     #[arg(last = true, value_name = "RENDER OPTIONS")]
     render: Vec<String>,
 }
+
+/// Fewest stored photons whose relaxed map the pipeline renders by default. Measured on the
+/// glass sphere (`photonkit compare --methods pm,ours`, debug build, 2026-12-04): the relaxed
+/// map was worse than the traced one at 655 and 2 000 stored photons (NRMSE 4.66 against 2.23,
+/// 2.68 against 2.10; SSIM lower too) and better from 7 000 (2.03 against 2.40; at 20 000, 1.76
+/// against 2.29). With so few photons each one's Kf = 16 neighbours span a large part of the
+/// caustic, and repulsion spreads its peak.
+pub const MIN_RELAX_PHOTONS: u64 = 5_000;
 
 /// `photonkit render`'s arguments, parsed from the pipeline's command line for it.
 #[derive(clap::Parser)]
@@ -170,17 +186,34 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     relax_stage("collapsed.phm", "relaxed.phm", "relax (world)")?;
 
     // Render, with the render subcommand's defaults (the scene's camera, 600×600, 4 samples
-    // per pixel, K = 15 Epanechnikov).
+    // per pixel, K = 15 Epanechnikov): the relaxed map, or with too few photons the traced one.
+    let rendered = if traced.stored < a.min_relax_photons && !a.relax_anyway {
+        eprintln!(
+            "note: only {} photons stored (fewer than --min-relax-photons {}): relaxation at this \
+             count spreads the caustic instead of sharpening it, so the image is rendered from \
+             traced.phm (relaxed.phm is written all the same; --relax-anyway renders it)",
+            traced.stored, a.min_relax_photons
+        );
+        "traced.phm"
+    } else {
+        "relaxed.phm"
+    };
     let mut argv: Vec<std::ffi::OsString> =
-        vec!["render".into(), file("relaxed.phm").into(), "-o".into(), file("render.exr").into()];
+        vec!["render".into(), file(rendered).into(), "-o".into(), file("render.exr").into()];
     if let Some(p) = &a.scene {
         argv.extend(["--scene".into(), p.into()]);
     }
     argv.extend(a.render.iter().map(Into::into));
     let t = Instant::now();
     super::render::run(RenderCommand::try_parse_from(argv)?.args)?;
-    let map = PhotonMap::open_path(&file("relaxed.phm"))?;
-    report("render", t.elapsed().as_secs_f64(), map.len(), &file("render.exr"), "  (and render.png)");
+    let map = PhotonMap::open_path(&file(rendered))?;
+    report(
+        "render",
+        t.elapsed().as_secs_f64(),
+        map.len(),
+        &file("render.exr"),
+        &format!("  (and render.png, from {rendered})"),
+    );
 
     eprintln!("{:<16} {:>8.2} s", "total", total.elapsed().as_secs_f64());
     eprintln!(

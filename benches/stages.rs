@@ -137,7 +137,8 @@ fn main() {
                     params: if space == Space::WorldParams { Some(params) } else { None },
                     emitters: None,
                 };
-                let ((), bc, bw) = measure(|| relax::index_positions(&mut index, &pts, space, it).unwrap());
+                let ((), bc, bw) =
+                    measure(|| relax::index_positions(&mut index, &pts, space, it, false).unwrap());
                 build_c += bc;
                 build_w += bw;
                 let search = relax::IndexSearch {

@@ -74,7 +74,7 @@ pub fn clamp_step(step: Vec3, limit: f32) -> Vec3 {
 }
 
 /// What one iteration did, for the per-iteration report.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct IterationMeasure {
     pub iteration: usize,
     /// Coefficient of variation (sd/mean) of nearest-neighbour distances before the move; it
@@ -86,6 +86,10 @@ pub struct IterationMeasure {
     pub local_nn_cv: f64,
     pub mean_displacement: f64,
     pub max_displacement: f64,
+    /// Photons that sat on another photon and were moved apart ([`iterate`]): an index built
+    /// over them no longer fits the moved photons, and is rebuilt ([`index_positions`]).
+    #[serde(skip)]
+    pub separated: usize,
 }
 
 /// Coefficient of variation of a set of distances (0 for fewer than two).
@@ -191,7 +195,12 @@ pub fn iterate(
     }
     let limit_of: &[f32] = limit;
     let mut ratio = vec![f32::NAN; n];
+    // Photons that all sit on one point have no length to be separated by: nothing moves.
+    if pos.iter().all(|x| *x == pos[0]) {
+        return IterationMeasure { iteration, ..Default::default() };
+    }
     let snapshot: &[[f32; 3]] = pos;
+    let mean_spacing = std::sync::OnceLock::new();
     // Steps are computed in the index's order (slot k is photon order[k]), then applied.
     let order = index.order().filter(|o| o.len() == n).unwrap_or_else(|| (0..n as u32).collect());
     step.par_chunks_mut(CHUNK)
@@ -242,8 +251,15 @@ pub fn iterate(
                 if *d1 == 0.0 {
                     // Photons stacked on one point feel identical forces and would stay stacked:
                     // give each its own direction (fixed by its index, so runs are reproducible),
-                    // scaled by the nearest distinct photon (looking further if all Kf coincide).
-                    let scale = if r_k > 0.0 { r_k } else { distinct_distance(index, i, xi, snapshot, p.kf) };
+                    // scaled by the nearest distinct photon (looking a little further if all Kf
+                    // coincide, then taking the map's mean spacing: a crowd of any size costs
+                    // a bounded search per photon).
+                    let scale = if r_k > 0.0 {
+                        r_k
+                    } else {
+                        distinct_distance(index, i, xi, snapshot, p.kf)
+                            .unwrap_or_else(|| *mean_spacing.get_or_init(|| map_spacing(snapshot)))
+                    };
                     f += nudge(i) * (0.25 * scale);
                 }
                 let fb = match constraint {
@@ -279,6 +295,7 @@ pub fn iterate(
         local_nn_cv: coefficient_of_variation(&ratio),
         mean_displacement: if n > 0 { sum / n as f64 } else { 0.0 },
         max_displacement: max,
+        separated: if n > 1 { nn.iter().filter(|&&d| d == 0.0).count() } else { 0 },
     }
 }
 
@@ -419,12 +436,16 @@ impl NeighbourSearch for IndexSearch<'_> {
 pub const REBUILD_EVERY: usize = 7;
 
 /// Makes `index` hold `points` for relaxation's iteration `it`: built on the first,
-/// rebuilt every [`REBUILD_EVERY`] iterations, refitted in between (photons only move).
+/// rebuilt every [`REBUILD_EVERY`] iterations and after an iteration that moved photons
+/// apart from a shared point (`separated`, [`IterationMeasure::separated`]: a tree built over
+/// a crowd on one point has leaves that all overlap once it spreads, and a query would scan
+/// the crowd), refitted otherwise (photons only move, by a fraction of their spacing).
 pub fn index_positions(
     index: &mut Option<crate::spatial::SpatialIndex>,
     points: &crate::spatial::PointSet,
     space: crate::spatial::Space,
     it: usize,
+    separated: bool,
 ) -> Result<(), crate::spatial::SpatialError> {
     static EVERY: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
     let every = *EVERY.get_or_init(|| {
@@ -435,7 +456,7 @@ pub fn index_positions(
             .max(1)
     });
     match index {
-        Some(ix) if !it.is_multiple_of(every) => ix.refit(points),
+        Some(ix) if !separated && !it.is_multiple_of(every) => ix.refit(points),
         Some(ix) => ix.rebuild(points),
         None => crate::spatial::SpatialIndex::build(points, space).map(|ix| *index = Some(ix)),
     }
@@ -554,7 +575,8 @@ pub fn relax_map_on(
             emitters: if space == RelaxSpace::WorldParams { emitters } else { None },
         };
         let sp = if space == RelaxSpace::WorldParams { Space::WorldParams } else { Space::World };
-        index_positions(&mut index, &points, sp, it).map_err(|e| RelaxError::Photons {
+        let separated = measures.last().is_some_and(|m: &IterationMeasure| m.separated > 0);
+        index_positions(&mut index, &points, sp, it, separated).map_err(|e| RelaxError::Photons {
             file: map.file_name().to_string(),
             source: e.in_file_order(&order),
         })?;
@@ -773,20 +795,37 @@ pub fn collapse(map: &crate::format::PhotonMap, target: crate::format::Output) -
     Ok(crate::format::write_map(target, info, &map.columns())?)
 }
 
-/// Distance from photon `i` to the nearest photon not on top of it (0 if there is none).
-fn distinct_distance(index: &dyn NeighbourSearch, i: usize, xi: Vec3, pos: &[[f32; 3]], kf: usize) -> f32 {
+/// Distance from photon `i` to the nearest photon not on top of it among its 4 Kf nearest;
+/// `None` when all of those sit on it (a crowd, which would otherwise cost a search as large
+/// as itself per photon: issue 31).
+fn distinct_distance(
+    index: &dyn NeighbourSearch,
+    i: usize,
+    xi: Vec3,
+    pos: &[[f32; 3]],
+    kf: usize,
+) -> Option<f32> {
     let mut ids = Vec::new();
-    let mut k = kf.max(1) * 4;
-    loop {
-        index.neighbours(i, k, &mut ids);
-        if let Some(d) = ids.iter().map(|&j| xi.distance(pos[j as usize].into())).find(|&d| d > 0.0) {
-            return d;
+    index.neighbours(i, kf.max(1) * 4, &mut ids);
+    ids.iter().map(|&j| xi.distance(pos[j as usize].into())).find(|&d| d > 0.0)
+}
+
+/// The mean photon spacing of a map, √(A / n), with A the area of the bounding box's two
+/// largest extents (photons lie on surfaces); the largest extent / n when the photons lie on
+/// a line, and 0 when they all sit on one point (which leaves nothing to separate them by).
+fn map_spacing(pos: &[[f32; 3]]) -> f32 {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in pos {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
         }
-        if ids.len() < k || k >= pos.len() {
-            return 0.0;
-        }
-        k *= 4;
     }
+    let mut e: Vec<f64> = (0..3).map(|a| (hi[a] as f64 - lo[a] as f64).max(0.0)).collect();
+    e.sort_by(|a, b| b.total_cmp(a));
+    let n = pos.len().max(1) as f64;
+    let s = if e[1] > 0.0 { (e[0] * e[1] / n).sqrt() } else { e[0] / n };
+    if s.is_finite() { s as f32 } else { 0.0 }
 }
 
 /// A unit vector that depends only on `i` (a SplitMix64 hash mapped to the sphere).
@@ -979,6 +1018,49 @@ mod tests {
         let min = (101..120).map(|i| p.distance(pos[i].into())).fold(f32::MAX, f32::min);
         assert!(min > 1e-4, "stack did not separate: {min}");
         assert!(pos.iter().all(|p| p.iter().all(|x| x.is_finite())));
+    }
+
+    /// A search that counts the neighbours asked for (the work a crowd makes).
+    struct Counting<'a>(BruteForce<'a>, std::sync::atomic::AtomicUsize);
+
+    impl NeighbourSearch for Counting<'_> {
+        fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
+            self.1.fetch_add(k, std::sync::atomic::Ordering::Relaxed);
+            self.0.neighbours(i, k, out);
+        }
+    }
+
+    /// Issue 31 item 5: a crowd of photons on one point (1 500 beside 300 spread ones) asks
+    /// for a bounded number of neighbours per photon, not a search as large as the crowd,
+    /// and still comes apart, by about the map's mean spacing; a map that is all one point
+    /// has no length to separate its photons by and stays as it is, finite.
+    #[test]
+    fn a_crowd_on_one_point_costs_bounded_searches_and_comes_apart() {
+        let mut pos = uniform(300, 5);
+        pos.extend(std::iter::repeat_n([0.5, 0.5, 0.0], 1500));
+        let n = pos.len();
+        let normal = vec![[0.0, 0.0, 1.0]; n];
+        let p = RelaxParams::default();
+        let snapshot = pos.clone();
+        let index = Counting(BruteForce(&snapshot), Default::default());
+        iterate(&mut pos, &index, Constraint::Tangent { normal: &normal }, &p, 0, &mut Scratch::default());
+        let asked = index.1.into_inner();
+        assert!(asked <= n * 5 * p.kf, "{asked} neighbours asked for {n} photons (Kf {})", p.kf);
+        let spacing = map_spacing(&snapshot);
+        let crowd: Vec<Vec3> = pos[300..].iter().map(|&x| Vec3::from(x)).collect();
+        let spread = crowd.iter().map(|x| x.distance(Vec3::new(0.5, 0.5, 0.0))).fold(0.0f32, f32::max);
+        assert!(spread > 0.1 * spacing && spread < 2.0 * spacing, "spread {spread}, spacing {spacing}");
+        let distinct: std::collections::HashSet<[u32; 3]> =
+            crowd.iter().map(|x| x.to_array().map(f32::to_bits)).collect();
+        assert_eq!(distinct.len(), crowd.len(), "every photon of the crowd moved its own way");
+
+        let mut one = vec![[0.25f32, -1.0, 0.0]; 500];
+        let normal = vec![[0.0, 0.0, 1.0]; one.len()];
+        let snapshot = one.clone();
+        let index = Counting(BruteForce(&snapshot), Default::default());
+        iterate(&mut one, &index, Constraint::Tangent { normal: &normal }, &p, 0, &mut Scratch::default());
+        assert!(index.1.into_inner() <= 500 * 5 * p.kf);
+        assert_eq!(one, snapshot);
     }
 
     // ---- Issue 5: basis factors 0 and 1, the paper's Fig. 3 (e–f), stability.

@@ -28,6 +28,10 @@ struct Node {
     /// The node's points: `start..end` of the leaf-ordered arrays.
     start: u32,
     end: u32,
+    /// The smallest photon index below the node: a subtree whose box distance ties the k-th
+    /// best is skipped when it ranks after it (ties rank by index), so that a crowd of
+    /// coincident photons costs a few leaves (issue 31).
+    min_idx: u32,
 }
 
 /// A k-NN index over 3-D points with per-node bounding boxes.
@@ -55,13 +59,15 @@ fn build(recs: &mut [([f32; 3], u32)], nodes: &mut [Node], base: usize, start: u
     let (lo, hi) = bounds(recs);
     let m = recs.len();
     let (head, rest) = nodes.split_first_mut().expect("every subtree has a node");
-    *head = Node { lo, hi, right: 0, start: start as u32, end: (start + m) as u32 };
+    *head = Node { lo, hi, right: 0, start: start as u32, end: (start + m) as u32, min_idx: 0 };
     if m <= LEAF {
+        head.min_idx = recs.iter().map(|r| r.1).min().unwrap_or(u32::MAX);
         return;
     }
     let axis = (0..3).max_by(|&a, &b| (hi[a] - lo[a]).total_cmp(&(hi[b] - lo[b]))).unwrap_or(0);
     let mid = m / 2;
-    recs.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]));
+    // Ties by index: coincident photons lie in index order across the leaves.
+    recs.select_nth_unstable_by(mid, |a, b| a.0[axis].total_cmp(&b.0[axis]).then(a.1.cmp(&b.1)));
     let left_nodes = count_nodes(mid);
     head.right = (base + 1 + left_nodes) as u32;
     let (lrecs, rrecs) = recs.split_at_mut(mid);
@@ -75,6 +81,7 @@ fn build(recs: &mut [([f32; 3], u32)], nodes: &mut [Node], base: usize, start: u
         build(lrecs, lnodes, base + 1, start);
         build(rrecs, rnodes, base + 1 + left_nodes, start + mid);
     }
+    head.min_idx = lnodes[0].min_idx.min(rnodes[0].min_idx);
 }
 
 /// Squared distance from `q` to the box, summed in axis order: never more than the distance
@@ -135,10 +142,12 @@ impl BoxTree {
             k,
             heap: &mut out.items,
             worst: Neighbour { dist2: max_dist2, index: u32::MAX },
+            scanned: 0,
         };
         if box_dist2(&self.nodes[0], &q) <= max_dist2 {
             s.visit(0);
         }
+        out.records_scanned += s.scanned;
         if k > SORTED_MAX {
             out.items.sort_unstable_by(|a, b| a.dist2.total_cmp(&b.dist2).then(a.index.cmp(&b.index)));
         }
@@ -154,12 +163,15 @@ struct Search<'a> {
     heap: &'a mut Vec<Neighbour>,
     /// The k-th best so far, or the distance limit while fewer than k are held.
     worst: Neighbour,
+    /// Points scanned (see `Neighbours::records_scanned`).
+    scanned: u64,
 }
 
 impl Search<'_> {
     fn visit(&mut self, node: usize) {
         let n = &self.tree.nodes[node];
         if n.right == 0 {
+            self.scanned += (n.end - n.start) as u64;
             for i in n.start as usize..n.end as usize {
                 let d = dist2(&self.tree.points[i], &self.q);
                 let idx = self.tree.index[i];
@@ -169,13 +181,21 @@ impl Search<'_> {
             }
             return;
         }
+        // Each child ranks as its box distance and smallest index would (no photon below it
+        // ranks before that): the nearer first, the one of lower indices on a tie, and either
+        // skipped when it ranks after the k-th best.
+        let child = |c: usize| {
+            let n = &self.tree.nodes[c];
+            Neighbour { dist2: box_dist2(n, &self.q), index: n.min_idx }
+        };
         let (l, r) = (node + 1, n.right as usize);
-        let (dl, dr) = (box_dist2(&self.tree.nodes[l], &self.q), box_dist2(&self.tree.nodes[r], &self.q));
-        let ((a, da), (b, db)) = if dl <= dr { ((l, dl), (r, dr)) } else { ((r, dr), (l, dl)) };
-        if da <= self.worst.dist2 {
+        let (dl, dr) = (child(l), child(r));
+        let ((a, da), (b, db)) = if !dr.before(&dl) { ((l, dl), (r, dr)) } else { ((r, dr), (l, dl)) };
+        // (While fewer than k are held, `worst` is the distance limit with index u32::MAX.)
+        if da.before(&self.worst) {
             self.visit(a);
         }
-        if db <= self.worst.dist2 {
+        if db.before(&self.worst) {
             self.visit(b);
         }
     }
@@ -285,5 +305,39 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Issue 31 item 5: a crowd of photons on one point (20 000 beside 2 000 spread ones)
+    /// costs a render lookup, in it, beside it or far from it, about what an ordinary
+    /// neighbourhood costs, and results equal the scan's.
+    #[test]
+    fn a_crowd_on_one_point_costs_a_few_leaves_per_lookup() {
+        let mut rng = PhotonRng::new(3, 2);
+        let mut pts: Vec<[f32; 3]> = (0..2000).map(|_| [rng.next_f32(), rng.next_f32(), 0.0]).collect();
+        pts.extend(std::iter::repeat_n([0.5, 0.5, 0.0], 20_000));
+        let (tree, set) = (BoxTree::build(&pts), PointSet::world(&pts));
+        let spread = BoxTree::build(&pts[..2000]);
+        let mut out = Neighbours::default();
+        let mut ordinary = Neighbours::default();
+        let queries: Vec<[f32; 3]> = (0..200)
+            .map(|j| {
+                [[0.5, 0.5, 0.0], [0.52, 0.5, 0.0], [0.5, 0.5, 3.0], [rng.next_f32(), rng.next_f32(), 0.0]]
+                    [j % 4]
+            })
+            .collect();
+        for &q in &queries {
+            for k in [15, 40] {
+                tree.knn(q, k, f32::INFINITY, &mut out);
+                spread.knn(q, k, f32::INFINITY, &mut ordinary);
+                let query = Query { position: q, params: &[], radius: None, emitter: 0, exclude: None };
+                assert_eq!(
+                    out.as_slice(),
+                    &brute_force_knn(&set, Space::World, &query, k)[..],
+                    "query {q:?} k {k}"
+                );
+            }
+        }
+        let (crowd, base) = (out.records_scanned, ordinary.records_scanned);
+        assert!(crowd <= 3 * base + 400 * 8, "{crowd} points scanned against {base} without the crowd");
     }
 }

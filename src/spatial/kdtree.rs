@@ -77,6 +77,9 @@ struct Node<const W: usize, const P: usize> {
     /// The first leaf of the right child's subtree (leaves are numbered in leaf order; the
     /// left child's first leaf is this node's).
     right_leaf: u32,
+    /// The smallest record index below the node: neighbours rank by (distance², index), so
+    /// a subtree whose lower bound ties the k-th best is pruned by it ([`Search::visit`]).
+    min_idx: u32,
     lo_w: [f32; W],
     hi_w: [f32; W],
     lo_p: [f32; P],
@@ -90,6 +93,7 @@ impl<const W: usize, const P: usize> Default for Node<W, P> {
             axis: 0,
             right: 0,
             right_leaf: 0,
+            min_idx: 0,
             lo_w: [0.0; W],
             hi_w: [0.0; W],
             lo_p: [0.0; P],
@@ -103,6 +107,8 @@ impl<const W: usize, const P: usize> Default for Node<W, P> {
 struct Leaf<const W: usize, const P: usize> {
     lo: u32,
     hi: u32,
+    /// The smallest record index of the leaf.
+    min_idx: u32,
     lo_w: [f32; W],
     hi_w: [f32; W],
     lo_p: [f32; P],
@@ -310,7 +316,11 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 for (id, r) in ids.iter_mut().zip(leaf) {
                     *id = r.idx;
                 }
+                l.min_idx = leaf.iter().map(|r| r.idx).min().unwrap_or(u32::MAX);
             });
+        if !self.nodes.is_empty() {
+            min_index_node(&mut self.nodes, &self.leaves, 0, 0, n, 0);
+        }
     }
 
     /// Moves every record to new distance coordinates, `w_of(index)`, keeping its ball
@@ -429,18 +439,20 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             // Boxes pay for themselves on constrained trees, where they bound the parameter
             // ball; on unconstrained ones the split planes prune about as well for less work.
             boxes: (tuning().boxes && (P > 0 || tuning().all_boxes)) || self.refitted,
+            scanned: 0,
         };
         let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);
-        s.visit(0, 0, self.recs.len(), &mut ow, &mut op);
+        s.visit(0, 0, self.recs.len(), 0, &mut ow, &mut op);
         if s.heap.len() < k && s.worst != u64::MAX {
             // Unreachable in exact arithmetic (the bound has k candidates within it); kept so
             // that a wrong bound could only cost time, never change a result.
             s.heap.clear();
             (s.worst, s.bound) = (u64::MAX, f32::INFINITY);
             let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);
-            s.visit(0, 0, self.recs.len(), &mut ow, &mut op);
+            s.visit(0, 0, self.recs.len(), 0, &mut ow, &mut op);
         }
         s.finish(out.ordered);
+        out.records_scanned += s.scanned;
         out.tree = id;
         let items = (!out.farthest_only).then_some(&mut out.items);
         let coords = out.with_coords.then_some(&mut out.coords);
@@ -626,7 +638,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             self.leaves[leaf as usize]
         } else {
             let n = &self.nodes[node];
-            Leaf { lo: 0, hi: 0, lo_w: n.lo_w, hi_w: n.hi_w, lo_p: n.lo_p, hi_p: n.hi_p }
+            Leaf { lo: 0, hi: 0, min_idx: 0, lo_w: n.lo_w, hi_w: n.hi_w, lo_p: n.lo_p, hi_p: n.hi_p }
         };
         g.lo_w = [0.0; 3];
         g.hi_w = [0.0; 3];
@@ -670,7 +682,13 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             let (node, lo, hi, leaf) = path[start];
             (node as usize, lo as usize, hi as usize, leaf)
         };
-        self.collect(node, lo, hi, leaf, g);
+        // A crowd (many records within the reach, as when photons coincide) would make every
+        // query of the leaf scan all of it: the group is then left empty, so that the leaf's
+        // queries search the tree instead, where a crowd costs a few leaves.
+        let cap = (tuning().group_cap * (k.div_ceil(LEAF) + 16) as f32) as usize;
+        if !self.collect(node, lo, hi, leaf, g, cap) {
+            g.leaves.clear();
+        }
         // Empty lanes first (low +∞, high −∞), then each leaf's box in its lane.
         let per = 2 * (W + P);
         g.boxes.clear();
@@ -694,23 +712,24 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
     }
 
     /// Appends to `g` every leaf below `node` (whose first leaf is `leaf`) that may hold a
-    /// record within its reach.
-    fn collect(&self, node: usize, lo: usize, hi: usize, leaf: u32, g: &mut Group) {
+    /// record within its reach; false (and the leaves so far) as soon as there are more than
+    /// `cap`.
+    fn collect(&self, node: usize, lo: usize, hi: usize, leaf: u32, g: &mut Group, cap: usize) -> bool {
         // A leaf under a node within reach is taken whole: its box is tested by each query
         // that scans the group instead.
         if hi - lo <= LEAF {
             g.leaves.push(leaf);
-            return;
+            return g.leaves.len() <= cap;
         }
         let n = &self.nodes[node];
         if box_box_dist2(&n.lo_w, &n.hi_w, &g.lo_w, &g.hi_w) > g.g2
             || (g.ball && box_box_dist2(&n.lo_p, &n.hi_p, &g.lo_p, &g.hi_p) > g.r2)
         {
-            return;
+            return true;
         }
         let mid = lo + left_size(hi - lo);
-        self.collect(node + 1, lo, mid, leaf, g);
-        self.collect(n.right as usize, mid, hi, n.right_leaf, g);
+        self.collect(node + 1, lo, mid, leaf, g, cap)
+            && self.collect(n.right as usize, mid, hi, n.right_leaf, g, cap)
     }
 
     /// Writes to `cands[..n]`, returning n, the group's candidates within distance² `reach`
@@ -730,6 +749,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         exclude: u32,
         reach: f32,
         cands: &mut Vec<Cand>,
+        scanned: &mut u64,
     ) -> usize {
         // Room for every record of the group, and four past the last (a block is written
         // whole).
@@ -759,6 +779,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
                 let j = pass.trailing_zeros() as usize;
                 pass &= pass - 1;
                 if let Some(&leaf) = four.get(j) {
+                    let l = &self.leaves[leaf as usize];
+                    *scanned += (l.hi - l.lo) as u64;
                     self.scan_leaf(leaf, &qwv, &qpv, g.ball, reachv, r2v, exclude, cands, &mut n);
                 }
             }
@@ -846,7 +868,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             if reach > g.g2 && reach != g.g2 {
                 continue;
             }
-            n = self.scan_group(g, qw, qp, r2, exclude, reach, &mut out.scanned);
+            n = self.scan_group(g, qw, qp, r2, exclude, reach, &mut out.scanned, &mut out.records_scanned);
             scanned_reach = reach;
             if n >= k {
                 break;
@@ -990,7 +1012,7 @@ fn kth_rank(s: &mut [Cand], k: usize, reach: f32) -> u64 {
 }
 
 /// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox,
-/// nogroup,noestimate,nobucket,slack=…,ballslack=…,guess=…,group=…`): seeding on, boxes on constrained
+/// nogroup,noestimate,nobucket,slack=…,ballslack=…,guess=…,group=…,groupcap=…`): seeding on, boxes on constrained
 /// trees only, groups of one leaf, by default. Results are the same either way.
 #[derive(Clone, Copy, Debug)]
 struct Tuning {
@@ -1005,6 +1027,8 @@ struct Tuning {
     guess: f32,
     group_size: usize,
     no_buckets: bool,
+    /// Most leaves a group holds, per (k / LEAF + 16) ([`KdTree::gather`]).
+    group_cap: f32,
 }
 
 fn tuning() -> Tuning {
@@ -1028,6 +1052,7 @@ fn tuning() -> Tuning {
             guess: num("guess", 0.0),
             group_size: num("group", LEAF as f32) as usize,
             no_buckets: s.contains("nobucket"),
+            group_cap: num("groupcap", 4.0),
         }
     })
 }
@@ -1084,9 +1109,11 @@ fn build_node<const W: usize, const P: usize>(
     }
     let mid = left_size(m);
     // Records are finite (the index refuses others), so `<` orders them totally but for
-    // −0 = +0, which either side of the split may hold.
+    // −0 = +0, which either side of the split may hold. Ties go by index, so records that
+    // coincide lie in index order across the leaves and a search finds the k of lowest
+    // index among them in a few leaves ([`Search::visit`]).
     recs.select_nth_unstable_by(mid, |a, b| {
-        a.coord(axis).partial_cmp(&b.coord(axis)).unwrap_or(std::cmp::Ordering::Equal)
+        a.coord(axis).partial_cmp(&b.coord(axis)).unwrap_or(std::cmp::Ordering::Equal).then(a.idx.cmp(&b.idx))
     });
     let split = recs[mid].coord(axis);
     let left_nodes = count_nodes(mid);
@@ -1097,6 +1124,7 @@ fn build_node<const W: usize, const P: usize>(
         right: (base + 1 + left_nodes) as u32,
         // A subtree has one leaf more than it has internal nodes.
         right_leaf: (leaf + left_nodes + 1) as u32,
+        min_idx: 0,
         lo_w: std::array::from_fn(|a| lo[a]),
         hi_w: std::array::from_fn(|a| hi[a]),
         lo_p: std::array::from_fn(|a| lo[W + a]),
@@ -1158,6 +1186,27 @@ fn refit_node<const W: usize, const P: usize>(
     (n.lo_w, n.hi_w)
 }
 
+/// Sets the smallest record index of the subtree at `node` (records `lo..hi`, first leaf
+/// `leaf`) and of every node below it, and returns it.
+fn min_index_node<const W: usize, const P: usize>(
+    nodes: &mut [Node<W, P>],
+    leaves: &[Leaf<W, P>],
+    node: usize,
+    lo: usize,
+    hi: usize,
+    leaf: usize,
+) -> u32 {
+    if hi - lo <= LEAF {
+        return leaves[leaf].min_idx;
+    }
+    let (right, right_leaf) = (nodes[node].right as usize, nodes[node].right_leaf as usize);
+    let mid = lo + left_size(hi - lo);
+    let a = min_index_node(nodes, leaves, node + 1, lo, mid, leaf);
+    let b = min_index_node(nodes, leaves, right, mid, hi, right_leaf);
+    nodes[node].min_idx = a.min(b);
+    a.min(b)
+}
+
 /// Appends the leaves of a subtree over records `lo..hi` in leaf order (boxes unset), split
 /// as [`build_node`] splits.
 fn leaf_ranges<const W: usize, const P: usize>(lo: usize, hi: usize, out: &mut Vec<Leaf<W, P>>) {
@@ -1165,6 +1214,7 @@ fn leaf_ranges<const W: usize, const P: usize>(lo: usize, hi: usize, out: &mut V
         let z = Leaf {
             lo: lo as u32,
             hi: hi as u32,
+            min_idx: 0,
             lo_w: [0.0; W],
             hi_w: [0.0; W],
             lo_p: [0.0; P],
@@ -1193,21 +1243,40 @@ struct Search<'a, const W: usize, const P: usize> {
     /// The distance² part of `worst` (+∞ while unset): subtrees beyond it are skipped.
     bound: f32,
     boxes: bool,
+    /// Records scanned (see `Neighbours::records_scanned`).
+    scanned: u64,
 }
 
 impl<const W: usize, const P: usize> Search<'_, W, P> {
-    fn visit(&mut self, node: usize, lo: usize, hi: usize, ow: &mut [f32; W], op: &mut [f32; P]) {
+    /// Visits the subtree at `node` over records `lo..hi`, whose first leaf is `leaf`; `ow`
+    /// and `op` hold the query's offsets to the split planes on the path (a lower bound on
+    /// every record's distance² below, and on its ball distance²).
+    fn visit(
+        &mut self,
+        node: usize,
+        lo: usize,
+        hi: usize,
+        leaf: usize,
+        ow: &mut [f32; W],
+        op: &mut [f32; P],
+    ) {
         if hi - lo <= LEAF {
             self.scan(lo, hi);
             return;
         }
         let tree = self.tree;
         let n = &tree.nodes[node];
+        // Records that coincide in the distance dimensions are all equally far from any
+        // query; their box is a point and gives their exact distance.
+        let tied = n.lo_w == n.hi_w;
         // The node's box: a subtree is skipped when all its records are too far, or all lie
-        // outside the parameter ball, which the split planes on the path may not show.
-        if self.boxes
-            && (box_dist2(self.qw, &n.lo_w, &n.hi_w) > self.bound
-                || (self.ball && box_dist2(self.qp, &n.lo_p, &n.hi_p) > self.r2))
+        // outside the parameter ball, which the split planes on the path may not show. A
+        // subtree whose lower bound ties the k-th best is skipped when its smallest index
+        // ranks after the k-th's (ties rank by index), so that a crowd of coincident records
+        // costs a few leaves, not all of them.
+        let lb = if self.boxes || tied { box_dist2(self.qw, &n.lo_w, &n.hi_w) } else { sum_sq(ow) };
+        if rank(lb, n.min_idx) >= self.worst
+            || (self.boxes && self.ball && box_dist2(self.qp, &n.lo_p, &n.hi_p) > self.r2)
         {
             return;
         }
@@ -1215,21 +1284,41 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
         let mid = lo + left_size(hi - lo);
         let q = if axis < W { self.qw[axis] } else { self.qp[axis - W] };
         let diff = q - n.split;
-        let ((near, nlo, nhi), (far, flo, fhi)) = if diff < 0.0 {
-            ((node + 1, lo, mid), (n.right as usize, mid, hi))
-        } else {
-            ((n.right as usize, mid, hi), (node + 1, lo, mid))
+        let left = (node + 1, lo, mid, leaf);
+        let right = (n.right as usize, mid, hi, n.right_leaf as usize);
+        let (near, far) = if diff < 0.0 { (left, right) } else { (right, left) };
+        // Among coincident records the lower indices first (the build puts them left of the
+        // split), whichever side of the split the query lies.
+        let min_of = |(node, lo, hi, leaf): (usize, usize, usize, usize)| {
+            if hi - lo <= LEAF { tree.leaves[leaf].min_idx } else { tree.nodes[node].min_idx }
         };
-        self.visit(near, nlo, nhi, ow, op);
-        // The far child lies at least |diff| away along `axis`.
-        if axis < W && tree.refitted {
+        if tied && min_of(far) < min_of(near) {
+            self.visit_far(axis, diff, far, ow, op);
+            self.visit(near.0, near.1, near.2, near.3, ow, op);
+        } else {
+            self.visit(near.0, near.1, near.2, near.3, ow, op);
+            self.visit_far(axis, diff, far, ow, op);
+        }
+    }
+
+    /// Visits the child `far` of a node split at offset `diff` from the query along `axis`
+    /// unless the split plane shows it too far (the child lies at least |diff| away along the axis).
+    fn visit_far(
+        &mut self,
+        axis: usize,
+        diff: f32,
+        (far, flo, fhi, fleaf): (usize, usize, usize, usize),
+        ow: &mut [f32; W],
+        op: &mut [f32; P],
+    ) {
+        if axis < W && self.tree.refitted {
             // The split no longer separates the children: their boxes prune instead.
-            self.visit(far, flo, fhi, ow, op);
+            self.visit(far, flo, fhi, fleaf, ow, op);
         } else if axis < W {
             let old = ow[axis];
             ow[axis] = diff.abs();
             if sum_sq(ow) <= self.bound && (!self.ball || sum_sq(op) <= self.r2) {
-                self.visit(far, flo, fhi, ow, op);
+                self.visit(far, flo, fhi, fleaf, ow, op);
             }
             ow[axis] = old;
         } else {
@@ -1237,7 +1326,7 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
             let old = op[a];
             op[a] = diff.abs();
             if (!self.ball || sum_sq(op) <= self.r2) && sum_sq(ow) <= self.bound {
-                self.visit(far, flo, fhi, ow, op);
+                self.visit(far, flo, fhi, fleaf, ow, op);
             }
             op[a] = old;
         }
@@ -1245,6 +1334,7 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
 
     #[inline(always)]
     fn scan(&mut self, lo: usize, hi: usize) {
+        self.scanned += (hi - lo) as u64;
         for (slot, r) in self.tree.recs[lo..hi].iter().enumerate() {
             let key = rank(dist2(&r.w, self.qw), r.idx);
             if key >= self.worst {

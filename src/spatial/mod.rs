@@ -270,6 +270,8 @@ pub struct Neighbours {
     farthest_only: bool,
     /// Queries answered from a group's candidates (for tests and tuning).
     pub(crate) group_answers: u64,
+    /// Records whose distance the queries computed (for tests: the work of a search).
+    pub(crate) records_scanned: u64,
 }
 
 impl Default for Neighbours {
@@ -294,6 +296,7 @@ impl Neighbours {
             with_coords: true,
             farthest_only: false,
             group_answers: 0,
+            records_scanned: 0,
         }
     }
 

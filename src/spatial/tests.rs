@@ -514,3 +514,82 @@ fn a_refitted_index_equals_brute_force_after_small_and_large_moves() {
     o.params.truncate(2 * o.pos.len());
     assert!(index.refit(&o.set()).is_err());
 }
+
+/// The records per query a stage's pattern of queries scans (every photon in the index's
+/// order, one reused buffer), each result checked against the scan for every 97th photon.
+fn scanned_per_query(o: &Owned, index: &SpatialIndex, space: Space, k: usize, radius: Option<f32>) -> f64 {
+    let set = o.set();
+    let mut out = Neighbours::unordered(k);
+    let order = index.order();
+    for (j, &i) in order.iter().enumerate() {
+        let q = set.query(i as usize, radius);
+        index.knn(&q, k, &mut out);
+        if j % 97 == 0 {
+            let mut got = out.as_slice().to_vec();
+            got.sort_by(|a, b| a.dist2.total_cmp(&b.dist2).then(a.index.cmp(&b.index)));
+            assert_eq!(got, brute_force_knn(&set, space, &q, k), "{space:?}, k {k}, photon {i}");
+        }
+    }
+    out.records_scanned as f64 / order.len() as f64
+}
+
+/// Issue 31 item 5: photons that coincide (all at one point, two alternating points,
+/// positions coinciding while parameters differ) cost a query about what an ordinary
+/// neighbourhood costs, not a scan of the crowd; results stay exact. (Not covered: photons
+/// that come to coincide after the build, through a refit. The tree's leaves then hold them
+/// in no index order and a query scans about a third of the crowd; relaxation never moves
+/// photons onto one point, and rebuilds its index every few iterations.)
+#[test]
+fn crowds_of_coincident_photons_cost_what_ordinary_neighbourhoods_cost() {
+    let mut rng = Pcg64Mcg::seed_from_u64(31);
+    let n = 6000;
+    let spread = |rng: &mut Pcg64Mcg| -> Vec<f32> { (0..2 * n).map(|_| rng.random::<f32>()).collect() };
+    let ordinary = Owned {
+        pos: random_points(n, &mut rng),
+        params: spread(&mut rng),
+        stride: 2,
+        dims: vec![],
+        emitters: None,
+    };
+    let one_point = Owned {
+        pos: vec![[0.5, -2.0, 3.0]; n],
+        params: vec![0.25; 2 * n],
+        stride: 2,
+        dims: vec![],
+        emitters: None,
+    };
+    let two_points = Owned {
+        pos: (0..n).map(|i| if i % 2 == 0 { [1e3, 0.0, 0.0] } else { [-1e3, 0.0, 0.0] }).collect(),
+        params: vec![0.25; 2 * n],
+        stride: 2,
+        dims: vec![],
+        emitters: None,
+    };
+    let same_place = Owned {
+        pos: vec![[0.5, -2.0, 3.0]; n],
+        params: spread(&mut rng),
+        stride: 2,
+        dims: vec![],
+        emitters: None,
+    };
+    for (space, k, radius) in
+        [(Space::World, 17, None), (Space::WorldParams, 17, Some(0.05)), (Space::WorldParams, 51, Some(0.1))]
+    {
+        let cost = |o: &Owned| {
+            scanned_per_query(o, &SpatialIndex::build(&o.set(), space).unwrap(), space, k, radius)
+        };
+        let base = cost(&ordinary);
+        for (what, o) in [("one point", &one_point), ("two points", &two_points), ("one place", &same_place)]
+        {
+            if what == "one place" && space == Space::World {
+                continue; // the same set as "one point" in world space
+            }
+            let c = cost(o);
+            eprintln!("{what}, {space:?}, k {k}: {c:.0} records per query, ordinary {base:.0}");
+            assert!(
+                c <= 3.0 * base + 4.0 * k as f64,
+                "{what}, {space:?}, k {k}: {c:.0} records per query, ordinary {base:.0}"
+            );
+        }
+    }
+}

@@ -57,7 +57,8 @@ def run_compare(bin_, argv):
 
 def read_csv(path):
     with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+        # One line per method for the whole image (older reports have no region column).
+        return [r for r in csv.DictReader(f) if r.get("region", "all") == "all"]
 
 
 def fval(row, key):

@@ -82,9 +82,16 @@ pub struct Args {
     /// Photons per progressive pass (default: --photons).
     #[arg(long, value_name = "N", value_parser = super::trace::parse_count)]
     ppm_photons: Option<u64>,
-    /// Samples per pixel of every image.
-    #[arg(long, default_value_t = 4)]
+    /// Samples per pixel of every image, on a jittered grid when a square: each pixel is then
+    /// the estimate averaged over its cell, as the truth is (point samples against cell
+    /// averages would measure aliasing, not the method).
+    #[arg(long, default_value_t = 16)]
     spp: u32,
+    /// Independent runs of every method (seeds --seed, --seed + 1, …): times and errors are
+    /// their means, and the spread across them splits each error into bias² (blur) and
+    /// variance (noise), per region (core, edge, smooth, dark; see docs/truth.md).
+    #[arg(long, default_value_t = 4)]
+    seeds: u32,
     /// Columns of the floor grid (closed-form truth), or the image width (reference truth).
     #[arg(long, default_value_t = 128)]
     cells: usize,
@@ -104,8 +111,8 @@ pub struct Args {
 
 /// Refuses settings no method can run with: the options given, and each run of a sweep.
 fn check_options(o: &CompareOptions) -> anyhow::Result<()> {
-    if o.k == 0 || o.kc < 3 || o.kf == 0 || o.diffusion_k == 0 || o.spp == 0 {
-        bail!("-k, --kf, --diffusion-k and --spp need at least 1, --kc at least 3");
+    if o.k == 0 || o.kc < 3 || o.kf == 0 || o.diffusion_k == 0 || o.spp == 0 || o.seeds == 0 {
+        bail!("-k, --kf, --diffusion-k, --spp and --seeds need at least 1, --kc at least 3");
     }
     if o.k_density.is_some_and(|k| k < 2) {
         bail!("--k-density needs at least 2");
@@ -174,6 +181,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         ppm_passes: a.ppm_passes.clone(),
         ppm_photons_per_pass: a.ppm_photons,
         spp: a.spp,
+        seeds: a.seeds,
         methods,
     };
     check_options(&base)?;

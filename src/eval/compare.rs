@@ -18,7 +18,7 @@ use std::time::Instant;
 
 use glam::Vec3;
 
-use super::metrics::{self, Errors};
+use super::metrics::{self, Errors, Region, RegionErrors};
 use super::truth::{self, FloorGrid, Quality};
 use crate::detect::{self, DetectParams, Method};
 use crate::format::{Output, PhotonMap};
@@ -129,8 +129,12 @@ pub struct CompareOptions {
     pub ppm_passes: Vec<u64>,
     /// Photons per progressive pass (default: `photons`).
     pub ppm_photons_per_pass: Option<u64>,
-    /// Samples per pixel of every image.
+    /// Samples per pixel of every image: a jittered grid when a square, so that each pixel
+    /// is the estimate averaged over its cell, as the truth is.
     pub spp: u32,
+    /// Independent runs of every method (seeds `seed`, `seed + 1`, …), for the bias and
+    /// variance of each ([`metrics::region_errors`]); times and errors are their means.
+    pub seeds: u32,
     pub methods: Vec<MethodKind>,
 }
 
@@ -150,7 +154,8 @@ impl Default for CompareOptions {
             diffusion_q: 0.02,
             ppm_passes: vec![1, 4, 16],
             ppm_photons_per_pass: None,
-            spp: 4,
+            spp: 16,
+            seeds: 4,
             methods: MethodKind::ALL.to_vec(),
         }
     }
@@ -165,6 +170,8 @@ pub struct Target {
     pub truth: Vec<[f64; 3]>,
     /// The band around the truth's caustic edges ([`metrics::edge_band`]).
     pub edges: Vec<bool>,
+    /// The region class of every pixel ([`metrics::regions`]).
+    pub regions: Vec<Region>,
     /// Where filaments overlap, if the truth knows.
     pub overlap: Option<Vec<bool>>,
     /// Keep only photons with these bounce counts (the path families the truth accounts for).
@@ -204,10 +211,12 @@ impl Target {
         let grid = truth::default_grid(scene, cells)?;
         let t = truth::floor_truth(scene, &grid, quality)?;
         let camera = floor_camera(&t.grid)?;
-        let edges = metrics::edge_band(&t.irradiance, t.grid.cells[0], t.grid.cells[1], EDGE_BAND);
+        let (w, h) = (t.grid.cells[0], t.grid.cells[1]);
+        let edges = metrics::edge_band(&t.irradiance, w, h, EDGE_BAND);
         Ok(Target {
             camera,
             mode: Mode::Irradiance,
+            regions: metrics::regions(&t.irradiance, w, h, &edges),
             edges,
             overlap: Some(t.overlap),
             bounces: Some(t.bounces),
@@ -251,6 +260,7 @@ impl Target {
         Ok(Target {
             camera,
             mode,
+            regions: metrics::regions(&truth, w as usize, h as usize, &edges),
             truth,
             edges,
             overlap: None,
@@ -305,9 +315,15 @@ pub struct Row {
     pub photons: u64,
     /// K of the radiance estimate (0 for the progressive radius estimate).
     pub radiance_k: usize,
+    /// Mean times over the seeds.
     pub times: StageTimes,
+    /// The whole-image measures, mean over the seeds.
     pub errors: Errors,
-    /// The image, in the target's view.
+    /// Seeds run, and the measures over them for the whole image and each region class
+    /// ([`metrics::region_errors`]; empty until every seed has run).
+    pub seeds: u32,
+    pub regions: Vec<RegionErrors>,
+    /// The image of the first seed, in the target's view.
     pub image: Image,
 }
 
@@ -320,9 +336,90 @@ pub enum Progress<'a> {
     Finished(&'a str),
 }
 
-/// Runs every requested method on one traced map and measures it against `target`.
-/// Intermediate photon maps go to `work_dir`; `log` hears each stage begin and end.
+/// Runs every requested method `o.seeds` times (seeds `o.seed`, `o.seed + 1`, …) and
+/// measures each against `target`: one row per method and setting, with mean times and
+/// errors and the bias and variance over the seeds per region class. Intermediate photon
+/// maps go to `work_dir` (the last seed's stay); `log` hears each stage begin and end.
 pub fn run(
+    scene: &Scene,
+    scene_label: &str,
+    scene_text: &str,
+    target: &Target,
+    o: &CompareOptions,
+    work_dir: &Path,
+    log: &dyn Fn(Progress),
+) -> Result<Vec<Row>, CompareError> {
+    if o.seeds == 0 {
+        return Err(CompareError::Invalid("the comparison needs at least one seed".into()));
+    }
+    let mut rows: Vec<Row> = Vec::new();
+    let mut images: Vec<Vec<Vec<[f64; 3]>>> = Vec::new();
+    for s in 0..o.seeds {
+        if o.seeds > 1 {
+            log(Progress::Finished(&format!("seed {} ({} of {})", o.seed + s as u64, s + 1, o.seeds)));
+        }
+        let os = CompareOptions { seed: o.seed + s as u64, ..o.clone() };
+        let these = run_seed(scene, scene_label, scene_text, target, &os, work_dir, log)?;
+        if s == 0 {
+            images = these.iter().map(|r| vec![pixels(&r.image)]).collect();
+            rows = these;
+            continue;
+        }
+        if these.len() != rows.len() {
+            return Err(CompareError::Invalid("a seed ran another set of methods".into()));
+        }
+        for ((row, r), im) in rows.iter_mut().zip(these).zip(images.iter_mut()) {
+            im.push(pixels(&r.image));
+            row.add(&r);
+        }
+    }
+    for (row, im) in rows.iter_mut().zip(&images) {
+        row.mean_over(o.seeds);
+        row.regions = metrics::region_errors(im, &target.truth, &target.regions);
+    }
+    Ok(rows)
+}
+
+impl Row {
+    /// Adds another seed's times, errors and photon counts (see [`Self::mean_over`]).
+    fn add(&mut self, r: &Row) {
+        let sum = |a: &mut Option<f64>, b: Option<f64>| *a = a.zip(b).map(|(x, y)| x + y);
+        sum(&mut self.times.trace, r.times.trace);
+        sum(&mut self.times.detect, r.times.detect);
+        sum(&mut self.times.relax, r.times.relax);
+        sum(&mut self.times.render, r.times.render);
+        self.times.total += r.times.total;
+        let (e, f) = (&mut self.errors, &r.errors);
+        e.rmse += f.rmse;
+        e.nrmse += f.nrmse;
+        e.rel_mse += f.rel_mse;
+        e.ssim += f.ssim;
+        e.edge_nrmse += f.edge_nrmse;
+        e.overlap_nrmse += f.overlap_nrmse;
+        self.photons += r.photons;
+        self.seeds += 1;
+    }
+
+    /// Divides the sums of [`Self::add`] by the `seeds` added.
+    fn mean_over(&mut self, seeds: u32) {
+        let n = seeds as f64;
+        let t = &mut self.times;
+        for x in [&mut t.trace, &mut t.detect, &mut t.relax, &mut t.render] {
+            *x = x.map(|v| v / n);
+        }
+        t.total /= n;
+        let e = &mut self.errors;
+        for x in
+            [&mut e.rmse, &mut e.nrmse, &mut e.rel_mse, &mut e.ssim, &mut e.edge_nrmse, &mut e.overlap_nrmse]
+        {
+            *x /= n;
+        }
+        self.photons = (self.photons as f64 / n).round() as u64;
+    }
+}
+
+/// [`run`] for one seed.
+fn run_seed(
     scene: &Scene,
     scene_label: &str,
     scene_text: &str,
@@ -445,6 +542,8 @@ pub fn run(
             radiance_k,
             times,
             errors,
+            seeds: 1,
+            regions: Vec::new(),
             image,
         });
     };
@@ -561,6 +660,8 @@ pub fn run(
                 radiance_k: 0,
                 times: StageTimes { total: secs, ..Default::default() },
                 errors,
+                seeds: 1,
+                regions: Vec::new(),
                 image: img,
             });
         }

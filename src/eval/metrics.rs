@@ -332,7 +332,8 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
     };
     let s = images.len() as f64;
     let one = |region: Option<Region>| {
-        let cells: Vec<usize> = (0..truth.len()).filter(|&i| region.is_none_or(|r| classes[i] == r)).collect();
+        let cells: Vec<usize> =
+            (0..truth.len()).filter(|&i| region.is_none_or(|r| classes[i] == r)).collect();
         let nan = RegionErrors {
             region,
             cells: cells.len(),
@@ -530,7 +531,8 @@ mod tests {
             let (whole, smooth) = (e[0], e[3]);
             assert_eq!((whole.region, smooth.region, smooth.cells), (None, Some(Region::Smooth), w * h));
             assert!((whole.nrmse.powi(2) - (whole.bias2 + whole.variance)).abs() < 1e-12, "{whole:?}");
-            let runs: f64 = images.iter().map(|im| rmse(im, &truth, None).powi(2)).sum::<f64>() / seeds as f64;
+            let runs: f64 =
+                images.iter().map(|im| rmse(im, &truth, None).powi(2)).sum::<f64>() / seeds as f64;
             assert!((whole.nrmse - runs.sqrt() / norm).abs() < 1e-12);
             assert!(e[1].cells == 0 && e[1].nrmse.is_nan(), "no core cells");
             if seeds == 200 {
@@ -557,8 +559,9 @@ mod tests {
         use rand::{RngExt, SeedableRng};
         let k = 15;
         let (n, total) = (20_000usize, 12.0f32); // 12 W over 2 m × 2 m: E = 1 W/m² per channel
-        let points: Vec<glam::Vec3> =
-            (0..36).map(|j| glam::Vec3::new(-0.75 + 0.3 * (j % 6) as f32, -0.75 + 0.3 * (j / 6) as f32, 0.0)).collect();
+        let points: Vec<glam::Vec3> = (0..36)
+            .map(|j| glam::Vec3::new(-0.75 + 0.3 * (j % 6) as f32, -0.75 + 0.3 * (j / 6) as f32, 0.0))
+            .collect();
         let images: Vec<Vec<[f64; 3]>> = (0..30u64)
             .map(|seed| {
                 let mut rng = rand_pcg::Pcg64Mcg::seed_from_u64(1000 + seed);
@@ -567,7 +570,8 @@ mod tests {
                     .collect();
                 let flux = vec![[total / n as f32 / 3.0; 3]; n];
                 let lookup =
-                    PhotonLookup::new("poisson", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
+                    PhotonLookup::new("poisson", PhotonData { positions: &pos, flux: &flux, normals: None })
+                        .unwrap();
                 let mut scratch = Default::default();
                 let est = Estimator::Knn { k, kernel: crate::render::Kernel::Epanechnikov, max_radius: None };
                 points

@@ -8,7 +8,7 @@ use std::path::Path;
 use plotters::prelude::*;
 
 use super::compare::{CompareError, MethodKind, Row, Target};
-use super::metrics::{luminance, percentile_luminance};
+use super::metrics::{Region, luminance, percentile_luminance};
 use crate::render::image::srgb8;
 
 /// One run of the comparison: the rows of every method, and what was varied to get it (empty
@@ -80,41 +80,77 @@ pub fn table_markdown(rows: &[Row]) -> String {
     line(&mut s, "SSIM", &|r| num(r.errors.ssim));
     line(&mut s, "edge-band NRMSE", &|r| num(r.errors.edge_nrmse));
     line(&mut s, "overlap NRMSE", &|r| num(r.errors.overlap_nrmse));
+    // Per region, over the seeds: NRMSE as bias² + variance, and the typical relative error.
+    for region in Region::ALL {
+        let of = |r: &Row| r.regions.iter().find(|e| e.region == Some(region)).copied();
+        line(&mut s, &format!("{} NRMSE (bias², variance)", region.name()), &|r| match of(r) {
+            Some(e) if e.cells > 0 => {
+                format!("{} ({}, {})", num(e.nrmse), sci(e.bias2), sci(e.variance))
+            }
+            _ => "-".into(),
+        });
+        line(&mut s, &format!("{} median / p90 rel. error", region.name()), &|r| match of(r) {
+            Some(e) if e.cells > 0 => format!("{} / {}", num(e.median_rel), num(e.p90_rel)),
+            _ => "-".into(),
+        });
+    }
+    line(&mut s, "seeds", &|r| r.seeds.to_string());
     line(&mut s, "setting", &|r| r.setting.clone());
     s
 }
 
-/// Every row of every run as CSV, one line per method and run.
+fn sci(x: f64) -> String {
+    if x.is_nan() { "-".into() } else { format!("{x:.2e}") }
+}
+
+/// Every row of every run as CSV: per method, setting and run, one line for the whole image
+/// (`region` = `all`) and one per region class. Times are means over the seeds; `nrmse`,
+/// `median_rel`, `p90_rel`, `bias2` and `variance` are the region's ([`super::metrics::RegionErrors`]); the
+/// whole-image-only measures (`rmse`, `rel_mse`, `ssim`, `edge_nrmse`, `overlap_nrmse`, means
+/// over the seeds) are empty on region lines.
 pub fn csv(runs: &[Run]) -> String {
     let mut s = String::from(
-        "run,method,setting,emitted,photons,radiance_k,trace_s,detect_s,relax_s,render_s,total_s,rmse,nrmse,rel_mse,ssim,edge_nrmse,overlap_nrmse\n",
+        "run,method,setting,emitted,photons,radiance_k,seeds,trace_s,detect_s,relax_s,render_s,total_s,seconds,\
+         region,cells,nrmse,median_rel,p90_rel,bias2,variance,rmse,rel_mse,ssim,edge_nrmse,overlap_nrmse\n",
     );
     let opt = |t: Option<f64>| t.map_or(String::new(), |x| format!("{x:.6}"));
     let quote = |x: &str| format!("\"{}\"", x.replace('"', "\"\""));
     for run in runs {
         for r in &run.rows {
             let e = &r.errors;
-            let _ = writeln!(
-                s,
-                "{},{},{},{},{},{},{},{},{},{},{:.6},{:.6e},{:.6e},{:.6e},{:.6},{:.6e},{:.6e}",
-                quote(&run.label),
-                r.method.slug(),
-                quote(&r.setting),
-                r.emitted,
-                r.photons,
-                r.radiance_k,
-                opt(r.times.trace),
-                opt(r.times.detect),
-                opt(r.times.relax),
-                opt(r.times.render),
-                r.times.total,
-                e.rmse,
-                e.nrmse,
-                e.rel_mse,
-                e.ssim,
-                e.edge_nrmse,
-                e.overlap_nrmse
-            );
+            for g in &r.regions {
+                let whole = g.region.is_none();
+                let only = |x: f64| if whole { format!("{x:.6e}") } else { String::new() };
+                let _ = writeln!(
+                    s,
+                    "{},{},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{},{},{},{},{}",
+                    quote(&run.label),
+                    r.method.slug(),
+                    quote(&r.setting),
+                    r.emitted,
+                    r.photons,
+                    r.radiance_k,
+                    r.seeds,
+                    opt(r.times.trace),
+                    opt(r.times.detect),
+                    opt(r.times.relax),
+                    opt(r.times.render),
+                    r.times.total,
+                    r.times.total,
+                    g.region.map_or("all", Region::name),
+                    g.cells,
+                    g.nrmse,
+                    g.median_rel,
+                    g.p90_rel,
+                    g.bias2,
+                    g.variance,
+                    only(e.rmse),
+                    only(e.rel_mse),
+                    only(e.ssim),
+                    only(e.edge_nrmse),
+                    only(e.overlap_nrmse),
+                );
+            }
         }
     }
     s
@@ -382,6 +418,21 @@ pub fn write(
         target.width(),
         target.height(),
         super::compare::EDGE_BAND
+    );
+    let cells = |r: Region| target.regions.iter().filter(|&&c| c == r).count();
+    let _ = writeln!(
+        md,
+        "Each method ran with {} seed(s); times and errors are means over them. Regions (docs/truth.md): core \
+         {} pixels (the truth at least its lit pixels' 99.5th percentile and 4× their median, and their 8 \
+         neighbours), edge {}, smooth {}, dark {} (truth 0). Per region: NRMSE (over the whole truth's mean) \
+         with its split into bias² and variance across the seeds (NRMSE² = bias² + variance; bias² is unbiased, \
+         so it may be slightly negative where noise dominates), and the median and 90th percentile of each \
+         pixel's relative luminance error (in dark pixels, over the truth's mean luminance).\n",
+        runs.first().and_then(|r| r.rows.first()).map_or(0, |r| r.seeds),
+        cells(Region::Core),
+        cells(Region::Edge),
+        cells(Region::Smooth),
+        cells(Region::Dark),
     );
     for run in runs {
         if !run.label.is_empty() {

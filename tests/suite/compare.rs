@@ -38,6 +38,8 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
         "32",
         "--spp",
         "1",
+        "--seeds",
+        "2",
         "--diffusion-k",
         "60",
         "--ppm-passes",
@@ -67,7 +69,9 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
         assert!(md.contains(row), "report.md lacks '{row}'");
     }
     let csv = std::fs::read_to_string(out.join("report.csv")).unwrap();
-    let r = rows(&csv);
+    let all = rows(&csv);
+    // One line per method for the whole image, then one per region class.
+    let r: Vec<_> = all.iter().filter(|x| x["region"] == "all").cloned().collect();
     let methods: Vec<&str> = r.iter().map(|x| x["method"].as_str()).collect();
     assert_eq!(methods, ["pm", "relax2009", "diffusion", "ours", "ppm", "ppm"]);
     let num = |row: &std::collections::HashMap<String, String>, k: &str| row[k].parse::<f64>().unwrap();
@@ -77,6 +81,29 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
             assert!(v.is_finite() && v >= 0.0, "{} {k} = {v}", row["method"]);
         }
         assert!(num(row, "ssim") <= 1.0 + 1e-9);
+    }
+    // Per region, over the two seeds: NRMSE² = bias² + variance, and the relaxed map trades
+    // noise for blur: less variance than the raw photons in the smooth region.
+    let regions: Vec<&str> =
+        all.iter().filter(|x| x["method"] == "pm").map(|x| x["region"].as_str()).collect();
+    assert_eq!(regions, ["all", "core", "edge", "smooth", "dark"]);
+    let region = |m: &str, g: &str| all.iter().find(|x| x["method"] == m && x["region"] == g).unwrap();
+    for m in ["pm", "ours"] {
+        for g in ["all", "smooth"] {
+            let x = region(m, g);
+            let (e, b, v) = (num(x, "nrmse"), num(x, "bias2"), num(x, "variance"));
+            assert!((e * e - (b + v)).abs() <= 1e-6 * e * e, "{m} {g}: {e}² against {b} + {v}");
+            assert!(v > 0.0 && num(x, "p90_rel") >= num(x, "median_rel"), "{m} {g}");
+        }
+    }
+    assert!(
+        num(region("ours", "smooth"), "variance") < num(region("pm", "smooth"), "variance"),
+        "ours {} against standard PM {}",
+        num(region("ours", "smooth"), "variance"),
+        num(region("pm", "smooth"), "variance")
+    );
+    for row in ["smooth NRMSE (bias², variance)", "dark median / p90 rel. error", "seeds"] {
+        assert!(md.contains(row), "report.md lacks '{row}'");
     }
     // Relaxation removes the noise of the same photons: its relative error is well below the
     // raw estimate's (0.51× in this run; the threshold leaves room for rounding elsewhere).

@@ -82,6 +82,11 @@ pub struct Args {
     /// Photons per progressive pass (default: --photons).
     #[arg(long, value_name = "N", value_parser = super::trace::parse_count)]
     ppm_photons: Option<u64>,
+    /// k of progressive photon mapping's initial radius at each point: the distance to the
+    /// k-th nearest photon of its first pass (Hachisuka & Jensen advise k in the tens); 0 for
+    /// one radius over the whole image.
+    #[arg(long, default_value_t = 30)]
+    ppm_k: usize,
     /// Samples per pixel of every image, on a jittered grid when a square: each pixel is then
     /// the estimate averaged over its cell, as the truth is (point samples against cell
     /// averages would measure aliasing, not the method).
@@ -180,6 +185,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         diffusion_q: a.diffusion_q,
         ppm_passes: a.ppm_passes.clone(),
         ppm_photons_per_pass: a.ppm_photons,
+        ppm_k: a.ppm_k,
         spp: a.spp,
         seeds: a.seeds,
         methods,

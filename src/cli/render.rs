@@ -650,6 +650,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         initial_radius: a.radius,
         seed: a.photon_seed,
         max_bounces: 64,
+        local_k: None,
     };
     let settings = serde_json::json!({
         "scene_crc32": photonkit::trace::scene_crc32(&text),

@@ -129,6 +129,11 @@ pub struct CompareOptions {
     pub ppm_passes: Vec<u64>,
     /// Photons per progressive pass (default: `photons`).
     pub ppm_photons_per_pass: Option<u64>,
+    /// k of progressive photon mapping's initial radius at each point: the distance to the
+    /// k-th nearest photon of its first pass (Hachisuka & Jensen: k in the tens); 0 for one
+    /// radius over the image (the median 15-NN distance of the first pass's photons, which
+    /// leaves sparse regions empty for many passes).
+    pub ppm_k: usize,
     /// Samples per pixel of every image: a jittered grid when a square, so that each pixel
     /// is the estimate averaged over its cell, as the truth is.
     pub spp: u32,
@@ -154,6 +159,7 @@ impl Default for CompareOptions {
             diffusion_q: 0.02,
             ppm_passes: vec![1, 4, 16],
             ppm_photons_per_pass: None,
+            ppm_k: 30,
             spp: 16,
             seeds: 4,
             methods: MethodKind::ALL.to_vec(),
@@ -627,8 +633,12 @@ fn run_seed(
             kernel: Kernel::Epanechnikov,
             bounces: target.bounces.as_deref(),
         };
-        let options =
-            ReferenceOptions { photons_per_pass: per_pass, seed: o.seed, ..ReferenceOptions::default() };
+        let options = ReferenceOptions {
+            photons_per_pass: per_pass,
+            seed: o.seed,
+            local_k: (o.ppm_k > 0).then_some(o.ppm_k),
+            ..ReferenceOptions::default()
+        };
         let mut state = ReferenceState::start(options, serde_json::Value::Null);
         let mut image = Image::new(w as u32, h as u32);
         let start = Instant::now();
@@ -654,7 +664,11 @@ fn run_seed(
             )));
             rows.push(Row {
                 method: MethodKind::Progressive,
-                setting: format!("{n} passes of {per_pass}"),
+                setting: if o.ppm_k > 0 {
+                    format!("{n} passes of {per_pass}, r₁ = {}-NN distance, α = 2/3", o.ppm_k)
+                } else {
+                    format!("{n} passes of {per_pass}, one r₁, α = 2/3")
+                },
                 emitted: n * per_pass,
                 photons: 0,
                 radiance_k: 0,

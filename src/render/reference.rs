@@ -36,6 +36,13 @@ pub struct ReferenceOptions {
     /// The tracer's base seed (pass i uses seed + i − 1).
     pub seed: u64,
     pub max_bounces: u32,
+    /// With `Some(k)`, the radius varies over the image with the photon density: at a point
+    /// x, pass i gathers within r_i(x) = r_k(x) · r_i / r₁, r_k(x) the distance from x to the
+    /// k-th nearest photon of the first pass ([`Estimator::LocalRadius`]; Hachisuka & Jensen
+    /// advise k in the tens), so sparse regions are not left empty by a radius chosen where
+    /// the photons crowd. `None`: one radius for the whole image.
+    #[serde(default)]
+    pub local_k: Option<usize>,
 }
 
 impl Default for ReferenceOptions {
@@ -46,6 +53,7 @@ impl Default for ReferenceOptions {
             initial_radius: None,
             seed: 1,
             max_bounces: 64,
+            local_k: None,
         }
     }
 }
@@ -150,8 +158,7 @@ impl Progressive<'_> {
                 image.width, image.height, self.render.width, self.render.height
             )));
         }
-        while state.passes < until {
-            let i = state.passes + 1;
+        let pass_photons = |i: u64| -> Result<_, RenderError> {
             let topts = TraceOptions {
                 seed: o.seed.wrapping_add(i - 1),
                 budget: Budget::Emitted(o.photons_per_pass),
@@ -163,7 +170,19 @@ impl Progressive<'_> {
             if let Some(keep) = self.bounces {
                 traced.retain_bounces(keep);
             }
-            let photons = traced.photons();
+            Ok(traced.photons())
+        };
+        // The local radius's map: the first pass's photons (traced again on a resumed run).
+        let mut radius_map: Option<crate::spatial::BoxTree> = match o.local_k {
+            Some(_) if state.passes > 0 => Some(crate::spatial::BoxTree::build(&pass_photons(1)?.position)),
+            _ => None,
+        };
+        while state.passes < until {
+            let i = state.passes + 1;
+            let photons = pass_photons(i)?;
+            if o.local_k.is_some() && radius_map.is_none() {
+                radius_map = Some(crate::spatial::BoxTree::build(&photons.position));
+            }
             if state.initial_radius <= 0.0 {
                 let r1 = match o.initial_radius {
                     Some(r) => r,
@@ -184,9 +203,18 @@ impl Progressive<'_> {
                 flux: &photons.flux,
                 normals: Some(&photons.normal),
             };
-            let lookup = PhotonLookup::for_radius("<pass>", data, r)?;
+            let (lookup, estimator) = match (o.local_k, &radius_map) {
+                (Some(k), Some(map)) => (
+                    PhotonLookup::with_radius_map("<pass>", data, map)?,
+                    Estimator::LocalRadius { k, scale: r / state.initial_radius, kernel: self.kernel },
+                ),
+                _ => (
+                    PhotonLookup::for_radius("<pass>", data, r)?,
+                    Estimator::Radius { radius: r, kernel: self.kernel },
+                ),
+            };
             let opts = RenderOptions {
-                estimator: Estimator::Radius { radius: r, kernel: self.kernel },
+                estimator,
                 seed: self.render.seed.wrapping_add((i - 1).wrapping_mul(0x9E37_79B9)),
                 ..self.render.clone()
             };

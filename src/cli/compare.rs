@@ -49,9 +49,13 @@ pub struct Args {
     /// Methods to run, comma-separated: pm, relax2009, diffusion, ours, ppm.
     #[arg(long, value_delimiter = ',', default_value = "pm,relax2009,diffusion,ours,ppm")]
     methods: Vec<String>,
-    /// K of the k-NN radiance estimate.
+    /// K of the k-NN radiance estimate of the relaxed maps (2009 relaxation, ours).
     #[arg(short, default_value_t = 15)]
     k: usize,
+    /// The K values standard photon mapping runs at (comma-separated): each is a row, so the
+    /// baseline is seen at its best (more neighbours trade its noise for blur).
+    #[arg(long, value_delimiter = ',', default_value = "15,50,200")]
+    pm_k: Vec<usize>,
     /// Kc: neighbours in feature detection.
     #[arg(long, default_value_t = 50)]
     kc: usize,
@@ -116,6 +120,9 @@ pub struct Args {
 
 /// Refuses settings no method can run with: the options given, and each run of a sweep.
 fn check_options(o: &CompareOptions) -> anyhow::Result<()> {
+    if o.pm_ks.is_empty() || o.pm_ks.contains(&0) {
+        bail!("--pm-k needs one or more K values of at least 1");
+    }
     if o.k == 0 || o.kc < 3 || o.kf == 0 || o.diffusion_k == 0 || o.spp == 0 || o.seeds == 0 {
         bail!("-k, --kf, --diffusion-k, --spp and --seeds need at least 1, --kc at least 3");
     }
@@ -175,6 +182,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         photons: a.photons,
         seed: a.seed,
         k: a.k,
+        pm_ks: a.pm_k.clone(),
         kc: a.kc,
         beta: a.beta,
         k_density: a.k_density,

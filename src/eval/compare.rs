@@ -109,8 +109,11 @@ pub struct CompareOptions {
     /// Photons emitted for the shared map.
     pub photons: u64,
     pub seed: u64,
-    /// K of the radiance estimate (standard PM, 2009 relaxation, ours).
+    /// K of the radiance estimate (2009 relaxation, ours).
     pub k: usize,
+    /// The K values standard photon mapping runs at, each a row (the baseline at its best,
+    /// not only at the relaxed maps' K: more neighbours trade its noise for blur).
+    pub pm_ks: Vec<usize>,
     /// Kc and β of feature detection.
     pub kc: usize,
     pub beta: f32,
@@ -149,6 +152,7 @@ impl Default for CompareOptions {
             photons: 1_000_000,
             seed: 1,
             k: 15,
+            pm_ks: vec![15, 50, 200],
             kc: 50,
             beta: 3.0,
             k_density: None,
@@ -557,9 +561,12 @@ fn run_seed(
     if wants(MethodKind::StandardPm) {
         log(Progress::Started(MethodKind::StandardPm.label()));
         let map = PhotonMap::open_path(&file("traced.phm"))?;
-        let (img, secs) = render(&map, knn)?;
-        let times = StageTimes::of(trace_secs, None, None, secs);
-        push(MethodKind::StandardPm, format!("K = {}", o.k), &map, o.k, times, img);
+        for &k in &o.pm_ks {
+            let (img, secs) =
+                render(&map, Estimator::Knn { k, kernel: Kernel::Epanechnikov, max_radius: None })?;
+            let times = StageTimes::of(trace_secs, None, None, secs);
+            push(MethodKind::StandardPm, format!("K = {k}"), &map, k, times, img);
+        }
     }
     if wants(MethodKind::DiffusionPm) {
         log(Progress::Started(MethodKind::DiffusionPm.label()));

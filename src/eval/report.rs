@@ -53,7 +53,7 @@ pub fn table_markdown(rows: &[Row]) -> String {
     let head: Vec<String> = rows
         .iter()
         .map(|r| {
-            if r.method == MethodKind::Progressive {
+            if rows.iter().filter(|x| x.method == r.method).count() > 1 {
                 format!("{} ({})", r.method.label(), r.setting)
             } else {
                 r.method.label().to_string()

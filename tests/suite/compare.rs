@@ -40,6 +40,8 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
         "1",
         "--seeds",
         "2",
+        "--pm-k",
+        "15,50",
         "--diffusion-k",
         "60",
         "--ppm-passes",
@@ -73,7 +75,10 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
     // One line per method for the whole image, then one per region class.
     let r: Vec<_> = all.iter().filter(|x| x["region"] == "all").cloned().collect();
     let methods: Vec<&str> = r.iter().map(|x| x["method"].as_str()).collect();
-    assert_eq!(methods, ["pm", "relax2009", "diffusion", "ours", "ppm", "ppm"]);
+    assert_eq!(methods, ["pm", "pm", "relax2009", "diffusion", "ours", "ppm", "ppm"]);
+    let pm_k: Vec<&str> =
+        r.iter().filter(|x| x["method"] == "pm").map(|x| x["radiance_k"].as_str()).collect();
+    assert_eq!(pm_k, ["15", "50"]);
     let num = |row: &std::collections::HashMap<String, String>, k: &str| row[k].parse::<f64>().unwrap();
     for row in &r {
         for k in ["total_s", "rmse", "nrmse", "rel_mse", "ssim", "edge_nrmse"] {
@@ -85,7 +90,7 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
     // Per region, over the two seeds: NRMSE² = bias² + variance, and the relaxed map trades
     // noise for blur: less variance than the raw photons in the smooth region.
     let regions: Vec<&str> =
-        all.iter().filter(|x| x["method"] == "pm").map(|x| x["region"].as_str()).collect();
+        all.iter().filter(|x| x["method"] == "ours").map(|x| x["region"].as_str()).collect();
     assert_eq!(regions, ["all", "core", "edge", "smooth", "dark"]);
     let region = |m: &str, g: &str| all.iter().find(|x| x["method"] == m && x["region"] == g).unwrap();
     for m in ["pm", "ours"] {

@@ -307,6 +307,9 @@ pub struct RegionErrors {
     pub region: Option<Region>,
     pub cells: usize,
     pub nrmse: f64,
+    /// The same RMSE over the region's own truth mean (NaN where that is 0, as in the dark
+    /// region): the relative error the time-to-error table targets.
+    pub rel_rmse: f64,
     /// The median and 90th percentile of the relative error of each cell's luminance,
     /// |L(x) − L(t)| / L(t), over the region's cells in every seed's image; in dark cells,
     /// where L(t) = 0, |L(x)| over the truth's mean luminance.
@@ -338,6 +341,7 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
             region,
             cells: cells.len(),
             nrmse: f64::NAN,
+            rel_rmse: f64::NAN,
             median_rel: f64::NAN,
             p90_rel: f64::NAN,
             bias2: f64::NAN,
@@ -346,10 +350,11 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
         if cells.is_empty() {
             return nan;
         }
-        let (mut mse, mut bias2, mut var) = (0.0, 0.0, 0.0);
+        let (mut mse, mut bias2, mut var, mut tsum) = (0.0, 0.0, 0.0, 0.0);
         let mut rel = Vec::with_capacity(cells.len() * images.len());
         for &i in &cells {
             let t = truth[i];
+            tsum += t[0] + t[1] + t[2];
             for c in 0..3 {
                 let m = images.iter().map(|im| im[i][c]).sum::<f64>() / s;
                 let ss = images.iter().map(|im| (im[i][c] - m).powi(2)).sum::<f64>();
@@ -374,6 +379,7 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
         let several = images.len() > 1;
         RegionErrors {
             nrmse: (mse / n).sqrt() / norm,
+            rel_rmse: if tsum > 0.0 { (mse / n).sqrt() / (tsum / n) } else { f64::NAN },
             median_rel: q(&mut rel, 0.5),
             p90_rel: q(&mut rel, 0.9),
             bias2: if several { bias2 / n / (norm * norm) } else { f64::NAN },

@@ -239,6 +239,81 @@ pub fn equal_time_markdown(runs: &[Run]) -> String {
     s
 }
 
+/// Relative errors the time-to-error table targets.
+pub const TARGET_ERRORS: [f64; 3] = [0.10, 0.05, 0.02];
+
+/// When a series of (time, error) points first reaches `target`: interpolated linearly in log
+/// time and log error between the last point above it and the first at or below it (in time
+/// order); `Err(t0)` when its first point is already there (reached no later than t0, when
+/// is not known); `None` when no point reaches it. Never extrapolated.
+pub fn time_to_error(points: &[(f64, f64)], target: f64) -> Option<Result<f64, f64>> {
+    let mut p: Vec<(f64, f64)> = points.iter().copied().filter(|(t, e)| *t > 0.0 && e.is_finite()).collect();
+    p.sort_by(|a, b| a.0.total_cmp(&b.0));
+    let i = p.iter().position(|&(_, e)| e <= target)?;
+    if i == 0 {
+        return Some(Err(p[0].0));
+    }
+    let ((t0, e0), (t1, e1)) = (p[i - 1], p[i]);
+    if e1 <= 0.0 {
+        return Some(Ok(t1));
+    }
+    let f = (target.ln() - e0.ln()) / (e1.ln() - e0.ln());
+    Some(Ok((t0.ln() + f * (t1.ln() - t0.ln())).exp()))
+}
+
+/// The time-to-error table: for each method's series (one per method and radiance K: the
+/// photon counts of a sweep, or progressive photon mapping's passes) and each region, when
+/// its relative RMSE (over the region's own truth mean) first reaches each of
+/// [`TARGET_ERRORS`].
+pub fn time_to_error_markdown(runs: &[Run]) -> String {
+    let mut series: Vec<(String, Vec<&Row>)> = Vec::new();
+    for r in runs.iter().flat_map(|r| &r.rows) {
+        let name = match r.method {
+            MethodKind::StandardPm => format!("{} (K = {})", r.method.label(), r.radiance_k),
+            MethodKind::Progressive => format!("{} (passes)", r.method.label()),
+            m => m.label().to_string(),
+        };
+        match series.iter_mut().find(|(n, _)| *n == name) {
+            Some((_, rows)) => rows.push(r),
+            None => series.push((name, vec![r])),
+        }
+    }
+    let mut s = String::new();
+    let heads: Vec<String> = TARGET_ERRORS.iter().map(|e| format!("{:.0} %", e * 100.0)).collect();
+    let _ = writeln!(s, "| method | points | region | {} |", heads.join(" | "));
+    let _ = writeln!(s, "|---|---|---|{}", "---|".repeat(TARGET_ERRORS.len()));
+    for (name, rows) in &series {
+        for region in [None, Some(Region::Smooth), Some(Region::Edge), Some(Region::Core)] {
+            let pts: Vec<(f64, f64)> = rows
+                .iter()
+                .filter_map(|r| {
+                    r.regions.iter().find(|g| g.region == region).map(|g| (r.times.total, g.rel_rmse))
+                })
+                .filter(|(_, e)| e.is_finite())
+                .collect();
+            if pts.is_empty() {
+                continue;
+            }
+            let cells: Vec<String> = TARGET_ERRORS
+                .iter()
+                .map(|&e| match time_to_error(&pts, e) {
+                    Some(Ok(t)) => secs(Some(t)),
+                    Some(Err(t)) => format!("≤ {}", secs(Some(t))),
+                    None => "not reached".into(),
+                })
+                .collect();
+            let _ = writeln!(
+                s,
+                "| {name} | {} | {} | {} |",
+                pts.len(),
+                region.map_or("all", Region::name),
+                cells.join(" | ")
+            );
+        }
+    }
+    s
+}
+
 /// The font the plots and the grid's labels are drawn with (embedded, so no system fonts
 /// are needed).
 fn register_font() -> Result<(), CompareError> {
@@ -449,6 +524,15 @@ pub fn write(
          ratio is its error over ours (above 1: ours is better).\n"
     );
     md.push_str(&equal_time_markdown(runs));
+    let _ = writeln!(md, "\n## Time to error\n");
+    let _ = writeln!(
+        md,
+        "When each method first reaches a relative RMSE (over the region's own truth mean) of 10 %, 5 % and 2 %: \
+         interpolated (log–log) between its measured points in time order, never extrapolated; \"≤ t\" where its \
+         fastest point is already there, \"not reached\" where none is. A method's points are its runs of a sweep \
+         (one per photon count) or, for progressive photon mapping, its pass counts.\n"
+    );
+    md.push_str(&time_to_error_markdown(runs));
     let _ = writeln!(md, "\n![error against time](error-vs-time.png)\n\n![images and error maps](grid.png)");
     write_atomic(&dir.join("report.md"), md.as_bytes())?;
     write_atomic(&dir.join("report.csv"), csv(runs).as_bytes())?;
@@ -471,6 +555,22 @@ mod tests {
         assert_eq!(tick(100.0), "100");
         assert_eq!(tick(0.1234567), "0.123");
         assert_eq!(tick(12.345), "12.3");
+    }
+
+    #[test]
+    fn time_to_error_interpolates_in_log_log_and_never_extrapolates() {
+        // Error halves with each 4× time: 0.2 at 1 s, 0.1 at 4 s, 0.05 at 16 s.
+        let p = [(4.0, 0.1), (1.0, 0.2), (16.0, 0.05)];
+        assert_eq!(time_to_error(&p, 0.1), Some(Ok(4.0)));
+        let t = time_to_error(&p, 0.0707).unwrap().unwrap();
+        assert!((t - 8.0).abs() < 0.01, "{t}");
+        assert_eq!(time_to_error(&p, 0.3), Some(Err(1.0)));
+        assert_eq!(time_to_error(&p, 0.02), None);
+        // Not monotone: the first crossing in time order counts.
+        let q = [(1.0, 0.2), (2.0, 0.08), (3.0, 0.15), (4.0, 0.05)];
+        let t = time_to_error(&q, 0.1).unwrap().unwrap();
+        assert!(t > 1.0 && t < 2.0, "{t}");
+        assert_eq!(time_to_error(&[], 0.1), None);
     }
 
     #[test]

@@ -67,6 +67,7 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
         "NRMSE",
         "SSIM",
         "At equal time",
+        "Time to error",
     ] {
         assert!(md.contains(row), "report.md lacks '{row}'");
     }

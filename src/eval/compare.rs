@@ -188,6 +188,8 @@ pub struct Target {
     pub bounces: Option<Vec<u8>>,
     /// What the truth is, for the report.
     pub description: String,
+    /// The floor grid whose cells are the pixels (closed-form truths).
+    pub grid: Option<FloorGrid>,
 }
 
 /// Width of the edge band on each side of an edge, pixels.
@@ -232,6 +234,7 @@ impl Target {
             bounces: Some(t.bounces),
             description: format!("closed-form floor irradiance: {}", t.method),
             truth: t.irradiance,
+            grid: Some(t.grid),
         })
     }
 
@@ -278,6 +281,7 @@ impl Target {
             description: format!(
                 "progressive photon mapping reference: {passes} passes of {photons_per_pass} photons"
             ),
+            grid: None,
         })
     }
 

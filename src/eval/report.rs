@@ -9,6 +9,7 @@ use plotters::prelude::*;
 
 use super::compare::{CompareError, MethodKind, Row, Target};
 use super::metrics::{Region, luminance, percentile_luminance};
+use crate::render::Image;
 use crate::render::image::srgb8;
 
 /// One run of the comparison: the rows of every method, and what was varied to get it (empty
@@ -539,6 +540,68 @@ pub fn write(
     write_atomic(&dir.join("error-vs-time.png"), &plot_png(runs, title)?)?;
     if let Some(last) = runs.last() {
         write_atomic(&dir.join("grid.png"), &grid_png(target, &last.rows)?)?;
+    }
+    write_exrs(dir, target, runs)
+}
+
+/// A name for files from free text: lower-case letters and digits, runs of anything else one
+/// hyphen.
+fn file_slug(text: &str) -> String {
+    let mut s = String::new();
+    for c in text.chars() {
+        if c.is_ascii_alphanumeric() {
+            s.push(c.to_ascii_lowercase());
+        } else if !s.ends_with('-') && !s.is_empty() {
+            s.push('-');
+        }
+    }
+    s.trim_end_matches('-').to_string()
+}
+
+/// The truth and every method's image (its first seed's) as EXR in `dir/images/`, with the
+/// view in the header, so anyone can recompute the report's numbers without this code.
+fn write_exrs(dir: &Path, target: &Target, runs: &[Run]) -> Result<(), CompareError> {
+    use crate::render::image::{Notes, Outputs, write};
+    let images = dir.join("images");
+    std::fs::create_dir_all(&images)
+        .map_err(|e| CompareError::Io { path: images.display().to_string(), source: e })?;
+    let (w, h) = (target.width() as u32, target.height() as u32);
+    let mut view: Notes = vec![("photonkit:truth".into(), target.description.clone())];
+    if let Some(g) = &target.grid {
+        view.push((
+            "photonkit:grid".into(),
+            format!(
+                "floor z = {} m, x {} .. {} m in {} columns (column 0 at the smallest x), y {} .. {} m in {} rows (row 0 at \
+                 the largest y); each pixel is one cell",
+                g.z, g.min[0], g.max[0], g.cells[0], g.min[1], g.max[1], g.cells[1]
+            ),
+        ));
+    }
+    let unit = match target.mode {
+        crate::render::Mode::Irradiance => "irradiance, W/m² per RGB channel, each pixel its cell's mean",
+        _ => "radiance, W/(m²·sr) per RGB channel, each pixel its area's mean",
+    };
+    view.push(("photonkit:unit".into(), unit.into()));
+    let mut truth = Image::new(w, h);
+    for (p, t) in truth.pixels.iter_mut().zip(&target.truth) {
+        *p = glam::DVec3::from_array(*t).as_vec3();
+    }
+    let out =
+        |name: &str| Outputs { exr: Some(images.join(format!("{name}.exr"))), png: None, exposure: 0.0 };
+    write(&truth, &out("truth"), &view)?;
+    for run in runs {
+        for r in &run.rows {
+            let mut notes = view.clone();
+            notes.push(("photonkit:method".into(), format!("{} ({})", r.method.label(), r.setting)));
+            notes.push(("photonkit:seed".into(), "the first of the comparison's seeds".into()));
+            let name = [run.label.as_str(), r.method.slug(), &r.setting]
+                .iter()
+                .map(|x| file_slug(x))
+                .filter(|x| !x.is_empty())
+                .collect::<Vec<_>>()
+                .join("-");
+            write(&r.image, &out(&name), &notes)?;
+        }
     }
     Ok(())
 }

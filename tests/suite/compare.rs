@@ -57,6 +57,16 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
         let p = out.join(f);
         assert!(p.is_file() && std::fs::metadata(&p).unwrap().len() > 100, "{f} missing");
     }
+    // The truth and every image as EXR, the view in the header (read by the file layout alone).
+    for f in ["truth", "pm-k-15", "ours-param-pca-7-7-iterations-k-15"] {
+        let p = out.join("images").join(format!("{f}.exr"));
+        let header = exr_header(&p);
+        let text = |name: &str| {
+            header.iter().find(|(n, _, _)| n == name).map(|(_, _, v)| String::from_utf8_lossy(v).to_string())
+        };
+        assert!(text("photonkit:grid").is_some_and(|g| g.contains("32 columns")), "{f}: {header:?}");
+        assert!(text("photonkit:unit").is_some_and(|u| u.contains("W/m²")), "{f}");
+    }
     let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     for row in [
         "Photon cast t",

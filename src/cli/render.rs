@@ -592,6 +592,12 @@ pub struct ReferenceArgs {
     /// to its 15th nearest neighbour).
     #[arg(value_parser = super::finite_f32, long, value_name = "M")]
     radius: Option<f32>,
+    /// Let the radius follow the photon density: at each point, r₁ is the distance to the
+    /// K-th nearest photon of the first pass (Hachisuka & Jensen advise K in the tens;
+    /// `compare` uses 30), so sparse regions are not left dark by one radius chosen where the
+    /// photons crowd.
+    #[arg(long, value_name = "K", conflicts_with = "radius", value_parser = clap::value_parser!(u64).range(1..=10_000))]
+    local_k: Option<u64>,
     /// α of the radius reduction, in (0, 1).
     #[arg(value_parser = super::finite_f64, long, default_value_t = 2.0 / 3.0)]
     alpha: f64,
@@ -650,7 +656,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         initial_radius: a.radius,
         seed: a.photon_seed,
         max_bounces: 64,
-        local_k: None,
+        local_k: a.local_k.map(|k| k as usize),
     };
     let settings = serde_json::json!({
         "scene_crc32": photonkit::trace::scene_crc32(&text),

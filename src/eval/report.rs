@@ -240,6 +240,37 @@ pub fn equal_time_markdown(runs: &[Run]) -> String {
     s
 }
 
+/// The cost of `views` views of the scene, seconds: a photon map is made once and rendered
+/// once per view (trace, detect and relax once, render `views` times); progressive photon
+/// mapping traces its own photons for each view and runs again.
+pub fn cost_of_views(r: &Row, views: u32) -> f64 {
+    let more = views.saturating_sub(1) as f64;
+    match (r.method, r.times.render) {
+        (MethodKind::Progressive, _) | (_, None) => r.times.total * views as f64,
+        (_, Some(render)) => r.times.total + more * render,
+    }
+}
+
+/// The views table: each row's cost for 1 and 10 views of the same scene ([`cost_of_views`]),
+/// from its measured stage times.
+pub fn views_markdown(runs: &[Run]) -> String {
+    let mut s = String::from("| run | method | setting | 1 view | 10 views |\n|---|---|---|---|---|\n");
+    for run in runs {
+        for r in &run.rows {
+            let _ = writeln!(
+                s,
+                "| {} | {} | {} | {} | {} |",
+                run.label,
+                r.method.label(),
+                r.setting,
+                secs(Some(cost_of_views(r, 1))),
+                secs(Some(cost_of_views(r, 10)))
+            );
+        }
+    }
+    s
+}
+
 /// Relative errors the time-to-error table targets.
 pub const TARGET_ERRORS: [f64; 3] = [0.10, 0.05, 0.02];
 
@@ -534,6 +565,14 @@ pub fn write(
          (one per photon count) or, for progressive photon mapping, its pass counts.\n"
     );
     md.push_str(&time_to_error_markdown(runs));
+    let _ = writeln!(md, "\n## One view and ten\n");
+    let _ = writeln!(
+        md,
+        "A photon map is view-independent: made once (trace, detect, relax), it is rendered again for each view. \
+         Progressive photon mapping traces its own photons for each view and runs again. Costs from the measured \
+         stage times (the errors are each view's own, not shown).\n"
+    );
+    md.push_str(&views_markdown(runs));
     let _ = writeln!(md, "\n![error against time](error-vs-time.png)\n\n![images and error maps](grid.png)");
     write_atomic(&dir.join("report.md"), md.as_bytes())?;
     write_atomic(&dir.join("report.csv"), csv(runs).as_bytes())?;
@@ -618,6 +657,33 @@ mod tests {
         assert_eq!(tick(100.0), "100");
         assert_eq!(tick(0.1234567), "0.123");
         assert_eq!(tick(12.345), "12.3");
+    }
+
+    #[test]
+    fn ten_views_cost_one_map_and_ten_renders_or_ten_progressive_runs() {
+        let row = |method, render: Option<f64>, total| Row {
+            method,
+            setting: String::new(),
+            emitted: 1,
+            photons: 1,
+            radiance_k: 15,
+            times: super::super::compare::StageTimes { render, total, ..Default::default() },
+            errors: super::super::metrics::Errors {
+                rmse: 0.0,
+                nrmse: 0.0,
+                rel_mse: 0.0,
+                ssim: 1.0,
+                edge_nrmse: 0.0,
+                overlap_nrmse: 0.0,
+            },
+            seeds: 1,
+            regions: Vec::new(),
+            image: Image::new(1, 1),
+        };
+        let ours = row(MethodKind::Ours, Some(0.5), 8.0);
+        assert_eq!((cost_of_views(&ours, 1), cost_of_views(&ours, 10)), (8.0, 12.5));
+        let ppm = row(MethodKind::Progressive, None, 4.0);
+        assert_eq!((cost_of_views(&ppm, 1), cost_of_views(&ppm, 10)), (4.0, 40.0));
     }
 
     #[test]

@@ -78,6 +78,7 @@ fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same
         "SSIM",
         "At equal time",
         "Time to error",
+        "One view and ten",
     ] {
         assert!(md.contains(row), "report.md lacks '{row}'");
     }

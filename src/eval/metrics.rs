@@ -547,7 +547,7 @@ mod tests {
                 assert!((v / (sigma * sigma) - 1.0).abs() < 0.02, "variance {v}");
             }
         }
-        let one = region_errors(&[truth.clone()], &truth, &class);
+        let one = region_errors(std::slice::from_ref(&truth), &truth, &class);
         assert_eq!(one[0].nrmse, 0.0);
         assert!(one[0].bias2.is_nan() && one[0].variance.is_nan());
     }

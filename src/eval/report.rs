@@ -298,18 +298,7 @@ pub fn time_to_error(points: &[(f64, f64)], target: f64) -> Option<Result<f64, f
 /// its relative RMSE (over the region's own truth mean) first reaches each of
 /// [`TARGET_ERRORS`].
 pub fn time_to_error_markdown(runs: &[Run]) -> String {
-    let mut series: Vec<(String, Vec<&Row>)> = Vec::new();
-    for r in runs.iter().flat_map(|r| &r.rows) {
-        let name = match r.method {
-            MethodKind::StandardPm => format!("{} (K = {})", r.method.label(), r.radiance_k),
-            MethodKind::Progressive => format!("{} (passes)", r.method.label()),
-            m => m.label().to_string(),
-        };
-        match series.iter_mut().find(|(n, _)| *n == name) {
-            Some((_, rows)) => rows.push(r),
-            None => series.push((name, vec![r])),
-        }
-    }
+    let series: Vec<(String, Vec<&Row>)> = series(runs).into_iter().map(|(n, _, rows)| (n, rows)).collect();
     let mut s = String::new();
     let heads: Vec<String> = TARGET_ERRORS.iter().map(|e| format!("{:.0} %", e * 100.0)).collect();
     let _ = writeln!(s, "| method | points | region | {} |", heads.join(" | "));
@@ -387,51 +376,112 @@ fn colour(m: MethodKind) -> RGBColor {
     }
 }
 
-/// The error-versus-time plot (log–log, NRMSE against total seconds, a line per method) as PNG.
+/// The series of the plot and the time-to-error table: one per method, except standard photon
+/// mapping (one per K) and progressive photon mapping (one per photon budget per pass, its
+/// points its pass counts), each with its rows in time order (so a line never zig-zags).
+pub fn series(runs: &[Run]) -> Vec<(String, MethodKind, Vec<&Row>)> {
+    let mut out: Vec<(String, MethodKind, Vec<&Row>)> = Vec::new();
+    for r in runs.iter().flat_map(|r| &r.rows) {
+        let name = match r.method {
+            MethodKind::StandardPm => format!("{} (K = {})", r.method.label(), r.radiance_k),
+            MethodKind::Progressive => {
+                let budget = r.setting.split_once("passes of ").map_or("", |(_, b)| b);
+                let budget = budget.split(',').next().unwrap_or("");
+                format!("{} ({budget} per pass)", r.method.label())
+            }
+            m => m.label().to_string(),
+        };
+        match out.iter_mut().find(|(n, _, _)| *n == name) {
+            Some((_, _, rows)) => rows.push(r),
+            None => out.push((name, r.method, vec![r])),
+        }
+    }
+    for (_, _, rows) in &mut out {
+        rows.sort_by(|a, b| a.times.total.total_cmp(&b.times.total));
+    }
+    out
+}
+
+/// A distinct colour per series: the method's, lighter for each further series of it.
+fn series_colour(m: MethodKind, nth: usize) -> RGBColor {
+    let RGBColor(r, g, b) = colour(m);
+    let f = |c: u8| (c as f64 + (255.0 - c as f64) * (0.35 * nth as f64).min(0.7)) as u8;
+    RGBColor(f(r), f(g), f(b))
+}
+
+/// The error-versus-time plot as PNG: log–log, total seconds against NRMSE (over the whole
+/// truth's mean), one panel per region (the whole image, core, edge, smooth), a line with
+/// markers per series ([`series`]), and the legend beside the panels, where it hides no point.
 pub fn plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
     register_font()?;
-    let (w, h) = (900u32, 600u32);
+    let (w, h) = (1400u32, 900u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
-    let pts = points(runs);
-    let all: Vec<(f64, f64)> =
-        pts.iter().flat_map(|(_, p)| p.iter().copied()).filter(|(t, e)| *t > 0.0 && *e > 0.0).collect();
-    if all.is_empty() {
-        return Err(CompareError::Invalid("nothing to plot: no run has a positive time and error".into()));
-    }
-    let (t0, t1) = all.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
-    let (e0, e1) = all.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+    let all_series = series(runs);
+    let mut nth = std::collections::HashMap::new();
+    let styled: Vec<(String, RGBColor, Vec<&Row>)> = all_series
+        .into_iter()
+        .map(|(name, m, rows)| {
+            let k = nth.entry(m).or_insert(0usize);
+            let c = series_colour(m, *k);
+            *k += 1;
+            (name, c, rows)
+        })
+        .collect();
+    let panels = [None, Some(Region::Core), Some(Region::Edge), Some(Region::Smooth)];
+    let point = |r: &Row, g: Option<Region>| {
+        r.regions
+            .iter()
+            .find(|e| e.region == g)
+            .map(|e| (r.times.total, e.nrmse))
+            .filter(|&(t, e)| t > 0.0 && e > 0.0 && e.is_finite())
+    };
     let draw = |buf: &mut [u8]| -> Result<(), Box<dyn std::error::Error + '_>> {
         let root = BitMapBackend::with_buffer(buf, (w, h)).into_drawing_area();
-        let mut chart = ChartBuilder::on(&root)
-            .caption(title, ("sans-serif", 22))
-            .margin(15)
-            .x_label_area_size(45)
-            .y_label_area_size(70)
-            .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.3..e1 * 1.3).log_scale())?;
-        chart
-            .configure_mesh()
-            .x_desc("total time, s")
-            .y_desc("NRMSE")
-            .x_label_formatter(&|v| tick(*v))
-            .y_label_formatter(&|v| tick(*v))
-            .label_style(("sans-serif", 15))
-            .draw()?;
-        for (m, p) in &pts {
-            let mut p = p.clone();
-            p.sort_by(|a, b| a.0.total_cmp(&b.0));
-            let c = colour(*m);
+        let root = root.titled(title, ("sans-serif", 24))?;
+        let (plots, legend) = root.split_horizontally(w - 300);
+        for (area, &g) in plots.split_evenly((2, 2)).iter().zip(&panels) {
+            let name = g.map_or("whole image", Region::name);
+            let pts: Vec<(f64, f64)> =
+                styled.iter().flat_map(|(_, _, rows)| rows.iter().filter_map(|r| point(r, g))).collect();
+            if pts.is_empty() {
+                area.draw(&Text::new(
+                    format!("{name}: no pixels of this region"),
+                    (60, 60),
+                    ("sans-serif", 18).into_font(),
+                ))?;
+                continue;
+            }
+            let (t0, t1) = pts.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
+            let (e0, e1) = pts.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
+            let mut chart = ChartBuilder::on(area)
+                .caption(name, ("sans-serif", 18))
+                .margin(12)
+                .x_label_area_size(40)
+                .y_label_area_size(60)
+                .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.3..e1 * 1.3).log_scale())?;
             chart
-                .draw_series(LineSeries::new(p.iter().copied(), c.stroke_width(2)))?
-                .label(m.label())
-                .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 20, y)], c.stroke_width(2)));
-            chart.draw_series(p.iter().map(|&(x, y)| Circle::new((x, y), 4, c.filled())))?;
+                .configure_mesh()
+                .x_labels(12)
+                .y_labels(10)
+                .x_desc("total time per view, s")
+                .y_desc("NRMSE")
+                .x_label_formatter(&|v| tick(*v))
+                .y_label_formatter(&|v| tick(*v))
+                .label_style(("sans-serif", 13))
+                .draw()?;
+            for (_, c, rows) in &styled {
+                let p: Vec<(f64, f64)> = rows.iter().filter_map(|r| point(r, g)).collect();
+                chart.draw_series(LineSeries::new(p.iter().copied(), c.stroke_width(2)))?;
+                chart.draw_series(p.iter().map(|&(x, y)| Circle::new((x, y), 4, c.filled())))?;
+            }
         }
-        chart
-            .configure_series_labels()
-            .label_font(("sans-serif", 15))
-            .background_style(WHITE.mix(0.8))
-            .border_style(BLACK)
-            .draw()?;
+        // The legend: a line and marker per series, beside the panels.
+        for (i, (name, c, _)) in styled.iter().enumerate() {
+            let y = 40 + 26 * i as i32;
+            legend.draw(&PathElement::new(vec![(10, y), (40, y)], c.stroke_width(3)))?;
+            legend.draw(&Circle::new((25, y), 4, c.filled()))?;
+            legend.draw(&Text::new(name.clone(), (48, y - 8), ("sans-serif", 14).into_font()))?;
+        }
         root.present()?;
         Ok(())
     };

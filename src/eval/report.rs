@@ -409,6 +409,17 @@ fn series_colour(m: MethodKind, nth: usize) -> RGBColor {
     RGBColor(f(r), f(g), f(b))
 }
 
+/// The power of ten at or below `x` (the time axis spans whole decades, so that it has a tick
+/// label in each).
+fn decade_below(x: f64) -> f64 {
+    10f64.powf(x.log10().floor())
+}
+
+/// The power of ten at or above `x`.
+fn decade_above(x: f64) -> f64 {
+    10f64.powf(x.log10().ceil())
+}
+
 /// The error-versus-time plot as PNG: log–log, total seconds against NRMSE (over the whole
 /// truth's mean), one panel per region (the whole image, core, edge, smooth), a line with
 /// markers per series ([`series`]), and the legend beside the panels, where it hides no point.
@@ -458,7 +469,10 @@ pub fn plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
                 .margin(12)
                 .x_label_area_size(40)
                 .y_label_area_size(60)
-                .build_cartesian_2d((t0 / 1.5..t1 * 1.5).log_scale(), (e0 / 1.3..e1 * 1.3).log_scale())?;
+                .build_cartesian_2d(
+                    (decade_below(t0)..decade_above(t1)).log_scale(),
+                    (e0 / 1.3..e1 * 1.3).log_scale(),
+                )?;
             chart
                 .configure_mesh()
                 .x_labels(12)

@@ -728,19 +728,19 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
     bar.finish_and_clear();
     result?;
     let secs = t.elapsed().as_secs_f64();
+    let shrink = photonkit::render::reference::radius2(1.0, state.options.alpha, state.passes).sqrt();
+    let radius = match state.options.local_k {
+        Some(k) => format!("radius the {k}-NN distance of the first pass × 1 → × {shrink:.4}"),
+        None => {
+            format!("radius {:.4} m → {:.4} m", state.initial_radius, state.initial_radius as f64 * shrink)
+        }
+    };
     eprintln!(
-        "photonkit reference: passes {}..{} of {} photons in {secs:.2} s ({:.3} s/pass); radius {:.4} m → {:.4} m",
+        "photonkit reference: passes {}..{} of {} photons in {secs:.2} s ({:.3} s/pass); {radius}",
         first + 1,
         state.passes,
         a.photons_per_pass,
         secs / (state.passes - first).max(1) as f64,
-        state.initial_radius,
-        (photonkit::render::reference::radius2(
-            (state.initial_radius as f64).powi(2),
-            state.options.alpha,
-            state.passes
-        ))
-        .sqrt()
     );
     Ok(ExitCode::SUCCESS)
 }

@@ -204,6 +204,30 @@ fn reference_runs_saves_and_resumes() {
     let o = run(other);
     assert!(!o.status.success() && stderr(&o).contains("other settings"), "{}", stderr(&o));
     assert_eq!(read_exr(&out).0, img);
+
+    // A radius that follows the photon density (--local-k): the same uniform 2 W/m²; a run
+    // resumed after 3 passes (the first pass traced again for the radius) equals 5 straight.
+    let local = |out: &std::path::Path, passes: &str, resume: bool| {
+        let mut v = args(passes);
+        v[3] = out.to_str().unwrap().to_string();
+        v.extend(["--local-k".to_string(), "30".to_string()]);
+        if resume {
+            v.push("--resume".into());
+        }
+        run(v)
+    };
+    let (a, b) = (dir.path().join("a.exr"), dir.path().join("b.exr"));
+    let o = local(&a, "5", false);
+    assert!(o.status.success() && stderr(&o).contains("30-NN distance"), "{}", stderr(&o));
+    assert!(local(&b, "3", false).status.success());
+    let o = local(&b, "5", true);
+    assert!(o.status.success() && stderr(&o).contains("passes 4..5"), "{}", stderr(&o));
+    let (straight, resumed) = (read_exr(&a).0, read_exr(&b).0);
+    assert!((straight.mean().x - 2.0).abs() < 0.05, "{}", straight.mean());
+    assert_eq!(straight, resumed);
+    let mut both = args("2");
+    both.extend(["--local-k".to_string(), "30".to_string(), "--radius".to_string(), "0.1".to_string()]);
+    assert!(!run(both).status.success(), "--local-k and --radius together are refused");
 }
 
 #[test]

@@ -77,7 +77,7 @@ fn main() {
     let traced = stage(&format!("trace, scale {scale:e} (per emitted)"), emitted as usize, || {
         trace::trace(&scene, &opts, &|_, _| {}).expect("trace")
     });
-    let ph = traced.photons();
+    let ph = traced.photons().expect("photons held in memory");
     drop(traced);
     let n = ph.position.len();
     assert!(finite3(&ph.position) && finite3(&ph.flux) && finite3(&ph.normal), "trace: not finite");
@@ -145,7 +145,7 @@ fn main() {
     let scene = Scene::default_scene().scaled(kc_scale);
     let opts = TraceOptions { budget: Budget::Stored(kc_photons), ..TraceOptions::default() };
     let traced = trace::trace(&scene, &opts, &|_, _| {}).expect("trace");
-    let ph = traced.photons();
+    let ph = traced.photons().expect("photons held in memory");
     let n = ph.position.len();
     let params = ParamColumn { values: &ph.params, stride: dims[0] as usize, dims: &dims };
     let input = DetectInput {

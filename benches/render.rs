@@ -47,7 +47,7 @@ fn main() {
         &|_, _| {},
     )
     .expect("trace");
-    let p = traced.photons();
+    let p = traced.photons().expect("photons held in memory");
     eprintln!(
         "traced {} stored photons ({} emitted) in {:.2} s",
         p.len(),

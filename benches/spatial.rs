@@ -95,7 +95,7 @@ fn scene_photons(n: usize) -> photonkit::synthetic::SyntheticMap {
     let opts = TraceOptions { budget: Budget::Emitted((n as f64 * 1.43) as u64), ..TraceOptions::default() };
     let t = photonkit::trace::trace(&scene, &opts, &|_, _| {}).unwrap();
     assert_eq!(t.param_dims, 2, "the default scene's emitter is collimated");
-    let ph = t.photons();
+    let ph = t.photons().expect("photons held in memory");
     photonkit::synthetic::SyntheticMap {
         position: ph.position.to_vec(),
         params: ph.params.to_vec(),

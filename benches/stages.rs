@@ -50,7 +50,7 @@ fn main() {
     let scene = Scene::default_scene();
     let opts = TraceOptions { budget: Budget::Emitted(emitted), ..TraceOptions::default() };
     let (traced, c, w) = measure(|| trace::trace(&scene, &opts, &|_, _| {}).unwrap());
-    let ph = traced.photons();
+    let ph = traced.photons().expect("photons held in memory");
     let n = ph.len();
     println!("default scene: {emitted} emitted, {n} stored; {threads} threads");
     println!("{}", clock::line("before"));

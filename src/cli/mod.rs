@@ -30,3 +30,13 @@ pub(crate) fn finite_f64(s: &str) -> Result<f64, String> {
     let v: f64 = s.trim().parse().map_err(|e| format!("{e}"))?;
     if v.is_finite() { Ok(v) } else { Err(format!("'{s}' is not a finite number")) }
 }
+
+/// A size in bytes as people write it: `512M`, `4G` (powers of 1000), `2GiB` (powers of 1024),
+/// or a plain number of bytes.
+pub(crate) fn parse_memory(s: &str) -> Result<u64, String> {
+    match parse_size::parse_size(s) {
+        Ok(0) => Err(format!("'{s}': needs more than 0 bytes")),
+        Ok(n) => Ok(n),
+        Err(e) => Err(format!("'{s}' is not a size such as 512M, 4G or 2GiB ({e})")),
+    }
+}

@@ -11,7 +11,7 @@ use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use photonkit::detect::{self, DetectParams};
 use photonkit::format::{Output, PhotonMap};
 use photonkit::relax::{self, RelaxParams};
-use photonkit::trace::{self, Budget, TraceOptions};
+use photonkit::trace::{self, Budget, DEFAULT_SPOOL_MEMORY, Spool, TraceOptions};
 
 /// Run every stage on a scene: trace → detect → relax → collapse → relax → render.
 ///
@@ -107,7 +107,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     eprintln!("{:<16} {:>10} {:>18}  output", "stage", "time", "");
 
     // Trace.
-    let opts = TraceOptions { seed: a.seed, budget: Budget::Emitted(a.photons), ..TraceOptions::default() };
+    let opts = TraceOptions {
+        seed: a.seed,
+        budget: Budget::Emitted(a.photons),
+        spool: Some(Spool { dir: a.out_dir.clone(), memory: DEFAULT_SPOOL_MEMORY }),
+        ..TraceOptions::default()
+    };
     let bar = spinner("trace");
     let t = Instant::now();
     let traced = trace::trace(&scene, &opts, &|_, _| {});

@@ -10,7 +10,7 @@ use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 use photonkit::format::Output;
 use photonkit::scene::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, Scene};
-use photonkit::trace::{self, Budget, Shard, StorePolicy, TraceOptions};
+use photonkit::trace::{self, Budget, Shard, Spool, StorePolicy, TraceOptions};
 
 /// Trace photons from the emitters of a scene and store the caustic ones.
 ///
@@ -61,6 +61,12 @@ pub struct Args {
     /// Drop a photon after this many specular interactions.
     #[arg(long, value_name = "N", default_value_t = 64)]
     max_bounces: u32,
+    /// Memory for stored photons (e.g. 512M, 4G, 2GiB). Beyond it they are spooled to unnamed
+    /// temporary files beside the output (removed however the run ends) and the map is
+    /// written from there: the photon count is bounded by the disk, not the memory, and the
+    /// file is the same either way.
+    #[arg(long, value_name = "SIZE", default_value = "256MiB", value_parser = super::parse_memory)]
+    memory: u64,
 }
 
 /// A count written as an integer or in scientific notation (`20000000`, `2e7`).
@@ -80,6 +86,18 @@ fn parse_shard(s: &str) -> Result<Shard, String> {
     match (index, count) {
         (Ok(index), Ok(count)) if index < count => Ok(Shard { index, count }),
         _ => Err(format!("'{s}': needs whole numbers with 0 ≤ i < n")),
+    }
+}
+
+/// Where a run writing to `output` spools photons: the output's directory (the disk the user
+/// chose for them), or the system's temporary directory for standard output.
+pub(crate) fn spool_dir(output: &str) -> PathBuf {
+    match Output::parse(output) {
+        Output::Path(p) => match p.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        },
+        Output::Stdout => std::env::temp_dir(),
     }
 }
 
@@ -111,6 +129,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         store: if a.store == "direct" { StorePolicy::Direct } else { StorePolicy::Caustic },
         shard: a.shard,
         max_bounces: a.max_bounces,
+        spool: Some(Spool { dir: spool_dir(&a.output), memory: a.memory }),
     };
 
     let total = match (budget, a.shard) {

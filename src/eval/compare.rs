@@ -465,7 +465,7 @@ fn run_seed(
         let t = Instant::now();
         let mut traced = trace::trace(scene, &topts, &|_, _| {})?;
         if let Some(keep) = &target.bounces {
-            traced.retain_bounces(keep);
+            traced.retain_bounces(keep)?;
         }
         trace_secs = t.elapsed().as_secs_f64();
         if traced.stored == 0 {

@@ -165,12 +165,13 @@ impl Progressive<'_> {
                 store: StorePolicy::Caustic,
                 shard: None,
                 max_bounces: o.max_bounces,
+                spool: None,
             };
             let mut traced = trace::trace(self.scene, &topts, &|_, _| {})?;
             if let Some(keep) = self.bounces {
-                traced.retain_bounces(keep);
+                traced.retain_bounces(keep)?;
             }
-            Ok(traced.photons())
+            Ok(traced.photons()?)
         };
         // The local radius's map: the first pass's photons (traced again on a resumed run).
         let mut radius_map: Option<crate::spatial::BoxTree> = match o.local_k {

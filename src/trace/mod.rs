@@ -16,6 +16,7 @@
 
 pub mod halton;
 mod merge;
+mod store;
 
 use std::ops::Range;
 
@@ -23,21 +24,22 @@ use glam::Vec3;
 use rayon::prelude::*;
 use serde_json::json;
 
-use crate::format::{
-    ColumnSpec, DType, FormatError, MapInfo, Output, PhotonWriter, StageRecord, State, name,
-};
+use crate::format::{ColumnSpec, FormatError, MapInfo, Output, PhotonWriter, StageRecord, State};
 use crate::scene::material::{
     WAVELENGTH_RANGE_NM, fresnel_cosines, reflect, refract_unnormalised, wavelength_rgb_tabulated,
 };
 use crate::scene::{Dielectric, Material, Ray, Reach, Scene};
 use halton::{Halton, PhotonRng};
 pub use merge::merge;
+use store::{Chunk, ChunkStore, Layout};
+pub use store::{DEFAULT_SPOOL_MEMORY, Spool};
 
 /// Emission numbers per unit of parallel work.
 pub const CHUNK: u64 = 4096;
 
-/// Chunks traced in parallel between two checks of the memory budget (16 M photons).
-const BATCH_CHUNKS: u64 = 4096;
+/// Chunks traced in parallel between two hand-overs to the store and checks of the room
+/// left (1 M emission numbers: the photons in flight take tens of MB).
+const BATCH_CHUNKS: u64 = 256;
 
 /// Everything that can go wrong while tracing or merging.
 #[derive(Debug, thiserror::Error)]
@@ -58,22 +60,17 @@ pub enum TraceError {
     Merge { file: String, message: String },
     #[error(
         "{what} would need about {need_gb:.1} GB for the stored photons, more than the {avail_gb:.1} GB of memory \
-         available: trace fewer photons, or split the run with --shard i/n and join the shards with `photonkit merge`"
+         available: trace fewer photons, lower `trace --memory`, or split the run with --shard i/n and join the shards with `photonkit merge`"
     )]
     OutOfMemory { what: String, need_gb: f64, avail_gb: f64 },
-}
-
-/// Memory the stored photons may take: 80 % of what the system reports available
-/// (`MemAvailable` in /proc/meminfo), or unbounded where that is unknown.
-fn memory_budget() -> Option<u64> {
-    // A hidden override for tests of the refusal.
-    if let Some(b) = std::env::var("PHOTONKIT_TEST_MEMORY_BUDGET").ok().and_then(|b| b.parse().ok()) {
-        return Some(b);
-    }
-    let text = std::fs::read_to_string("/proc/meminfo").ok()?;
-    let kib: u64 =
-        text.lines().find(|l| l.starts_with("MemAvailable:"))?.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kib * 1024 / 10 * 8)
+    #[error(
+        "{what} would need about {need_gb:.1} GB of disk for the stored photons (spooled, then the output), \
+         more than the {avail_gb:.1} GB free in {dir}: trace fewer photons, write to a larger disk, or split the \
+         run with --shard i/n and join the shards with `photonkit merge`"
+    )]
+    OutOfDisk { what: String, need_gb: f64, avail_gb: f64, dir: String },
+    #[error("spooling stored photons in {dir}: {source}")]
+    Spool { dir: String, source: std::io::Error },
 }
 
 /// What to trace until.
@@ -118,6 +115,9 @@ pub struct TraceOptions {
     pub shard: Option<Shard>,
     /// Specular interactions after which a photon is dropped (counted in the report).
     pub max_bounces: u32,
+    /// Where stored photons go when they outgrow memory; `None` keeps them all in memory
+    /// (for callers that use them there rather than write them).
+    pub spool: Option<Spool>,
 }
 
 impl Default for TraceOptions {
@@ -128,6 +128,7 @@ impl Default for TraceOptions {
             store: StorePolicy::Caustic,
             shard: None,
             max_bounces: 64,
+            spool: None,
         }
     }
 }
@@ -156,57 +157,6 @@ impl Photons {
 
     pub fn is_empty(&self) -> bool {
         self.position.is_empty()
-    }
-}
-
-/// One chunk's stored photons as the tracer keeps them until they are written: the columns of
-/// [`Photons`], but each emission number as its offset from the chunk's first (a chunk spans
-/// [`CHUNK`] ≤ 2¹⁶ numbers) and no emitter column when the scene has one emitter: 67 bytes
-/// per prism photon instead of 75, fewer fresh pages to fill.
-#[derive(Clone, Debug, Default, PartialEq)]
-struct Chunk {
-    /// Emission number the offsets count from.
-    first: u64,
-    position: Vec<[f32; 3]>,
-    normal: Vec<[f32; 3]>,
-    flux: Vec<[f32; 3]>,
-    incident: Vec<[f32; 3]>,
-    /// Empty when the map has no emitter column.
-    emitter: Vec<u16>,
-    params: Vec<f32>,
-    path_length: Vec<f32>,
-    bounces: Vec<u8>,
-    emission_offset: Vec<u16>,
-    surface: Vec<u32>,
-}
-
-const _: () = assert!(CHUNK <= 1 << 16, "emission offsets within a chunk are 16-bit");
-
-impl Chunk {
-    fn len(&self) -> usize {
-        self.position.len()
-    }
-
-    fn is_empty(&self) -> bool {
-        self.position.is_empty()
-    }
-
-    /// Emission number of photon `i`.
-    fn emission_index(&self, i: usize) -> u64 {
-        self.first + self.emission_offset[i] as u64
-    }
-
-    fn truncate(&mut self, n: usize, dims: usize) {
-        self.position.truncate(n);
-        self.normal.truncate(n);
-        self.flux.truncate(n);
-        self.incident.truncate(n);
-        self.emitter.truncate(n);
-        self.params.truncate(n * dims);
-        self.path_length.truncate(n);
-        self.bounces.truncate(n);
-        self.emission_offset.truncate(n);
-        self.surface.truncate(n);
     }
 }
 
@@ -351,10 +301,10 @@ fn prefault(p: *mut u8, len: usize) {
     let _ = (p, len);
 }
 
-/// The outcome of a run: the stored photons (in emission order, chunk by chunk) and counts.
-#[derive(Clone, Debug)]
+/// The outcome of a run: the stored photons (in emission order) and counts.
+#[derive(Debug)]
 pub struct Traced {
-    chunks: Vec<Chunk>,
+    store: ChunkStore,
     /// Number of trajectory parameters per photon.
     pub param_dims: u32,
     /// Whether the map gets an `emitter` column (the scene has several emitters).
@@ -372,115 +322,39 @@ pub struct Traced {
 }
 
 impl Traced {
-    /// Stored photons with their final flux in watts.
-    pub fn photons(&self) -> Photons {
-        let mut all = Photons::default();
-        let scale = self.flux_scale();
-        for c in &self.chunks {
-            all.position.extend(&c.position);
-            all.normal.extend(&c.normal);
-            all.flux.extend(c.flux.iter().map(|f| f.map(|x| (x as f64 * scale) as f32)));
-            all.incident.extend(&c.incident);
-            if self.emitter_column {
-                all.emitter.extend(&c.emitter);
-            } else {
-                all.emitter.resize(all.position.len(), 0);
-            }
-            all.params.extend(&c.params);
-            all.path_length.extend(&c.path_length);
-            all.bounces.extend(&c.bounces);
-            all.emission_index.extend((0..c.len()).map(|i| c.emission_index(i)));
-            all.surface.extend(&c.surface);
-        }
-        all
+    /// Stored photons with their final flux in watts (read back from the spool if the run
+    /// had one and used it).
+    pub fn photons(&self) -> Result<Photons, TraceError> {
+        self.store.photons(self.flux_scale())
     }
 
     /// Keeps only the photons whose specular bounce count is in `keep` (each photon's flux is
     /// unchanged, so the kept photons estimate the irradiance of those paths alone): how the
     /// comparison matches a ground truth that accounts for some path families only.
-    pub fn retain_bounces(&mut self, keep: &[u8]) {
-        let dims = self.param_dims as usize;
-        for c in &mut self.chunks {
-            let mask: Vec<bool> = c.bounces.iter().map(|b| keep.contains(b)).collect();
-            fn filter<T: Copy>(v: &mut Vec<T>, mask: &[bool], per: usize) {
-                let mut i = 0;
-                v.retain(|_| {
-                    let k = mask[i / per];
-                    i += 1;
-                    k
-                });
-            }
-            filter(&mut c.position, &mask, 1);
-            filter(&mut c.normal, &mask, 1);
-            filter(&mut c.flux, &mask, 1);
-            filter(&mut c.incident, &mask, 1);
-            filter(&mut c.emitter, &mask, 1);
-            if dims > 0 {
-                filter(&mut c.params, &mask, dims);
-            }
-            filter(&mut c.path_length, &mask, 1);
-            filter(&mut c.bounces, &mask, 1);
-            filter(&mut c.emission_offset, &mask, 1);
-            filter(&mut c.surface, &mask, 1);
-        }
-        self.chunks.retain(|c| !c.is_empty());
-        self.stored = self.chunks.iter().map(|c| c.len() as u64).sum();
+    pub fn retain_bounces(&mut self, keep: &[u8]) -> Result<(), TraceError> {
+        self.store.retain(|b| keep.contains(&b))?;
+        self.stored = self.store.count();
+        Ok(())
     }
 
     fn flux_scale(&self) -> f64 {
         self.power_w / self.emitted.max(1) as f64
     }
 
-    /// The columns written, in order.
-    pub fn column_specs(&self) -> Vec<ColumnSpec> {
-        let mut c = vec![
-            ColumnSpec::of::<[f32; 3]>(name::POSITION),
-            ColumnSpec::of::<[f32; 3]>(name::NORMAL),
-            ColumnSpec::of::<[f32; 3]>(name::FLUX),
-            ColumnSpec::of::<[f32; 3]>(name::INCIDENT),
-        ];
-        if self.emitter_column {
-            c.push(ColumnSpec::of::<u16>(name::EMITTER));
-        }
-        if self.param_dims > 0 {
-            c.push(ColumnSpec::new(name::PARAMS, DType::F32, self.param_dims));
-        }
-        c.push(ColumnSpec::of::<f32>(name::PATH_LENGTH));
-        c.push(ColumnSpec::of::<u8>(name::BOUNCES));
-        c.push(ColumnSpec::of::<u64>(name::EMISSION_INDEX));
-        c.push(ColumnSpec::of::<u32>(name::SURFACE));
-        c
+    fn layout(&self) -> Layout {
+        Layout { dims: self.param_dims as usize, emitter_column: self.emitter_column }
     }
 
-    /// Streams the photons into a PHM file, chunk by chunk.
-    pub fn write(&self, target: Output, info: MapInfo) -> Result<(), FormatError> {
+    /// The columns written, in order.
+    pub fn column_specs(&self) -> Vec<ColumnSpec> {
+        self.layout().column_specs()
+    }
+
+    /// Streams the photons into a PHM file, a block at a time.
+    pub fn write(&self, target: Output, info: MapInfo) -> Result<(), TraceError> {
         let mut w = PhotonWriter::create(target, info, &self.column_specs(), self.stored)?;
-        let scale = self.flux_scale();
-        let (mut flux, mut emission_index) = (Vec::new(), Vec::new());
-        for c in &self.chunks {
-            flux.clear();
-            flux.extend(c.flux.iter().map(|f| f.map(|x| (x as f64 * scale) as f32)));
-            emission_index.clear();
-            emission_index.extend((0..c.len()).map(|i| c.emission_index(i)));
-            let mut cols: Vec<&[u8]> = vec![
-                bytemuck::cast_slice(&c.position),
-                bytemuck::cast_slice(&c.normal),
-                bytemuck::cast_slice(&flux),
-                bytemuck::cast_slice(&c.incident),
-            ];
-            if self.emitter_column {
-                cols.push(bytemuck::cast_slice(&c.emitter));
-            }
-            if self.param_dims > 0 {
-                cols.push(bytemuck::cast_slice(&c.params));
-            }
-            cols.push(bytemuck::cast_slice(&c.path_length));
-            cols.push(bytemuck::cast_slice(&c.bounces));
-            cols.push(bytemuck::cast_slice(&emission_index));
-            cols.push(bytemuck::cast_slice(&c.surface));
-            w.push(&cols)?;
-        }
-        w.finish()
+        self.store.for_each_block(self.flux_scale(), |cols| Ok(w.push(cols)?))?;
+        Ok(w.finish()?)
     }
 }
 
@@ -557,42 +431,26 @@ pub fn trace(
         }
     }
     let tracer = Tracer::new(scene, opts);
-    let mut traced = Traced {
-        chunks: Vec::new(),
-        param_dims: scene.param_dims(),
-        emitter_column: tracer.emitter_column,
-        range: 0..0,
-        emitted: 0,
-        stored: 0,
-        bounce_limited: 0,
-        power_w: tracer.power_w,
+    let layout = Layout { dims: tracer.dims, emitter_column: tracer.emitter_column };
+    let limit = match opts.budget {
+        Budget::Stored(target) => Some(target),
+        Budget::Emitted(_) => None,
     };
-    match opts.budget {
+    let mut store = ChunkStore::new(layout, opts.spool.clone(), limit);
+    let (range, emitted, bounce_limited) = match opts.budget {
         Budget::Emitted(n) => {
             let range = opts.shard.map_or(0..n, |s| s.range(n));
-            let (chunks, limited) = tracer.run(range.clone(), 0, progress)?;
-            traced.stored = chunks.iter().map(|c| c.len() as u64).sum();
-            traced.chunks = chunks;
-            traced.range = range;
-            traced.emitted = n;
-            traced.bounce_limited = limited;
+            let limited = tracer.run(range.clone(), &mut store, progress)?;
+            (range, n, limited)
         }
         Budget::Stored(target) => {
-            if let Some(avail) = memory_budget() {
-                let need = target.saturating_mul(tracer.bytes_per_photon());
-                if need > avail {
-                    return Err(TraceError::OutOfMemory {
-                        what: format!("storing {target} photons"),
-                        need_gb: need as f64 / 1e9,
-                        avail_gb: avail as f64 / 1e9,
-                    });
-                }
-            }
+            store.check_room(target, || format!("storing {target} photons"))?;
             let mut next = 0u64;
-            let mut stored = 0u64;
             let mut limited = 0;
-            // Each round traces a range sized from the storage rate so far.
-            while stored < target {
+            // Each round traces a range sized from the storage rate so far; the store keeps
+            // exactly `target` photons, and the run emitted up to the last one kept.
+            while !store.is_full() {
+                let stored = store.count();
                 let round = if stored == 0 {
                     if next >= 50_000_000 {
                         return Err(TraceError::NothingStored { emitted: next });
@@ -603,37 +461,23 @@ pub fn trace(
                     (((target - stored) as f64 / rate * 1.05) as u64).clamp(CHUNK, 1 << 26)
                 };
                 let round = round.div_ceil(CHUNK) * CHUNK;
-                let (chunks, l) =
-                    tracer.run(next..next + round, stored * tracer.bytes_per_photon(), progress)?;
-                limited += l;
+                limited += tracer.run(next..next + round, &mut store, progress)?;
                 next += round;
-                for c in chunks {
-                    stored += c.len() as u64;
-                    traced.chunks.push(c);
-                }
             }
-            // Keep exactly `target` photons; the run emitted up to the last one kept.
-            let mut keep = target;
-            let mut cut = traced.chunks.len();
-            for (k, c) in traced.chunks.iter_mut().enumerate() {
-                if (c.len() as u64) < keep {
-                    keep -= c.len() as u64;
-                    continue;
-                }
-                c.truncate(keep as usize, tracer.dims);
-                cut = k + 1;
-                break;
-            }
-            traced.chunks.truncate(cut);
-            let last =
-                traced.chunks.iter().rev().find_map(|c| c.len().checked_sub(1).map(|i| c.emission_index(i)));
-            traced.emitted = last.map_or(0, |i| i + 1);
-            traced.range = 0..traced.emitted;
-            traced.stored = target;
-            traced.bounce_limited = limited;
+            let emitted = store.last_index().map_or(0, |i| i + 1);
+            (0..emitted, emitted, limited)
         }
-    }
-    Ok(traced)
+    };
+    Ok(Traced {
+        stored: store.count(),
+        store,
+        param_dims: scene.param_dims(),
+        emitter_column: tracer.emitter_column,
+        range,
+        emitted,
+        bounce_limited,
+        power_w: tracer.power_w,
+    })
 }
 
 /// Whether testing an emitter's rays against the box around the specular surfaces saves
@@ -717,23 +561,24 @@ impl<'a> Tracer<'a> {
 }
 
 impl Tracer<'_> {
-    /// Traces `range` in chunks on rayon's pool; the chunks come back in emission order, with
-    /// the number of photons dropped at the bounce limit.
+    /// Traces `range` in chunks on rayon's pool into `store`, in emission order; returns the
+    /// number of photons dropped at the bounce limit (in the chunks the store took).
     ///
     /// Chunks are traced in batches of [`BATCH_CHUNKS`] (nothing is sized by the whole range),
-    /// and the run stops with [`TraceError::OutOfMemory`] when the photons stored so far
-    /// (`held` bytes before it began) outgrow the memory budget.
+    /// tracing stops once the store is full, and the run stops with an error as soon as the
+    /// photons it will store, extrapolated from those stored so far, are known not to fit
+    /// ([`ChunkStore::check_room`]), not when memory or disk runs out.
     fn run(
         &self,
         range: Range<u64>,
-        held: u64,
+        store: &mut ChunkStore,
         progress: &(dyn Fn(u64, u64) + Sync),
-    ) -> Result<(Vec<Chunk>, u64), TraceError> {
+    ) -> Result<u64, TraceError> {
         let n_chunks = (range.end - range.start).div_ceil(CHUNK);
-        let budget = memory_budget();
-        let (mut chunks, mut limited, mut bytes) = (Vec::new(), 0u64, held);
+        let before = store.count();
+        let mut limited = 0u64;
         let mut first = 0u64;
-        while first < n_chunks {
+        while first < n_chunks && !store.is_full() {
             let last = (first + BATCH_CHUNKS).min(n_chunks);
             let out: Vec<(Chunk, u64)> = (first..last)
                 .into_par_iter()
@@ -749,35 +594,21 @@ impl Tracer<'_> {
                 )
                 .collect();
             for (c, l) in out {
-                bytes += c.len() as u64 * self.bytes_per_photon();
+                if store.is_full() {
+                    break;
+                }
                 limited += l;
-                chunks.push(c);
+                store.push(c)?;
             }
             first = last;
-            // The whole run's need, extrapolated from the photons stored so far (the Halton
-            // sequence spreads every batch over the whole emitter): refused as soon as it is
-            // known not to fit, not when memory runs out.
+            // The Halton sequence spreads every batch over the whole emitter, so the rate so
+            // far predicts the whole range's.
             let done = (range.start + first * CHUNK).min(range.end) - range.start;
-            let need =
-                held as f64 + (bytes - held) as f64 * (range.end - range.start) as f64 / done.max(1) as f64;
-            if let Some(avail) = budget
-                && need > avail as f64
-            {
-                return Err(TraceError::OutOfMemory {
-                    what: format!("tracing {} photons", range.end - range.start),
-                    need_gb: need / 1e9,
-                    avail_gb: avail as f64 / 1e9,
-                });
-            }
+            let projected = before as f64
+                + (store.count() - before) as f64 * (range.end - range.start) as f64 / done.max(1) as f64;
+            store.check_room(projected as u64, || format!("tracing {} photons", range.end - range.start))?;
         }
-        Ok((chunks, limited))
-    }
-
-    /// Bytes one stored photon takes in memory (its columns in a [`Chunk`]).
-    fn bytes_per_photon(&self) -> u64 {
-        // position, normal, flux, incident (4 × 12), path length and surface (2 × 4), bounces,
-        // emission offset (2), emitter (2), and the trajectory parameters.
-        (48 + 8 + 1 + 2 + 2 + 4 * self.dims) as u64
+        Ok(limited)
     }
 
     /// Traces `range` into `out` (emptied first); returns the number dropped at the bounce limit.
@@ -1002,25 +833,82 @@ pub(crate) mod tests {
         trace(s, opts, &|_, _| {}).unwrap()
     }
 
+    /// `opts` with a spool in `dir` that holds `memory` bytes of photons in memory.
+    fn spooled(opts: &TraceOptions, dir: &Path, memory: u64) -> TraceOptions {
+        TraceOptions { spool: Some(Spool { dir: dir.to_path_buf(), memory }), ..opts.clone() }
+    }
+
     #[test]
     fn retain_bounces_keeps_exactly_the_photons_of_those_paths_with_their_columns() {
         let s = Scene::default_scene();
+        let dir = tempfile::tempdir().unwrap();
         let opts = TraceOptions { budget: Budget::Emitted(20_000), ..TraceOptions::default() };
-        let all = run(&s, &opts).photons();
-        let mut kept = run(&s, &opts);
-        kept.retain_bounces(&[2]);
-        let k = kept.photons();
-        let want: Vec<usize> = (0..all.len()).filter(|&i| all.bounces[i] == 2).collect();
-        assert!(!want.is_empty() && want.len() < all.len(), "the default scene has other paths too");
-        assert_eq!(kept.stored as usize, want.len());
-        assert_eq!(k.len(), want.len());
-        let d = s.param_dims() as usize;
-        for (j, &i) in want.iter().enumerate() {
-            assert_eq!(k.emission_index[j], all.emission_index[i]);
-            assert_eq!(k.position[j], all.position[i]);
-            assert_eq!(k.flux[j], all.flux[i], "flux is not renormalised");
-            assert_eq!(k.params[j * d..(j + 1) * d], all.params[i * d..(i + 1) * d]);
-            assert_eq!(k.surface[j], all.surface[i]);
+        let all = run(&s, &opts).photons().unwrap();
+        // In memory, and spooled but for the last chunks.
+        for opts in [opts.clone(), spooled(&opts, dir.path(), 100_000)] {
+            let mut kept = run(&s, &opts);
+            assert_eq!(kept.store.spooled_count() > 0, opts.spool.is_some());
+            kept.retain_bounces(&[2]).unwrap();
+            let k = kept.photons().unwrap();
+            let want: Vec<usize> = (0..all.len()).filter(|&i| all.bounces[i] == 2).collect();
+            assert!(!want.is_empty() && want.len() < all.len(), "the default scene has other paths too");
+            assert_eq!(kept.stored as usize, want.len());
+            assert_eq!(k.len(), want.len());
+            let d = s.param_dims() as usize;
+            for (j, &i) in want.iter().enumerate() {
+                assert_eq!(k.emission_index[j], all.emission_index[i]);
+                assert_eq!(k.position[j], all.position[i]);
+                assert_eq!(k.flux[j], all.flux[i], "flux is not renormalised");
+                assert_eq!(k.params[j * d..(j + 1) * d], all.params[i * d..(i + 1) * d]);
+                assert_eq!(k.surface[j], all.surface[i]);
+            }
+        }
+    }
+
+    /// Photons spooled to disk (every one, or all but the last chunks) come back as a run
+    /// holding them in memory has them: the same photons and the same file byte for byte,
+    /// for either budget and with several emitters; the spool's files have no name, so the
+    /// directory holds only what was written.
+    #[test]
+    fn spooled_photons_are_the_photons_held_in_memory() {
+        let dir = tempfile::tempdir().unwrap();
+        // The default scene with a second emitter (a point light above the ball): an
+        // emitter column and three trajectory parameters.
+        let two = crate::scene::DEFAULT_SCENE.to_string()
+            + "[[emitters]]\nkind = \"point\"\nposition = [0.3, 0.0, 1.5]\npower_w = 5.0\n";
+        for (scene, budget) in [
+            (Scene::default_scene(), Budget::Emitted(100_000)),
+            (Scene::default_scene(), Budget::Stored(30_000)),
+            (scene(&two), Budget::Emitted(100_000)),
+        ] {
+            let opts = TraceOptions { budget, ..TraceOptions::default() };
+            let held = run(&scene, &opts);
+            assert_eq!(held.store.spooled_count(), 0);
+            assert_eq!(held.emitter_column, scene.emitters.len() > 1);
+            let info = map_info(&scene, &opts, &held, "default", "");
+            let want = dir.path().join("held.phm");
+            held.write(Output::Path(want.clone()), info.clone()).unwrap();
+            for memory in [1, held.stored * 30] {
+                let t = run(&scene, &spooled(&opts, dir.path(), memory));
+                assert!(t.store.spooled_count() > 0);
+                assert_eq!(memory == 1, t.store.spooled_count() == t.stored, "memory {memory}");
+                assert_eq!(
+                    (t.stored, t.emitted, t.range.clone()),
+                    (held.stored, held.emitted, held.range.clone())
+                );
+                assert_eq!(t.bounce_limited, held.bounce_limited);
+                assert_eq!(t.photons().unwrap(), held.photons().unwrap(), "{budget:?}, memory {memory}");
+                let got = dir.path().join("spooled.phm");
+                t.write(Output::Path(got.clone()), info.clone()).unwrap();
+                assert!(
+                    std::fs::read(&got).unwrap() == std::fs::read(&want).unwrap(),
+                    "{budget:?}, memory {memory}"
+                );
+                let mut names: Vec<_> =
+                    std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+                names.sort();
+                assert_eq!(names, ["held.phm", "spooled.phm"]);
+            }
         }
     }
 
@@ -1122,7 +1010,7 @@ material = "glass"
     fn ideal_slab_passes_the_whole_beam_with_uniform_density() {
         let s = scene(&slab(true, 1.5));
         let t = run(&s, &TraceOptions { budget: Budget::Emitted(40_000), ..Default::default() });
-        let p = t.photons();
+        let p = t.photons().unwrap();
         assert_eq!(p.len(), 40_000, "every photon crosses the slab");
         let total: f64 = p.flux.iter().flatten().map(|&f| f as f64).sum();
         assert!((total - 6.0).abs() < 1e-4, "{total}");
@@ -1149,7 +1037,7 @@ material = "glass"
         let s = scene(&slab(false, 1.5));
         let n = 200_000;
         let t = run(&s, &TraceOptions { budget: Budget::Emitted(n), seed: 5, ..Default::default() });
-        let total: f64 = t.photons().flux.iter().flatten().map(|&f| f as f64).sum();
+        let total: f64 = t.photons().unwrap().flux.iter().flatten().map(|&f| f as f64).sum();
         let expected = 6.0 * (1.0 - 0.04) / (1.0 + 0.04);
         // Binomial noise: σ ≈ 6·sqrt(T(1−T)/n) ≈ 0.0036.
         assert!((total - expected).abs() < 0.015, "{total} vs {expected}");
@@ -1159,11 +1047,13 @@ material = "glass"
     fn stored_budget_stops_at_the_photon_count() {
         let s = scene(&slab(false, 1.5));
         let t = run(&s, &TraceOptions { budget: Budget::Stored(5000), ..Default::default() });
-        let p = t.photons();
+        let p = t.photons().unwrap();
         assert_eq!(p.len(), 5000);
         assert_eq!(t.emitted, p.emission_index[4999] + 1);
         // The same photons as an emitted budget of that size.
-        let u = run(&s, &TraceOptions { budget: Budget::Emitted(t.emitted), ..Default::default() }).photons();
+        let u = run(&s, &TraceOptions { budget: Budget::Emitted(t.emitted), ..Default::default() })
+            .photons()
+            .unwrap();
         assert_eq!(p, u);
     }
 
@@ -1172,7 +1062,9 @@ material = "glass"
         let src = slab(true, 1.5)
             .replace("[-2, -2], [2, -2], [2, 2], [-2, 2]", "[-2, -2], [0, -2], [0, 2], [-2, 2]");
         let s = scene(&src);
-        let c = run(&s, &TraceOptions { budget: Budget::Emitted(10_000), ..Default::default() }).photons();
+        let c = run(&s, &TraceOptions { budget: Budget::Emitted(10_000), ..Default::default() })
+            .photons()
+            .unwrap();
         let d = run(
             &s,
             &TraceOptions {
@@ -1181,7 +1073,8 @@ material = "glass"
                 ..Default::default()
             },
         )
-        .photons();
+        .photons()
+        .unwrap();
         // Half the beam misses the half-slab.
         assert!((c.len() as f64 / 5000.0 - 1.0).abs() < 0.01, "{}", c.len());
         assert_eq!(d.len(), 10_000);
@@ -1214,7 +1107,7 @@ normal = [0, 0, -1]
 material = "metal"
 "#;
         let t = run(&scene(src), &TraceOptions { budget: Budget::Emitted(100_000), ..Default::default() });
-        let p = t.photons();
+        let p = t.photons().unwrap();
         let mut sum = [0.0f64; 3];
         for f in &p.flux {
             for k in 0..3 {
@@ -1232,11 +1125,11 @@ material = "metal"
         let s = Scene::default_scene();
         let opts = TraceOptions { budget: Budget::Emitted(30_000), seed: 3, ..Default::default() };
         let pool = |n| rayon::ThreadPoolBuilder::new().num_threads(n).build().unwrap();
-        let a = pool(1).install(|| run(&s, &opts)).photons();
-        let b = pool(2).install(|| run(&s, &opts)).photons();
+        let a = pool(1).install(|| run(&s, &opts)).photons().unwrap();
+        let b = pool(2).install(|| run(&s, &opts)).photons().unwrap();
         assert!(a.len() > 1000);
         assert_eq!(a, b);
-        let c = run(&s, &TraceOptions { seed: 4, ..opts }).photons();
+        let c = run(&s, &TraceOptions { seed: 4, ..opts }).photons().unwrap();
         assert_ne!(a, c);
     }
 }

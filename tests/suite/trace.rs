@@ -52,7 +52,7 @@ radius = {r}
 material = "glass"
 "#
     );
-    let p = run(&scene(&src), 4000).photons();
+    let p = run(&scene(&src), 4000).photons().unwrap();
     assert_eq!(p.len(), 4000, "no Fresnel reflection: every photon reaches the floor");
     assert!(p.bounces.iter().all(|&b| b == 2));
     let f = n * r / (2.0 * (n - 1.0));
@@ -107,7 +107,7 @@ material = "glass"
 "#
         );
         let t = run(&scene(&src), 20_000);
-        let p = t.photons();
+        let p = t.photons().unwrap();
         assert_eq!(p.len(), 20_000);
         let total = total_flux(&p);
         assert!((total - 7.0).abs() < 1e-4, "ideal = {ideal}: {total} W stored of 7 W");
@@ -149,7 +149,7 @@ radius = 0.01
 material = "receiver"
 "#;
     let s = scene(src);
-    let p = run(&s, 60_000).photons();
+    let p = run(&s, 60_000).photons().unwrap();
     for q in &p.position {
         let q = Vec3::from_array(*q);
         assert!((q - Vec3::new(0.0, 0.0, 0.5)).length() < 0.0101);
@@ -236,7 +236,7 @@ material = "glass"
     let t = run(&s, 40_000);
     assert_eq!(t.param_dims, 3);
     assert!(t.emitter_column);
-    let p = t.photons();
+    let p = t.photons().unwrap();
     let mut per_emitter = [0; 2];
     for i in 0..p.len() {
         let e = p.emitter[i] as usize;
@@ -288,7 +288,7 @@ fn every_sample_scene_stores_caustic_photons_and_no_more_than_its_power() {
         let s = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
         assert!(s.camera.is_some(), "{} has no camera", path.display());
         let t = run(&s, 20_000);
-        let p = t.photons();
+        let p = t.photons().unwrap();
         assert!(p.len() > 20, "{}: only {} photons stored", path.display(), p.len());
         assert!(p.bounces.iter().all(|&b| b > 0));
         let power: f64 = s.emitters.iter().map(|e| e.power_w).sum();
@@ -308,7 +308,7 @@ fn direct_photons_join_with_store_direct() {
     let c = trace::trace(&s, &opts, &|_, _| {}).unwrap();
     let d = trace::trace(&s, &TraceOptions { store: StorePolicy::Direct, ..opts }, &|_, _| {}).unwrap();
     assert!(d.stored > c.stored);
-    let direct = d.photons().bounces.iter().filter(|&&b| b == 0).count() as u64;
+    let direct = d.photons().unwrap().bounces.iter().filter(|&&b| b == 0).count() as u64;
     assert_eq!(d.stored - direct, c.stored);
 }
 
@@ -477,7 +477,7 @@ material = "glass"
 "#,
             1.0 + gap
         );
-        let p = run(&scene(&src), 40_000).photons();
+        let p = run(&scene(&src), 40_000).photons().unwrap();
         let radius = 0.0125f64;
         let traced: f64 = p
             .position
@@ -521,7 +521,7 @@ fn stored_directions_are_unit_on_every_sample_scene() {
             continue;
         }
         let s = Scene::load(&path).unwrap();
-        let p = run(&s, 30_000).photons();
+        let p = run(&s, 30_000).photons().unwrap();
         for (i, d) in p.incident.iter().enumerate() {
             let len = Vec3::from(*d).length();
             assert!((len - 1.0).abs() < 2e-6, "{}: photon {i} incident length {len}", path.display());
@@ -529,34 +529,74 @@ fn stored_directions_are_unit_on_every_sample_scene() {
     }
 }
 
-/// Requests the machine cannot hold are refused with a message, not an allocation abort
-/// (issue 31: `--photons 1e12` aborted with a backtrace, `--stored 1e12` grew without bound).
+/// Requests the machine cannot hold are refused with a message, not an allocation abort or a
+/// full disk (issue 31: `--photons 1e12` aborted with a backtrace, `--stored 1e12` grew without
+/// bound). `trace` spools photons beyond `--memory` to disk, so its limits are the memory it
+/// is allowed and the free space beside the output.
 #[test]
-fn counts_beyond_memory_are_refused_not_aborted() {
+fn counts_beyond_memory_or_disk_are_refused_not_aborted() {
     let dir = tempfile::tempdir().unwrap();
     let out = dir.path().join("t.phm");
     let os = out.to_str().unwrap();
-    let run = |args: &[&str], budget: Option<&str>| {
+    let run = |args: &[&str], env: Option<(&str, &str)>| {
         let mut c = std::process::Command::new(env!("CARGO_BIN_EXE_photonkit"));
         c.args(args);
-        if let Some(b) = budget {
-            c.env("PHOTONKIT_TEST_MEMORY_BUDGET", b);
+        if let Some((k, v)) = env {
+            c.env(k, v);
         }
         c.output().unwrap()
     };
     // A stored count is checked before anything is traced; an emitted count after one batch
-    // (here with the budget lowered to 1 MB, which 100 000 photons of this scene outgrow).
-    for (args, budget) in [
-        (vec!["trace", "--stored", "1e12", "-o", os], None),
-        (vec!["trace", "--photons", "100000", "-o", os], Some("1000000")),
+    // (here with the free space, or the memory, lowered to 1 MB, which 1 M photons of this
+    // scene outgrow).
+    let disk = Some(("PHOTONKIT_TEST_DISK_BUDGET", "1000000"));
+    let memory = Some(("PHOTONKIT_TEST_MEMORY_BUDGET", "1000000"));
+    for (args, env, want) in [
+        (vec!["trace", "--stored", "1e12", "-o", os], None, "GB of disk for the stored photons"),
+        (vec!["trace", "--photons", "1000000", "-o", os], disk, "GB free in"),
+        (vec!["trace", "--photons", "1000000", "-o", os], memory, "GB of memory available"),
     ] {
-        let o = run(&args, budget);
+        let o = run(&args, env);
         assert_eq!(o.status.code(), Some(1), "{args:?}: {}", stderr(&o));
-        assert!(stderr(&o).contains("GB of memory available"), "{args:?}: {}", stderr(&o));
-        assert!(!stderr(&o).contains("backtrace") && !out.exists());
+        assert!(stderr(&o).contains(want), "{args:?}: {}", stderr(&o));
+        assert!(!stderr(&o).contains("backtrace"));
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0, "{args:?} left a file");
     }
     let o = run(&["trace", "--photons", "100000", "-o", os], None);
     assert!(o.status.success(), "{}", stderr(&o));
+}
+
+/// `trace --memory` bounds the photons held in memory; beyond it they are spooled beside the
+/// output and the map is written from there: the file is the same byte for byte and no spool
+/// file is left behind (BENCHMARKS.md measures the memory saved).
+#[test]
+fn trace_memory_limit_spools_to_the_same_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let trace = |memory: &str, name: &str| {
+        let out = dir.path().join(name);
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_photonkit"))
+            .args(["trace", "--photons", "400000", "--memory", memory, "-o", out.to_str().unwrap()])
+            .env("SOURCE_DATE_EPOCH", "1700000000")
+            .output()
+            .unwrap();
+        assert!(o.status.success(), "--memory {memory}: {}", stderr(&o));
+        std::fs::read(out).unwrap()
+    };
+    let held = trace("1G", "held.phm");
+    let spooled = trace("64KiB", "spooled.phm");
+    assert!(held.len() > 4_000_000, "enough photons to spool: {} bytes", held.len());
+    assert!(held == spooled, "the spooled run wrote a different file");
+    let mut names: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    names.sort();
+    assert_eq!(names, ["held.phm", "spooled.phm"]);
+    for bad in ["0", "lots", "5 parsecs"] {
+        let o = std::process::Command::new(env!("CARGO_BIN_EXE_photonkit"))
+            .args(["trace", "--memory", bad, "-o", dir.path().join("x.phm").to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert_eq!(o.status.code(), Some(2), "--memory {bad}");
+        assert!(stderr(&o).contains("--memory"), "--memory {bad}: {}", stderr(&o));
+    }
 }
 
 /// Scene mistakes are named by their full field path and refused before tracing (issue 31):

@@ -70,7 +70,7 @@ fn trace_sample(file: &str, n: u64) -> (Scene, Photons) {
     let scene = Scene::load(&root().join("samples/scenes").join(file)).unwrap();
     let opts = TraceOptions { budget: Budget::Emitted(n), ..TraceOptions::default() };
     let traced = trace(&scene, &opts, &|_, _| {}).unwrap();
-    (scene, traced.photons())
+    (scene, traced.photons().unwrap())
 }
 
 /// The photons the truth accounts for: positions and flux of those whose BOUNCES it lists.

@@ -12,7 +12,11 @@
 //!    chord area, equal to per steradian for small radii, and there is no seam).
 //! 2. **Neighbourhood**: the Kc nearest photons by world-space distance among those of the
 //!    same emitter with parameters within r_param(i) of i's ([`crate::spatial`]); i is one of
-//!    them. r is the world-space distance to the farthest (the Kc-th).
+//!    them. r is the world-space distance to the farthest (the Kc-th). *Not in the paper:* a
+//!    photon held by step 3 whose ball binds from both sides ([`ball_binds`]: a stretched map
+//!    from parameters to the surface, not an edge) is measured again with r_param doubled, up
+//!    to [`DetectParams::growths`] times; the `r_param` column holds the radius finally used
+//!    (docs/parameter-ball.md).
 //! 3. **PCA** in i's tangent plane (Eq. 2–7): the neighbours' offsets are projected onto an
 //!    orthonormal basis of the plane orthogonal to the normal, their covariance (mean removed,
 //!    divided by the count m) decomposed in closed form ([`eigen2`]), λ1 ≥ λ2 normalised by r²,
@@ -88,6 +92,9 @@ pub struct DetectParams {
     pub gain: f32,
     /// μ(K), σ(K) of Eq. 4–6.
     pub noise: NoiseModel,
+    /// Times a photon's parameter ball may be doubled when it binds ([`ball_binds`]); 0 keeps
+    /// the paper's fixed ball.
+    pub growths: u32,
 }
 
 impl Default for DetectParams {
@@ -99,9 +106,13 @@ impl Default for DetectParams {
             k_density: None,
             gain: DEFAULT_GAIN,
             noise: NoiseModel::Simulated,
+            growths: DEFAULT_GROWTHS,
         }
     }
 }
+
+/// The default [`DetectParams::growths`]: twice, to 4β (docs/parameter-ball.md).
+pub const DEFAULT_GROWTHS: u32 = 2;
 
 /// The `gradient` method's default gain: a hard edge (g ≈ 1.7) is held fully, isotropic noise
 /// (g ≈ 2.8/√Kc, 0.4 at Kc = 50) keeps most of its freedom.
@@ -615,6 +626,38 @@ pub fn detect(
     })
 }
 
+/// Photons whose factor is below this are measured again in a grown ball when theirs binds.
+const GROWN_BELOW: f32 = 0.9;
+
+/// Whether photon i's parameter ball of radius `radius` binds its neighbourhood `nb` from both
+/// sides: two neighbours lie in its outer fifth on opposite sides of i (their offsets from i
+/// in parameter space have a negative dot product). Where the map from parameters to the
+/// surface stretches one way far more than the other (rays grazing a sphere's rim), the Kc
+/// nearest photons in world space within the ball are a band right across it, whatever the
+/// illumination: the band is the ball's image, and measuring it would hold the photon on a line
+/// in smooth light. A ball that does not bind holds the Kc nearest photons well inside it
+/// (within about 1/β of its radius when the map is isotropic), and one reached on one side
+/// only is the edge of another set of photons that the ball is there to keep out (Fig. 3).
+fn ball_binds(points: &PointSet, i: usize, nb: &Neighbours, radius: f32, outer: &mut Vec<[f64; 3]>) -> bool {
+    let pi = points.params_of(i);
+    let limit = (0.8 * radius as f64).powi(2);
+    outer.clear();
+    for j in nb.indices() {
+        let pj = points.params_of(j as usize);
+        let mut q = [0.0f64; 3];
+        for (k, (a, b)) in pi.iter().zip(pj).enumerate().take(3) {
+            q[k] = (*b - *a) as f64;
+        }
+        if q.iter().map(|x| x * x).sum::<f64>() > limit {
+            if outer.iter().any(|o| o.iter().zip(&q).map(|(a, b)| a * b).sum::<f64>() < 0.0) {
+                return true;
+            }
+            outer.push(q);
+        }
+    }
+    false
+}
+
 /// [`detect`] on photons in the order given.
 fn detect_in_order(
     input: &DetectInput,
@@ -646,12 +689,13 @@ fn detect_in_order(
         None => None,
     };
     let order: Vec<u32> = index.as_ref().map_or_else(|| (0..n as u32).collect(), |ix| ix.order());
-    let mut results = vec![PhotonConstraint::free(DVec3::X, DVec3::Y, Outcome::Unconstrained); n];
+    let mut results = vec![(PhotonConstraint::free(DVec3::X, DVec3::Y, Outcome::Unconstrained), 0f32); n];
     results.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
         // The PCA and the gradient need the neighbours, not their order (one buffer per chunk:
         // the order is the same whatever the thread count).
         let mut nb = Neighbours::unordered(p.kc);
         let (mut offsets, mut weights, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
+        let mut outer = Vec::new();
         for (o, (res, &i)) in out.iter_mut().zip(ids).enumerate() {
             let i = i as usize;
             // The photon arrays are in Z-order, not the index's: start loading a photon a few
@@ -669,21 +713,22 @@ fn detect_in_order(
             let normal = input.normals.map(|ns| ns[i]);
             let Some(index) = &index else {
                 let (t1, t2) = tangent_basis(normal.and_then(unit_normal).unwrap_or(DVec3::Z));
-                *res = PhotonConstraint::free(t1, t2, Outcome::Unconstrained);
+                *res = (PhotonConstraint::free(t1, t2, Outcome::Unconstrained), 0.0);
                 continue;
             };
-            let radius = r_param.as_ref().map(|r| r[i]);
-            index.knn(&points.query(i, radius), p.kc, &mut nb);
-            let xi = input.positions[i];
-            offsets.clear();
-            // The index's copy of the neighbours' positions, already in cache from the search.
-            offsets.extend(nb.coords().iter().map(|xj| {
-                DVec3::new((xj[0] - xi[0]) as f64, (xj[1] - xi[1]) as f64, (xj[2] - xi[2]) as f64)
-            }));
-            let r2 = offsets.iter().map(|o| o.length_squared()).fold(0.0, f64::max);
-            let hood = Neighbourhood { offsets: &offsets, r2, normal };
-            *res =
-                match p.method {
+            let mut radius = r_param.as_ref().map(|r| r[i]);
+            let mut growths = 0;
+            loop {
+                index.knn(&points.query(i, radius), p.kc, &mut nb);
+                let xi = input.positions[i];
+                offsets.clear();
+                // The index's copy of the neighbours' positions, already in cache from the search.
+                offsets.extend(nb.coords().iter().map(|xj| {
+                    DVec3::new((xj[0] - xi[0]) as f64, (xj[1] - xi[1]) as f64, (xj[2] - xi[2]) as f64)
+                }));
+                let r2 = offsets.iter().map(|o| o.length_squared()).fold(0.0, f64::max);
+                let hood = Neighbourhood { offsets: &offsets, r2, normal };
+                let c = match p.method {
                     Method::ParamPca | Method::WorldPca => pca_constraint(&hood, p.noise),
                     Method::Gradient => {
                         weights.clear();
@@ -697,6 +742,23 @@ fn detect_in_order(
                         PhotonConstraint::free(t1, t2, Outcome::Unconstrained)
                     }
                 };
+                // A constrained photon whose ball binds measures the ball's shape, not the
+                // illumination's: measure again in a ball twice as wide.
+                match radius {
+                    Some(r)
+                        if growths < p.growths
+                            && c.factor < GROWN_BELOW
+                            && ball_binds(&points, i, &nb, r, &mut outer) =>
+                    {
+                        radius = Some(r * 2.0);
+                        growths += 1;
+                    }
+                    _ => {
+                        *res = (c, radius.unwrap_or(0.0));
+                        break;
+                    }
+                }
+            }
         }
         progress(ids.len() as u64);
     });
@@ -708,8 +770,11 @@ fn detect_in_order(
         summary: Summary { photons: n, ..Default::default() },
     };
     let mut factor_sum = 0.0f64;
-    for (&i, c) in order.iter().zip(&results) {
+    for (&i, (c, radius)) in order.iter().zip(&results) {
         let i = i as usize;
+        if let Some(r) = &mut d.r_param {
+            r[i] = *radius;
+        }
         d.basis_u[i] = c.u;
         d.basis_v[i] = c.v;
         d.lambda2[i] = c.lambda2;

@@ -36,6 +36,11 @@ pub struct Args {
     /// β of Eq. 1: the parameter-space radius in units of the mean photon spacing sqrt(Kc/(πρ)).
     #[arg(value_parser = super::finite_f32, long, default_value_t = 3.0)]
     beta: f32,
+    /// Times a constrained photon's parameter ball may be doubled when its neighbours reach the
+    /// ball's outer fifth (a stretched map from parameters to the surface, not an edge); 0 keeps
+    /// the paper's fixed ball (docs/parameter-ball.md).
+    #[arg(long, value_name = "N", default_value_t = photonkit::detect::DEFAULT_GROWTHS)]
+    growths: u32,
     /// k of the parameter-space density estimate ρ = k/(π r_k²); default Kc.
     #[arg(long, value_name = "K")]
     k_density: Option<usize>,
@@ -86,6 +91,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         beta: a.beta,
         k_density: a.k_density,
         gain: a.gain,
+        growths: a.growths,
         noise: match a.mu_sigma {
             NoiseArg::Simulated => NoiseModel::Simulated,
             NoiseArg::Paper => NoiseModel::Paper,

@@ -43,6 +43,10 @@ pub struct Args {
     /// β of Eq. 1 (parameter-space radius in units of the mean photon spacing).
     #[arg(value_parser = super::finite_f32, long, default_value_t = 3.0)]
     beta: f32,
+    /// Times a constrained photon's parameter ball may be doubled where it binds (`detect
+    /// --growths`; docs/parameter-ball.md); 0 keeps the paper's fixed ball.
+    #[arg(long, value_name = "N", default_value_t = detect::DEFAULT_GROWTHS)]
+    growths: u32,
     /// R: relaxation iterations before the collapse and again after it.
     #[arg(short = 'R', long, default_value_t = 7)]
     iterations: usize,
@@ -99,7 +103,7 @@ fn report(stage: &str, seconds: f64, photons: usize, file: &Path, note: &str) {
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (scene, label, text) = super::trace::load_scene(a.scene.as_deref())?;
     anyhow::ensure!(a.photons >= 1, "--photons needs at least 1");
-    let dp = DetectParams { kc: a.kc, beta: a.beta, ..DetectParams::default() };
+    let dp = DetectParams { kc: a.kc, beta: a.beta, growths: a.growths, ..DetectParams::default() };
     let rp = RelaxParams { iterations: a.iterations, kf: a.kf, ..RelaxParams::default() };
     std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;
     let file = |name: &str| a.out_dir.join(name);

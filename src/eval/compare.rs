@@ -119,6 +119,8 @@ pub struct CompareOptions {
     pub beta: f32,
     /// k of the parameter-space density ρ (Eq. 1); `None` means Kc.
     pub k_density: Option<usize>,
+    /// Doublings of a binding parameter ball ([`DetectParams::growths`]).
+    pub growths: u32,
     /// Kf of the repulsion force.
     pub kf: usize,
     /// R: iterations before the collapse and again after it (this method).
@@ -156,6 +158,7 @@ impl Default for CompareOptions {
             kc: 50,
             beta: 3.0,
             k_density: None,
+            growths: crate::detect::DEFAULT_GROWTHS,
             kf: 16,
             iterations: 7,
             iterations_2009: 14,
@@ -509,6 +512,7 @@ fn run_seed(
             kc: o.kc,
             beta: o.beta,
             k_density: o.k_density,
+            growths: o.growths,
             method,
             ..DetectParams::default()
         };

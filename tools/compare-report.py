@@ -5,7 +5,7 @@
     tools/compare-report.py scenes   # every ground-truth scene, a photon-count sweep, equal-time tables
 
 Each command replaces its own section of BENCHMARKS.md (between marker comments) and copies
-the plots and image grids into docs/compare/. Options: --photons, --bin (default: builds and
+the plots and image grids into docs/compare/ (SCENE-grid.png, SCENE-error-vs-time.png, table1-…). Options: --photons, --bin (default: builds and
 uses target/release/photonkit), --cores (the machine's cores, for the per-core ratios).
 """
 
@@ -238,6 +238,11 @@ def scenes(args):
         if cells:
             lines += [f"Pixels per region: core {cells.group(1)}, edge {cells.group(2)}, smooth {cells.group(3)}, "
                       f"dark {cells.group(4)}.", ""]
+        os.makedirs(os.path.join(ROOT, "docs", "compare"), exist_ok=True)
+        for f in ["grid.png", "error-vs-time.png"]:
+            shutil.copy(os.path.join(out, f), os.path.join(ROOT, "docs", "compare", f"{s}-{f}"))
+        lines += [f"Images and error maps: docs/compare/{s}-grid.png; error against time per region: "
+                  f"docs/compare/{s}-error-vs-time.png.", ""]
         lines += ["| method | setting | time | all | core | edge | smooth | dark |", "|---|---|---|---|---|---|---|---|"]
         keys = []
         for r in rows:

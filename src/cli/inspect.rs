@@ -35,6 +35,9 @@ pub struct Args {
     /// bounding box); exit with status 1 on any violation.
     #[arg(long)]
     check: bool,
+    /// Also show where each column lies in the file: its byte offset, length and CRC-32.
+    #[arg(long, conflicts_with_all = ["json", "dump", "head", "sample", "check"])]
+    layout: bool,
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -77,13 +80,13 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             return Ok(ExitCode::FAILURE);
         }
     } else {
-        print_summary(&inspect::summarize(&map), &mut out)?;
+        print_summary(&inspect::summarize(&map), a.layout, &mut out)?;
     }
     out.flush()?;
     Ok(ExitCode::SUCCESS)
 }
 
-fn print_summary(s: &inspect::Summary, o: &mut dyn Write) -> std::io::Result<()> {
+fn print_summary(s: &inspect::Summary, show_layout: bool, o: &mut dyn Write) -> std::io::Result<()> {
     writeln!(o, "{}: PHM {}, {} photons, state {}", s.file, s.version, s.photon_count, s.state)?;
     writeln!(o, "units: length {}, flux {}", s.units.length, s.units.flux)?;
     match &s.bounding_box {
@@ -111,34 +114,39 @@ fn print_summary(s: &inspect::Summary, o: &mut dyn Write) -> std::io::Result<()>
         )?;
     }
     writeln!(o, "\ncolumns:")?;
-    writeln!(
-        o,
-        "  {:<16} {:<7} {:>12} {:>12} {:>10}  {:>14} {:>14} {:>14} {:>5} {:>5}",
-        "name", "type", "offset", "bytes", "crc32", "min", "max", "mean", "nan", "inf"
-    )?;
-    let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.6e}"));
+    // The file layout (offset, length, CRC-32) only on request: it serves format work, not
+    // a look at the photons.
+    let layout = |o: &mut dyn Write, cells: [&str; 3]| -> std::io::Result<()> {
+        if show_layout { write!(o, " {:>12} {:>12} {:>10}", cells[0], cells[1], cells[2]) } else { Ok(()) }
+    };
+    write!(o, "  {:<16} {:<7}", "name", "type")?;
+    layout(o, ["offset", "bytes", "crc32"])?;
+    writeln!(o, "  {:>14} {:>14} {:>14} {:>5} {:>5}", "min", "max", "mean", "nan", "inf")?;
     for c in &s.columns {
+        // Integer columns print as integers (a mean to 6 significant digits), floats in
+        // scientific notation.
+        let integer = c.dtype != photonkit::format::DType::F32;
+        let f = |v: Option<f64>, exact: bool| match v {
+            None => "-".to_string(),
+            Some(x) if integer && exact => format!("{x:.0}"),
+            Some(x) if integer => format!("{}", format!("{x:.6e}").parse::<f64>().unwrap_or(x)),
+            Some(x) => format!("{x:.6e}"),
+        };
         for (k, st) in c.stats.iter().enumerate() {
             let label = photonkit::format::columns::text_names(&c.name, c.components)[k].clone();
             if k == 0 {
-                write!(
-                    o,
-                    "  {:<16} {:<7} {:>12} {:>12} {:>10}",
-                    c.name,
-                    format!("{}×{}", c.dtype.name(), c.components),
-                    c.offset,
-                    c.length,
-                    format!("{:08x}", c.crc32)
-                )?;
+                write!(o, "  {:<16} {:<7}", c.name, format!("{}×{}", c.dtype.name(), c.components))?;
+                layout(o, [&c.offset.to_string(), &c.length.to_string(), &format!("{:08x}", c.crc32)])?;
             } else {
-                write!(o, "  {:<16} {:<7} {:>12} {:>12} {:>10}", "", "", "", "", "")?;
+                write!(o, "  {:<16} {:<7}", "", "")?;
+                layout(o, ["", "", ""])?;
             }
             writeln!(
                 o,
                 "  {:>14} {:>14} {:>14} {:>5} {:>5}  {label}",
-                f(st.min),
-                f(st.max),
-                f(st.mean),
+                f(st.min, true),
+                f(st.max, true),
+                f(st.mean, false),
                 st.nan,
                 st.inf
             )?;

@@ -1197,3 +1197,29 @@ fn inspect_dump_round_trips_every_value_exactly() {
     let head: Vec<String> = stdout(&o).lines().map(String::from).collect();
     assert_eq!(head, text.lines().take(4).map(String::from).collect::<Vec<_>>());
 }
+
+/// The summary shows the photons, not the file layout (issue 29): integer columns print as
+/// integers, and offsets, lengths and CRCs appear only with `--layout`.
+#[test]
+fn inspect_summary_prints_integers_as_integers_and_the_layout_on_request() {
+    let file = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/collimated-cusp.phm");
+    let file = file.to_str().unwrap();
+    let plain = stdout(&photonkit(&["inspect", file]));
+    let row = |text: &str, name: &str| -> Vec<String> {
+        let line =
+            text.lines().find(|l| l.trim_start().starts_with(name)).unwrap_or_else(|| panic!("{text}"));
+        line.split_whitespace().map(str::to_string).collect()
+    };
+    // name, type, min, max, mean, nan, inf, label.
+    assert_eq!(row(&plain, "bounces")[..5], ["bounces", "u8×1", "1", "1", "1"], "{plain}");
+    assert_eq!(
+        row(&plain, "emission_index")[..5],
+        ["emission_index", "u64×1", "0", "1999", "999.5"],
+        "{plain}"
+    );
+    assert_eq!(row(&plain, "position")[2], "-2.995529e-1", "{plain}");
+    assert!(!plain.contains("crc32") && !plain.contains("offset"), "{plain}");
+    let layout = stdout(&photonkit(&["inspect", "--layout", file]));
+    assert!(layout.contains("crc32") && layout.contains("offset"), "{layout}");
+    assert_eq!(row(&layout, "bounces")[2..5], ["122752", "2000", "50727c8b"], "{layout}");
+}

@@ -23,7 +23,8 @@ use photonkit::trace::{self, Budget, DEFAULT_SPOOL_MEMORY, Spool, TraceOptions};
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
     photonkit pipeline                                   # the embedded default scene\n  \
-    photonkit pipeline samples/scenes/prism.toml --photons 2e6 --out-dir prism-run")]
+    photonkit pipeline samples/scenes/prism.toml --photons 2e6 --out-dir prism-run\n  \
+    photonkit pipeline samples/scenes/sphere-point.toml --stored 200000")]
 pub struct Args {
     /// Scene file (TOML); without it, the embedded default scene (a glass sphere above a floor
     /// under a vertical collimated beam, samples/scenes/glass-sphere.toml).
@@ -34,6 +35,10 @@ pub struct Args {
     /// Photons to emit (e.g. 1000000 or 1e6).
     #[arg(long, value_name = "N", value_parser = super::trace::parse_count, default_value = "1000000")]
     photons: u64,
+    /// Emit photons until N are stored, instead of a fixed number emitted (for scenes where
+    /// few emitted photons become caustic ones, e.g. a point light above a small glass).
+    #[arg(long, value_name = "N", value_parser = super::trace::parse_count, conflicts_with = "photons")]
+    stored: Option<u64>,
     /// Seed of the emission sequence.
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -102,7 +107,8 @@ fn report(stage: &str, seconds: f64, photons: usize, file: &Path, note: &str) {
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (scene, label, text) = super::trace::load_scene(a.scene.as_deref())?;
-    anyhow::ensure!(a.photons >= 1, "--photons needs at least 1");
+    anyhow::ensure!(a.photons >= 1 && a.stored != Some(0), "--photons and --stored need at least 1");
+    let budget = a.stored.map_or(Budget::Emitted(a.photons), Budget::Stored);
     let dp = DetectParams { kc: a.kc, beta: a.beta, growths: a.growths, ..DetectParams::default() };
     let rp = RelaxParams { iterations: a.iterations, kf: a.kf, ..RelaxParams::default() };
     std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;
@@ -113,7 +119,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     // Trace.
     let opts = TraceOptions {
         seed: a.seed,
-        budget: Budget::Emitted(a.photons),
+        budget,
         spool: Some(Spool { dir: a.out_dir.clone(), memory: DEFAULT_SPOOL_MEMORY }),
         ..TraceOptions::default()
     };
@@ -125,7 +131,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     anyhow::ensure!(
         traced.stored > 0,
         "no photon was stored from {} emitted: does light reach a diffuse surface through a mirror or glass?",
-        a.photons
+        traced.emitted
     );
     let info = trace::map_info(&scene, &opts, &traced, &label, &text);
     traced.write(Output::Path(file("traced.phm")), info)?;
@@ -134,7 +140,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         t.elapsed().as_secs_f64(),
         traced.stored as usize,
         &file("traced.phm"),
-        &format!("  ({} emitted)", a.photons),
+        &format!("  ({} emitted)", traced.emitted),
     );
 
     // Detect.

@@ -300,3 +300,33 @@ fn pipeline_renders_the_traced_map_when_too_few_photons_are_stored() {
         assert!(out.join("relaxed.phm").exists(), "every stage's map is still written");
     }
 }
+
+/// `pipeline --stored N` traces until N photons are stored (issue 29: a point light above a
+/// small glass stores about 1 % of what it emits), reports what was emitted, and refuses
+/// `--stored` together with `--photons`.
+#[test]
+fn pipeline_traces_until_the_stored_count() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("p");
+    let o = photonkit(&[
+        "pipeline",
+        "--stored",
+        "3000",
+        "--out-dir",
+        out.to_str().unwrap(),
+        "--",
+        "--width",
+        "16",
+        "--height",
+        "16",
+        "--spp",
+        "1",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let map = photonkit::format::PhotonMap::open_path(&out.join("traced.phm")).unwrap();
+    assert_eq!(map.len(), 3000);
+    let line = stderr(&o).lines().find(|l| l.starts_with("trace")).unwrap().to_string();
+    assert!(line.contains("3000 photons") && line.contains(" emitted)"), "{line}");
+    let o = photonkit(&["pipeline", "--stored", "10", "--photons", "10", "--out-dir", out.to_str().unwrap()]);
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+}

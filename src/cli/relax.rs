@@ -86,7 +86,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     let p = capped;
     let bar = ProgressBar::new(p.iterations as u64).with_style(
-        ProgressStyle::with_template("relax {bar:30} {pos}/{len} iterations {elapsed} {msg}")
+        ProgressStyle::with_template("relax {bar:30} {pos}/{len} iterations {elapsed} (eta {eta}) {msg}")
             .expect("valid template"),
     );
     let t = Instant::now();

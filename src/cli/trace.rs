@@ -143,16 +143,19 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     bar.set_style(
         ProgressStyle::with_template(
-            "trace {bar:30} {human_pos}/{human_len} emitted, {msg} stored  {per_sec} {elapsed}/{eta}",
+            "trace {bar:30} {human_pos}/{human_len} emitted, {msg} stored  {rate} {elapsed} (eta {eta})",
         )
-        .expect("valid template"),
+        .expect("valid template")
+        .with_key("rate", |s: &indicatif::ProgressState, w: &mut dyn std::fmt::Write| {
+            let _ = write!(w, "{:.2} M/s", s.per_sec() / 1e6);
+        }),
     );
     let stored = AtomicU64::new(0);
     let t = Instant::now();
     let progress = |e: u64, s: u64| {
         let s = stored.fetch_add(s, Ordering::Relaxed) + s;
         bar.inc(e);
-        bar.set_message(s.to_string());
+        bar.set_message(indicatif::HumanCount(s).to_string());
     };
     let traced = match a.threads {
         Some(n) => rayon::ThreadPoolBuilder::new()

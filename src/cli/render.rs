@@ -107,9 +107,15 @@ struct Common {
     /// Write no PNG preview.
     #[arg(long, conflicts_with = "png")]
     no_png: bool,
-    /// Preview exposure in stops: pixel values are multiplied by 2^EXPOSURE before the sRGB curve.
+    /// Preview exposure in stops, added to the automatic exposure (the lit pixels' log-average
+    /// luminance exposed to mid-grey); highlights then roll off along a shoulder that keeps
+    /// every pixel's hue. The EXR is linear and never exposed.
     #[arg(value_parser = super::finite_f32, long, default_value_t = 0.0, allow_negative_numbers = true)]
     exposure: f32,
+    /// Take --exposure as the whole exposure (pixel values times 2^EXPOSURE), not an offset from
+    /// the automatic one: the same for every image, for side-by-side comparisons.
+    #[arg(long)]
+    fixed_exposure: bool,
     /// Image width in pixels (default: the camera's).
     #[arg(long)]
     width: Option<u32>,
@@ -232,7 +238,12 @@ impl Common {
         } else {
             Some(self.png.clone().unwrap_or_else(|| exr.with_extension("png")))
         };
-        Outputs { exr: Some(exr.to_path_buf()), png, exposure: self.exposure }
+        Outputs {
+            exr: Some(exr.to_path_buf()),
+            png,
+            exposure: self.exposure,
+            fixed_exposure: self.fixed_exposure,
+        }
     }
 
     fn eye_options(&self) -> EyeOptions {

@@ -689,8 +689,11 @@ fn write_exrs(dir: &Path, target: &Target, runs: &[Run]) -> Result<(), CompareEr
     for (p, t) in truth.pixels.iter_mut().zip(&target.truth) {
         *p = glam::DVec3::from_array(*t).as_vec3();
     }
-    let out =
-        |name: &str| Outputs { exr: Some(images.join(format!("{name}.exr"))), png: None, exposure: 0.0 };
+    let out = |name: &str| Outputs {
+        exr: Some(images.join(format!("{name}.exr"))),
+        png: None,
+        ..Outputs::default()
+    };
     write(&truth, &out("truth"), &view)?;
     for run in runs {
         for r in &run.rows {

@@ -81,11 +81,12 @@ fn exr_temp(path: &Path, img: &Image, notes: &Notes) -> Result<tempfile::NamedTe
     Ok(tmp)
 }
 
-/// An 8-bit sRGB PNG preview of `img` scaled by 2^`exposure`, in a temporary file.
-fn png_temp(path: &Path, img: &Image, exposure: f32) -> Result<tempfile::NamedTempFile, RenderError> {
+/// An 8-bit sRGB PNG preview of `img`, tone-mapped ([`super::tone`]), in a temporary file.
+fn png_temp(path: &Path, img: &Image, out: &Outputs) -> Result<tempfile::NamedTempFile, RenderError> {
     let tmp = temp_beside(path)?;
-    let scale = exposure.exp2();
-    let data: Vec<u8> = img.pixels.iter().flat_map(|p| (*p * scale).to_array().map(srgb8)).collect();
+    let scale = out.preview_stops(img).exp2();
+    let data: Vec<u8> =
+        img.pixels.iter().flat_map(|p| super::tone::tone_map(*p, scale).to_array().map(srgb8)).collect();
     let mut enc = png::Encoder::new(std::io::BufWriter::new(tmp.as_file()), img.width, img.height);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
@@ -108,14 +109,22 @@ pub fn srgb8(v: f32) -> u8 {
 pub struct Outputs {
     pub exr: Option<PathBuf>,
     pub png: Option<PathBuf>,
-    /// The preview's exposure: pixel values are multiplied by 2^exposure before the sRGB curve.
+    /// The preview's exposure in stops: added to the automatic exposure, or with
+    /// `fixed_exposure` the whole of it (pixel values multiplied by 2^exposure).
     pub exposure: f32,
+    /// Whether `exposure` is absolute rather than an offset from [`super::tone::auto_exposure`].
+    pub fixed_exposure: bool,
 }
 
 impl Outputs {
-    /// `out.exr` with its preview `out.png` beside it.
+    /// `out.exr` with its preview `out.png` beside it, automatically exposed.
     pub fn beside(exr: &Path) -> Outputs {
-        Outputs { exr: Some(exr.to_path_buf()), png: Some(exr.with_extension("png")), exposure: 0.0 }
+        Outputs { exr: Some(exr.to_path_buf()), png: Some(exr.with_extension("png")), ..Outputs::default() }
+    }
+
+    /// The preview's exposure of `img`, in stops.
+    pub fn preview_stops(&self, img: &Image) -> f32 {
+        if self.fixed_exposure { self.exposure } else { super::tone::auto_exposure(img) + self.exposure }
     }
 }
 
@@ -126,7 +135,7 @@ pub fn write(img: &Image, out: &Outputs, notes: &Notes) -> Result<(), RenderErro
         None => None,
     };
     let png = match &out.png {
-        Some(p) => Some((p, png_temp(p, img, out.exposure)?)),
+        Some(p) => Some((p, png_temp(p, img, out)?)),
         None => None,
     };
     let mut done: Vec<&PathBuf> = Vec::new();
@@ -231,7 +240,7 @@ mod tests {
         let out = Outputs {
             exr: Some(dir.path().join("ok.exr")),
             png: Some(dir.path().join("missing-dir").join("x.png")),
-            exposure: 0.0,
+            ..Outputs::default()
         };
         assert!(write(&img, &out, &Vec::new()).is_err());
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 0);

@@ -13,6 +13,7 @@ pub mod estimate;
 pub mod image;
 pub mod reference;
 pub mod shade;
+pub mod tone;
 
 use std::f32::consts::FRAC_1_PI;
 

@@ -504,7 +504,7 @@ pub fn plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
 }
 
 /// The image grid: the truth and each method's image on the top row (one exposure for all:
-/// the truth's 99th-percentile luminance maps to white), and below each image its signed
+/// the truth's automatic one, with the preview's tone curve), and below each image its signed
 /// luminance error (red: too bright, blue: too dark, full colour at a quarter of that
 /// percentile).
 pub fn grid_png(target: &Target, rows: &[Row]) -> Result<Vec<u8>, CompareError> {
@@ -528,7 +528,17 @@ pub fn grid_png(target: &Target, rows: &[Row]) -> Result<Vec<u8>, CompareError> 
             }
         }
     };
-    let tone = |p: [f64; 3]| p.map(|c| srgb8((c / p99) as f32));
+    // The truth's automatic exposure for every tile, and the preview's hue-keeping shoulder
+    // (crate::render::tone), so the images compare as they are.
+    let truth = crate::render::image::Image {
+        width: iw as u32,
+        height: ih as u32,
+        pixels: target.truth.iter().map(|p| glam::DVec3::from_array(*p).as_vec3()).collect(),
+    };
+    let scale = crate::render::tone::auto_exposure(&truth).exp2();
+    let tone = |p: [f64; 3]| {
+        crate::render::tone::tone_map(glam::DVec3::from_array(p).as_vec3(), scale).to_array().map(srgb8)
+    };
     put(0, 0, &|i| tone(target.truth[i]));
     for (c, r) in rows.iter().enumerate() {
         let img = &r.image.pixels;
@@ -544,6 +554,8 @@ pub fn grid_png(target: &Target, rows: &[Row]) -> Result<Vec<u8>, CompareError> 
     labels.extend(rows.iter().map(|r| {
         if r.method == MethodKind::Progressive {
             format!("PPM {}", r.setting.split(' ').next().unwrap_or(""))
+        } else if r.method == MethodKind::StandardPm {
+            format!("PM, {}", r.setting)
         } else {
             r.method.label().into()
         }

@@ -243,6 +243,7 @@ impl Common {
             png,
             exposure: self.exposure,
             fixed_exposure: self.fixed_exposure,
+            codes: false,
         }
     }
 
@@ -465,7 +466,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             Some(Diagnostics { colours: keep.iter().map(|&i| d.colours[i as usize]).collect(), ..d })
         }
         (d, _) => d,
-    };
+    }
+    .map(|d| d.bounded(&photons));
 
     let scene_store;
     let (view, opts, scene_name) = match a.plane {
@@ -543,7 +545,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         ("photonkit:scene".to_string(), scene_name),
         ("photonkit:samples_per_pixel".to_string(), o.spp.to_string()),
     ];
-    render::image::write(&img, &a.common.outputs(&a.output), &notes)?;
+    let outputs = Outputs { codes: a.diagnostic.is_some(), ..a.common.outputs(&a.output) };
+    render::image::write(&img, &outputs, &notes)?;
     eprintln!(
         "photonkit render: {}×{} × {} spp, {} ({}), {} photons: {:.2} s ({:.3} µs/sample, {} lookups)",
         o.width,

@@ -4,8 +4,8 @@
 //! Each pixel sample looks (through the camera and any specular surfaces) at a diffuse point
 //! and takes the colour of the nearest photon if it lies within the dot radius: a fixed
 //! radius, or by default 0.4 × the local photon spacing sqrt(π r₈² / 8) (r₈ the distance to
-//! the 8th nearest photon), so dots keep their relative size at any density. Elsewhere the
-//! image is black.
+//! the 8th nearest photon), so dots keep their relative size at any density, capped at four
+//! typical dots so an isolated photon does not become a disc. Elsewhere the image is black.
 
 use glam::Vec3;
 
@@ -51,7 +51,16 @@ pub struct Diagnostics {
     pub colours: Vec<Vec3>,
     /// Dot radius, metres; `None` for 0.4 × the local spacing.
     pub dot_radius: Option<f32>,
+    /// Largest dot radius with the local spacing, metres ([`Self::bounded`]): an isolated
+    /// photon, whose local spacing is the distance to photons far away, stays a dot.
+    pub max_dot: Option<f32>,
 }
+
+/// The largest dot, in typical dots: [`Diagnostics::bounded`].
+const MAX_DOT: f32 = 4.0;
+
+/// Photons whose spacing is sampled for [`Diagnostics::bounded`].
+const SPACING_SAMPLE: usize = 4096;
 
 impl Diagnostics {
     /// Colours the photons of `map` by `which`; `threshold` is the constraint factor below
@@ -122,7 +131,32 @@ impl Diagnostics {
                     .collect()
             }
         };
-        Ok(Diagnostics { colours, dot_radius })
+        Ok(Diagnostics { colours, dot_radius, max_dot: None })
+    }
+
+    /// Caps the dots sized by the local spacing at [`MAX_DOT`] times the typical dot: the
+    /// median, over up to 4096 photons spread through the map, of each one's own spacing.
+    pub fn bounded(mut self, photons: &PhotonLookup) -> Self {
+        let positions = photons.data.positions;
+        let step = positions.len().div_ceil(SPACING_SAMPLE).max(1);
+        let mut s = Scratch::default();
+        let mut spacing: Vec<f32> = positions
+            .iter()
+            .step_by(step)
+            .filter_map(|&x| {
+                // The photon itself and its SPACING_K neighbours.
+                photons.nearest(Vec3::from(x), SPACING_K + 1, f32::INFINITY, &mut s.nb);
+                let last = s.nb.last()?;
+                let k = s.nb.len().saturating_sub(1).max(1) as f32;
+                Some((std::f32::consts::PI * last.dist2 / k).sqrt()).filter(|d| d.is_finite() && *d > 0.0)
+            })
+            .collect();
+        if !spacing.is_empty() {
+            let mid = spacing.len() / 2;
+            let median = *spacing.select_nth_unstable_by(mid, f32::total_cmp).1;
+            self.max_dot = Some(MAX_DOT * DOT * median);
+        }
+        self
     }
 
     /// The colour at `p`: the nearest photon's if it lies within the dot radius, else black.
@@ -134,7 +168,10 @@ impl Diagnostics {
         let r2 = match self.dot_radius {
             Some(r) => r * r,
             // Spacing² = π r_k² / k; the dot radius is DOT times the spacing.
-            None => DOT * DOT * std::f32::consts::PI * last.dist2 / nb.len() as f32,
+            None => {
+                let r2 = DOT * DOT * std::f32::consts::PI * last.dist2 / nb.len() as f32;
+                self.max_dot.map_or(r2, |m| r2.min(m * m))
+            }
         };
         if first.dist2 <= r2 { self.colours[first.index as usize] } else { Vec3::ZERO }
     }
@@ -178,12 +215,41 @@ mod tests {
             (0..100).map(|i| [(i % 10) as f32 * 0.1, (i / 10) as f32 * 0.1, 0.0]).collect();
         let flux = vec![[1.0; 3]; 100];
         let l = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
-        let d = Diagnostics { colours: (0..100).map(|i| Vec3::splat(i as f32)).collect(), dot_radius: None };
+        let d = Diagnostics {
+            colours: (0..100).map(|i| Vec3::splat(i as f32)).collect(),
+            dot_radius: None,
+            max_dot: None,
+        };
         let mut s = Scratch::default();
         assert_eq!(d.colour(&l, Vec3::new(0.51, 0.3, 0.0), &mut s), Vec3::splat(35.0));
         assert_eq!(d.colour(&l, Vec3::new(0.55, 0.35, 0.0), &mut s), Vec3::ZERO);
         let fixed = Diagnostics { dot_radius: Some(0.08), ..d };
         assert_eq!(fixed.colour(&l, Vec3::new(0.55, 0.35, 0.0), &mut s), Vec3::splat(35.0));
+    }
+
+    /// Issue 29: a photon 10 m from a 10 × 10 grid of photons 0.1 m apart has a local spacing
+    /// of metres, and drew a disc of that size; bounded, its dot is at most 4 typical dots
+    /// (4 × 0.4 × 0.1 m spacing, measured at the photons: the grid's own median).
+    #[test]
+    fn an_isolated_photon_stays_a_dot() {
+        let mut pos: Vec<[f32; 3]> =
+            (0..100).map(|i| [(i % 10) as f32 * 0.1, (i / 10) as f32 * 0.1, 0.0]).collect();
+        pos.push([10.0, 0.0, 0.0]);
+        let flux = vec![[1.0; 3]; pos.len()];
+        let l = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
+        let colours: Vec<Vec3> = (0..pos.len()).map(|i| Vec3::splat(i as f32 + 1.0)).collect();
+        let free = Diagnostics { colours, dot_radius: None, max_dot: None };
+        let mut s = Scratch::default();
+        let far = Vec3::new(10.5, 0.0, 0.0);
+        assert_eq!(free.colour(&l, far, &mut s), Vec3::splat(101.0), "unbounded: a disc metres wide");
+        let bounded = free.bounded(&l);
+        let m = bounded.max_dot.unwrap();
+        // The grid's spacing at its photons: sqrt(π r₈²/8) with r₈ between 0.1·√2 and 0.2.
+        assert!(m > 4.0 * 0.4 * 0.08 && m < 4.0 * 0.4 * 0.2, "{m}");
+        assert_eq!(bounded.colour(&l, far, &mut s), Vec3::ZERO);
+        assert_eq!(bounded.colour(&l, Vec3::new(10.0 + 0.5 * m, 0.0, 0.0), &mut s), Vec3::splat(101.0));
+        // Inside the grid nothing changes.
+        assert_eq!(bounded.colour(&l, Vec3::new(0.51, 0.3, 0.0), &mut s), Vec3::splat(36.0));
     }
 }
 

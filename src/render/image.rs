@@ -84,9 +84,13 @@ fn exr_temp(path: &Path, img: &Image, notes: &Notes) -> Result<tempfile::NamedTe
 /// An 8-bit sRGB PNG preview of `img`, tone-mapped ([`super::tone`]), in a temporary file.
 fn png_temp(path: &Path, img: &Image, out: &Outputs) -> Result<tempfile::NamedTempFile, RenderError> {
     let tmp = temp_beside(path)?;
-    let scale = out.preview_stops(img).exp2();
-    let data: Vec<u8> =
-        img.pixels.iter().flat_map(|p| super::tone::tone_map(*p, scale).to_array().map(srgb8)).collect();
+    let data: Vec<u8> = if out.codes {
+        let scale = out.exposure.exp2();
+        img.pixels.iter().flat_map(|p| (*p * scale).to_array().map(srgb8)).collect()
+    } else {
+        let scale = out.preview_stops(img).exp2();
+        img.pixels.iter().flat_map(|p| super::tone::tone_map(*p, scale).to_array().map(srgb8)).collect()
+    };
     let mut enc = png::Encoder::new(std::io::BufWriter::new(tmp.as_file()), img.width, img.height);
     enc.set_color(png::ColorType::Rgb);
     enc.set_depth(png::BitDepth::Eight);
@@ -114,6 +118,9 @@ pub struct Outputs {
     pub exposure: f32,
     /// Whether `exposure` is absolute rather than an offset from [`super::tone::auto_exposure`].
     pub fixed_exposure: bool,
+    /// Colour codes rather than radiance (diagnostic views): the preview shows the values as
+    /// they are (times 2^exposure), without automatic exposure or the shoulder.
+    pub codes: bool,
 }
 
 impl Outputs {

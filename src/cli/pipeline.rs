@@ -133,7 +133,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         "no photon was stored from {} emitted: does light reach a diffuse surface through a mirror or glass?",
         traced.emitted
     );
-    let info = trace::map_info(&scene, &opts, &traced, &label, &text);
+    let mut info = trace::map_info(&scene, &opts, &traced, &label, &text);
+    if let Some(scene_file) = &a.scene {
+        trace::record_scene_location(&mut info, scene_file, &file("traced.phm"));
+    }
     traced.write(Output::Path(file("traced.phm")), info)?;
     report(
         "trace",

@@ -329,8 +329,17 @@ fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Sc
         Some(DEFAULT_SCENE_NAME) => Ok((Scene::default_scene(), DEFAULT_SCENE_NAME.to_string())),
         Some(path) => {
             let map = map.expect("a record comes from a map");
-            let beside = Path::new(map.file_name()).parent().map(|d| d.join(path));
-            let found = std::iter::once(PathBuf::from(path)).chain(beside).find(|p| p.is_file());
+            // As given (relative to the working directory of the trace), where the trace
+            // recorded it relative to the map's folder, or beside the map.
+            let map_dir = Path::new(map.file_name()).parent().map(Path::to_path_buf).unwrap_or_default();
+            let from_map = record
+                .and_then(|r| r.report.get("scene_from_map"))
+                .and_then(|v| v.as_str())
+                .map(|rel| map_dir.join(rel));
+            let found = std::iter::once(PathBuf::from(path))
+                .chain(from_map)
+                .chain(std::iter::once(map_dir.join(path)))
+                .find(|p| p.is_file());
             let Some(found) = found else {
                 bail!(
                     "{}: traced from the scene '{path}', which is not found here: pass --scene FILE",

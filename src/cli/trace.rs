@@ -173,7 +173,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             "photonkit trace: warning: no photon was stored (does light reach a diffuse surface through a mirror or glass?)"
         );
     }
-    let info = trace::map_info(&scene, &opts, &traced, &label, &text);
+    let mut info = trace::map_info(&scene, &opts, &traced, &label, &text);
+    if let (Some(scene_file), Output::Path(out)) = (&a.scene, Output::parse(&a.output)) {
+        trace::record_scene_location(&mut info, scene_file, &out);
+    }
     traced.write(Output::parse(&a.output), info)?;
     let traced_n = traced.range.end - traced.range.start;
     eprintln!(

@@ -98,6 +98,14 @@ pub fn merge(inputs: &[PhotonMap], target: Output) -> Result<u64, TraceError> {
     record.report = json!({ "emitted": emitted, "stored": total, "bounce_limited": sum("bounce_limited") });
     let mut info = first.map.meta().info();
     info.history = vec![record];
+    // The scene's place relative to the merged map, from shard 0's (as a single run records it).
+    if let (Some(rel), Output::Path(out)) =
+        (first.record.report.get("scene_from_map").and_then(|v| v.as_str()), &target)
+    {
+        let dir =
+            std::path::Path::new(first.map.file_name()).parent().map(|d| d.to_path_buf()).unwrap_or_default();
+        super::record_scene_location(&mut info, &dir.join(rel), out);
+    }
 
     let mut w = PhotonWriter::create(target, info, &cols, total)?;
     for s in &shards {

@@ -402,6 +402,24 @@ pub fn map_info(
     info
 }
 
+/// Records in `info`'s trace record where the scene file lies relative to the map's folder
+/// (`report.scene_from_map`), so later stages find the scene from any working directory while
+/// the file's bytes do not depend on where the run was started. Nothing when either path
+/// cannot be resolved.
+pub fn record_scene_location(info: &mut MapInfo, scene: &std::path::Path, map: &std::path::Path) {
+    let map_dir = match map.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => std::path::Path::new("."),
+    };
+    let (Ok(scene), Ok(dir)) = (scene.canonicalize(), map_dir.canonicalize()) else { return };
+    let Some(rel) = pathdiff::diff_paths(&scene, &dir) else { return };
+    if let Some(rec) = info.history.iter_mut().rev().find(|r| r.stage == "trace")
+        && let Some(report) = rec.report.as_object_mut()
+    {
+        report.insert("scene_from_map".into(), json!(rel.to_string_lossy()));
+    }
+}
+
 /// The time from `SOURCE_DATE_EPOCH`, if set ([`crate::format::meta::source_date`]).
 pub fn source_date() -> Option<String> {
     crate::format::meta::source_date()

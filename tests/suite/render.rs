@@ -314,3 +314,34 @@ fn exr_header_text_is_utf8_for_any_path() {
     assert!(notes.iter().any(|(_, v)| v.contains("a→b.phm")), "{notes:?}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A map traced from a scene named by a relative path still finds its scene when rendered
+/// from another folder (issue 29): the trace records where the scene lies relative to the
+/// map's folder.
+#[test]
+fn render_finds_the_scene_of_a_map_from_another_folder() {
+    let root = std::path::Path::new(env!("CARGO_MANIFEST_DIR"));
+    let dir = tempfile::tempdir().unwrap();
+    let map = dir.path().join("maps").join("ring.phm");
+    std::fs::create_dir_all(map.parent().unwrap()).unwrap();
+    let run = |cwd: &std::path::Path, args: &[&str]| {
+        std::process::Command::new(env!("CARGO_BIN_EXE_photonkit"))
+            .current_dir(cwd)
+            .args(args)
+            .output()
+            .unwrap()
+    };
+    let o =
+        run(root, &["trace", "samples/scenes/ring.toml", "--photons", "20000", "-o", map.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let m = photonkit::format::PhotonMap::open_path(&map).unwrap();
+    let rec = m.meta().history.iter().find(|r| r.stage == "trace").unwrap();
+    let rel = rec.report["scene_from_map"].as_str().unwrap();
+    assert!(rel.ends_with("samples/scenes/ring.toml") && !std::path::Path::new(rel).is_absolute(), "{rel}");
+    let o = run(
+        dir.path(),
+        &["render", "maps/ring.phm", "-o", "ring.exr", "--width", "16", "--height", "16", "--spp", "1"],
+    );
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(!stderr(&o).contains("not found"), "{}", stderr(&o));
+}

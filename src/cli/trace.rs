@@ -34,9 +34,9 @@ pub struct Args {
     /// Scene file (TOML); without it, the embedded default scene (a glass sphere above a floor
     /// under a vertical collimated beam, samples/scenes/glass-sphere.toml).
     scene: Option<PathBuf>,
-    /// Output photon map (`-` for standard output).
+    /// Output photon map (`-` for standard output); required.
     #[arg(short, long, value_name = "FILE")]
-    output: String,
+    output: Option<String>,
     /// Number of photons to emit (e.g. 1000000 or 1e6). The default when neither --photons
     /// nor --stored is given is 1e6.
     #[arg(long, value_name = "N", value_parser = parse_count, conflicts_with = "stored")]
@@ -115,8 +115,16 @@ pub(crate) fn load_scene(path: Option<&std::path::Path>) -> anyhow::Result<(Scen
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    // The scene first: a missing or broken scene is the first thing to fix.
     let (scene, label, text) = load_scene(a.scene.as_deref())?;
-    super::refuse_input_as_output(&a.output)?;
+    let Some(output) = a.output.clone() else {
+        // A usage error, as clap's own (exit status 2).
+        eprintln!(
+            "photonkit trace: error: --output FILE is required (the photon map to write, or - for standard output)"
+        );
+        return Ok(ExitCode::from(2));
+    };
+    super::refuse_input_as_output(&output)?;
     let budget = match (a.photons, a.stored) {
         (_, Some(0)) | (Some(0), _) => bail!("--photons and --stored need at least 1"),
         (_, Some(n)) => Budget::Stored(n),
@@ -129,7 +137,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         store: if a.store == "direct" { StorePolicy::Direct } else { StorePolicy::Caustic },
         shard: a.shard,
         max_bounces: a.max_bounces,
-        spool: Some(Spool { dir: spool_dir(&a.output), memory: a.memory }),
+        spool: Some(Spool { dir: spool_dir(&output), memory: a.memory }),
     };
 
     let total = match (budget, a.shard) {
@@ -174,10 +182,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         );
     }
     let mut info = trace::map_info(&scene, &opts, &traced, &label, &text);
-    if let (Some(scene_file), Output::Path(out)) = (&a.scene, Output::parse(&a.output)) {
+    if let (Some(scene_file), Output::Path(out)) = (&a.scene, Output::parse(&output)) {
         trace::record_scene_location(&mut info, scene_file, &out);
     }
-    traced.write(Output::parse(&a.output), info)?;
+    traced.write(Output::parse(&output), info)?;
     let traced_n = traced.range.end - traced.range.start;
     eprintln!(
         "photonkit trace: {} emitted, {} stored in {:.2} s ({:.2} M emitted/s, {:.2} M stored/s){}",

@@ -631,3 +631,21 @@ fn scene_mistakes_name_their_field() {
         assert!(e.contains("shapes[1].file") && e.contains(want), "{obj:?}: {e}");
     }
 }
+
+/// A missing scene file is reported before a missing `--output` (issue 29: the user fixed the
+/// option only to learn the scene did not exist); without `--output` the exit status is the
+/// usage error's, 2.
+#[test]
+fn trace_reports_a_missing_scene_before_a_missing_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("nonexist.toml");
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_photonkit"))
+        .args(["trace", missing.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("nonexist.toml") && !stderr(&o).contains("--output"), "{}", stderr(&o));
+    let o = std::process::Command::new(env!("CARGO_BIN_EXE_photonkit")).args(["trace"]).output().unwrap();
+    assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
+    assert!(stderr(&o).contains("--output FILE is required"), "{}", stderr(&o));
+}

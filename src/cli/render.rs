@@ -331,7 +331,7 @@ fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Sc
             let map = map.expect("a record comes from a map");
             // As given (relative to the working directory of the trace), where the trace
             // recorded it relative to the map's folder, or beside the map.
-            let map_dir = Path::new(map.file_name()).parent().map(Path::to_path_buf).unwrap_or_default();
+            let map_dir = photonkit::format::folder_of(Path::new(map.file_name()));
             let from_map = record
                 .and_then(|r| r.report.get("scene_from_map"))
                 .and_then(|v| v.as_str())
@@ -359,7 +359,7 @@ fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Sc
                     found.display()
                 );
             }
-            let dir = found.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+            let dir = photonkit::format::folder_of(&found);
             Ok((Scene::parse(&text, &found.display().to_string(), dir)?, found.display().to_string()))
         }
     }

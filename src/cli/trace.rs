@@ -93,10 +93,7 @@ fn parse_shard(s: &str) -> Result<Shard, String> {
 /// chose for them), or the system's temporary directory for standard output.
 pub(crate) fn spool_dir(output: &str) -> PathBuf {
     match Output::parse(output) {
-        Output::Path(p) => match p.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        },
+        Output::Path(p) => photonkit::format::folder_of(&p).to_path_buf(),
         Output::Stdout => std::env::temp_dir(),
     }
 }
@@ -107,7 +104,7 @@ pub(crate) fn load_scene(path: Option<&std::path::Path>) -> anyhow::Result<(Scen
         Some(p) => {
             photonkit::format::guard::register_input(p);
             let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            let dir = p.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+            let dir = photonkit::format::folder_of(p);
             (Scene::parse(&text, &p.display().to_string(), dir)?, p.display().to_string(), text)
         }
         None => (Scene::default_scene(), DEFAULT_SCENE_NAME.to_string(), DEFAULT_SCENE.to_string()),

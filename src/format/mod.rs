@@ -22,7 +22,7 @@ pub use meta::{
     UNIT_TOLERANCE, Units,
 };
 pub use reader::PhotonMap;
-pub use writer::{Output, PhotonWriter, persist, temp_beside, write_map};
+pub use writer::{Output, PhotonWriter, folder_of, persist, temp_beside, write_map};
 
 #[cfg(target_endian = "big")]
 compile_error!("photonkit views PHM columns in place and needs a little-endian machine");

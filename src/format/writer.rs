@@ -324,6 +324,11 @@ fn new_file_builder<'a>(prefix: &'a str, suffix: &'a str) -> tempfile::Builder<'
     builder
 }
 
+/// The folder holding the file `path` names: its parent, or `.` for a bare file name.
+pub fn folder_of(path: &Path) -> &Path {
+    path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."))
+}
+
 /// A temporary file beside `path` (same directory, so the final rename stays on one disk),
 /// named `<prefix>….tmp`: every output of every stage is written there and renamed into place
 /// only when complete, so a failed run never leaves a damaged file.
@@ -332,8 +337,7 @@ fn new_file_builder<'a>(prefix: &'a str, suffix: &'a str) -> tempfile::Builder<'
 /// registers the temporary file so an interrupt removes it.
 pub fn temp_beside(path: &Path, prefix: &str) -> std::io::Result<tempfile::NamedTempFile> {
     super::guard::check_output(path)?;
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
-    let tmp = new_file_builder(prefix, ".tmp").tempfile_in(dir)?;
+    let tmp = new_file_builder(prefix, ".tmp").tempfile_in(folder_of(path))?;
     super::guard::register_temp(tmp.path());
     Ok(tmp)
 }

@@ -162,7 +162,7 @@ impl Scene {
         crate::format::guard::register_input(path);
         let src =
             std::fs::read_to_string(path).map_err(|source| SceneError::Io { file: file.clone(), source })?;
-        let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(Path::new("."));
+        let dir = crate::format::folder_of(path);
         Scene::parse(&src, &file, dir)
     }
 

@@ -102,8 +102,7 @@ pub fn merge(inputs: &[PhotonMap], target: Output) -> Result<u64, TraceError> {
     if let (Some(rel), Output::Path(out)) =
         (first.record.report.get("scene_from_map").and_then(|v| v.as_str()), &target)
     {
-        let dir =
-            std::path::Path::new(first.map.file_name()).parent().map(|d| d.to_path_buf()).unwrap_or_default();
+        let dir = crate::format::folder_of(std::path::Path::new(first.map.file_name()));
         super::record_scene_location(&mut info, &dir.join(rel), out);
     }
 

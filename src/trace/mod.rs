@@ -407,10 +407,7 @@ pub fn map_info(
 /// the file's bytes do not depend on where the run was started. Nothing when either path
 /// cannot be resolved.
 pub fn record_scene_location(info: &mut MapInfo, scene: &std::path::Path, map: &std::path::Path) {
-    let map_dir = match map.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => std::path::Path::new("."),
-    };
+    let map_dir = crate::format::folder_of(map);
     let (Ok(scene), Ok(dir)) = (scene.canonicalize(), map_dir.canonicalize()) else { return };
     let Some(rel) = pathdiff::diff_paths(&scene, &dir) else { return };
     if let Some(rec) = info.history.iter_mut().rev().find(|r| r.stage == "trace")

@@ -297,15 +297,19 @@ impl ChunkStore {
         TraceError::Spool { dir, source }
     }
 
+    /// One unnamed file per column in the spool's directory.
+    fn new_spool_files(&self) -> Result<Vec<File>, TraceError> {
+        let dir = self.spool.as_ref().map(|s| s.dir.clone()).unwrap_or_default();
+        (0..self.layout.column_specs().len())
+            .map(|_| tempfile::tempfile_in(&dir))
+            .collect::<Result<_, _>>()
+            .map_err(|e| self.spool_error(e))
+    }
+
     /// Moves every chunk held in memory to the end of the spool.
     fn spool_held(&mut self) -> Result<(), TraceError> {
         if self.spooled.is_none() {
-            let dir = self.spool.as_ref().map(|s| s.dir.clone()).unwrap_or_default();
-            let files = (0..self.layout.column_specs().len())
-                .map(|_| tempfile::tempfile_in(&dir))
-                .collect::<Result<_, _>>()
-                .map_err(|e| self.spool_error(e))?;
-            self.spooled = Some(Spooled { files, count: 0 });
+            self.spooled = Some(Spooled { files: self.new_spool_files()?, count: 0 });
         }
         let mut index = Vec::new();
         for c in std::mem::take(&mut self.chunks) {
@@ -331,40 +335,46 @@ impl ChunkStore {
         flux_scale: f64,
         mut f: impl FnMut(&[&[u8]]) -> Result<(), TraceError>,
     ) -> Result<(), TraceError> {
-        let scale = |flux: &mut [[f32; 3]]| {
-            for v in flux {
-                *v = v.map(|x| (x as f64 * flux_scale) as f32);
-            }
-        };
-        let strides: Vec<u64> = self.layout.column_specs().iter().map(ColumnSpec::stride).collect();
-        let flux_at = 2;
-        if let Some(s) = &self.spooled {
-            let mut bufs: Vec<Vec<u8>> = vec![Vec::new(); strides.len()];
-            let mut flux: Vec<[f32; 3]> = Vec::new();
-            let mut at = 0;
-            while at < s.count {
-                let n = BLOCK.min(s.count - at);
-                for ((file, buf), &stride) in s.files.iter().zip(&mut bufs).zip(&strides) {
-                    buf.resize((n * stride) as usize, 0);
-                    file.read_exact_at(buf, at * stride).map_err(|e| self.spool_error(e))?;
-                }
-                flux.clear();
-                flux.extend(bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&bufs[flux_at]));
-                scale(&mut flux);
-                let mut cols: Vec<&[u8]> = bufs.iter().map(Vec::as_slice).collect();
-                cols[flux_at] = bytemuck::cast_slice(&flux);
-                f(&cols)?;
-                at += n;
-            }
-        }
+        self.for_each_spooled_block(flux_scale, &mut f)?;
         let (mut flux, mut index) = (Vec::new(), Vec::new());
         for c in &self.chunks {
             flux.clear();
-            flux.extend_from_slice(&c.flux);
-            scale(&mut flux);
+            flux.extend(c.flux.iter().map(|v| scaled(*v, flux_scale)));
             index.clear();
             index.extend((0..c.len()).map(|i| c.emission_index(i)));
             f(&self.layout.columns(c, &flux, &index))?;
+        }
+        Ok(())
+    }
+
+    /// [`Self::for_each_block`] over the spooled photons only.
+    fn for_each_spooled_block(
+        &self,
+        flux_scale: f64,
+        mut f: impl FnMut(&[&[u8]]) -> Result<(), TraceError>,
+    ) -> Result<(), TraceError> {
+        let Some(s) = &self.spooled else { return Ok(()) };
+        let specs = self.layout.column_specs();
+        let flux_at = specs.iter().position(|c| c.name == name::FLUX).expect("a flux column");
+        let mut bufs: Vec<Vec<u8>> = vec![Vec::new(); specs.len()];
+        let mut flux: Vec<[f32; 3]> = Vec::new();
+        let mut at = 0;
+        while at < s.count {
+            let n = BLOCK.min(s.count - at);
+            for ((file, buf), spec) in s.files.iter().zip(&mut bufs).zip(&specs) {
+                buf.resize((n * spec.stride()) as usize, 0);
+                file.read_exact_at(buf, at * spec.stride()).map_err(|e| self.spool_error(e))?;
+            }
+            flux.clear();
+            flux.extend(
+                bytemuck::pod_collect_to_vec::<u8, [f32; 3]>(&bufs[flux_at])
+                    .into_iter()
+                    .map(|v| scaled(v, flux_scale)),
+            );
+            let mut cols: Vec<&[u8]> = bufs.iter().map(Vec::as_slice).collect();
+            cols[flux_at] = bytemuck::cast_slice(&flux);
+            f(&cols)?;
+            at += n;
         }
         Ok(())
     }
@@ -407,40 +417,36 @@ impl ChunkStore {
             c.retain(&mask, dims);
         }
         self.chunks.retain(|c| !c.is_empty());
-        if let Some(old) = self.spooled.take() {
+        if self.spooled.is_some() {
             // Read the spool back a block at a time (flux still relative: scale 1) and write
-            // what is kept to a fresh one.
-            let memory_chunks = std::mem::take(&mut self.chunks);
-            self.spooled = Some(old);
+            // what is kept to a fresh one, a column's kept bytes at a time.
             let specs = self.layout.column_specs();
             let bounces_at = specs.iter().position(|s| s.name == name::BOUNCES).expect("a bounces column");
-            let dir = self.spool.as_ref().map(|s| s.dir.clone()).unwrap_or_default();
-            let files: Vec<File> = (0..specs.len())
-                .map(|_| tempfile::tempfile_in(&dir))
-                .collect::<Result<_, _>>()
-                .map_err(|e| self.spool_error(e))?;
-            let mut count = 0;
-            self.for_each_block(1.0, |cols| {
+            let files = self.new_spool_files()?;
+            let (mut count, mut kept) = (0, Vec::new());
+            self.for_each_spooled_block(1.0, |cols| {
                 let mask: Vec<bool> = cols[bounces_at].iter().map(|&b| keep(b)).collect();
                 for ((mut file, col), spec) in files.iter().zip(cols).zip(&specs) {
-                    let stride = spec.stride() as usize;
-                    for (k, photon) in col.chunks_exact(stride).enumerate() {
-                        if mask[k] {
-                            file.write_all(photon).map_err(|e| self.spool_error(e))?;
-                        }
-                    }
+                    kept.clear();
+                    let photons = col.chunks_exact(spec.stride() as usize).zip(&mask);
+                    kept.extend(photons.filter(|(_, k)| **k).flat_map(|(p, _)| p));
+                    file.write_all(&kept).map_err(|e| self.spool_error(e))?;
                 }
                 count += mask.iter().filter(|&&k| k).count() as u64;
                 Ok(())
             })?;
             self.spooled = Some(Spooled { files, count });
-            self.chunks = memory_chunks;
         }
         self.count = self.spooled.as_ref().map_or(0, |s| s.count)
             + self.chunks.iter().map(|c| c.len() as u64).sum::<u64>();
         self.held = self.chunks.iter().map(|c| c.len() as u64).sum::<u64>() * self.layout.memory_bytes();
         Ok(())
     }
+}
+
+/// A relative flux multiplied by `scale` (watts per emitted photon), rounded to f32.
+fn scaled(v: [f32; 3], scale: f64) -> [f32; 3] {
+    v.map(|x| (x as f64 * scale) as f32)
 }
 
 /// Memory the stored photons may take: 80 % of what the system reports available

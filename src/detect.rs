@@ -95,6 +95,11 @@ pub struct DetectParams {
     /// Times a photon's parameter ball may be doubled when it binds ([`ball_binds`]); 0 keeps
     /// the paper's fixed ball.
     pub growths: u32,
+    /// S: the visible spectrum's length in parameter space, in units of the spread of an
+    /// emitter's other parameters ([`spectral_scales`]; docs/spectral.md). Used only for maps
+    /// whose emitters carry a wavelength, and recorded only for them.
+    #[serde(skip)]
+    pub spectral_scale: f32,
 }
 
 impl Default for DetectParams {
@@ -107,9 +112,13 @@ impl Default for DetectParams {
             gain: DEFAULT_GAIN,
             noise: NoiseModel::Simulated,
             growths: DEFAULT_GROWTHS,
+            spectral_scale: DEFAULT_SPECTRAL_SCALE,
         }
     }
 }
+
+/// The default [`DetectParams::spectral_scale`] (docs/spectral.md has the measurements).
+pub const DEFAULT_SPECTRAL_SCALE: f32 = 0.03;
 
 /// The default [`DetectParams::growths`]: twice, to 4β (docs/parameter-ball.md).
 pub const DEFAULT_GROWTHS: u32 = 2;
@@ -489,6 +498,9 @@ pub struct Detection {
     /// Eq. 1's r_param per photon for method `param-pca` (0 for photons of an emitter
     /// without parameters, whose search ignores it); `None` for the world-space methods.
     pub r_param: Option<Vec<f32>>,
+    /// Per emitter, the scale its wavelength component was given ([`spectral_scales`]), for
+    /// the emitters that have one; empty when the input's parameters were used as given.
+    pub spectral_scales: Vec<Option<f32>>,
     pub summary: Summary,
 }
 
@@ -546,6 +558,9 @@ fn check_params(p: &DetectParams) -> Result<(), DetectError> {
     }
     if !(p.gain.is_finite() && p.gain >= 0.0) {
         return bad("the gain must be finite and ≥ 0");
+    }
+    if !(p.spectral_scale.is_finite() && p.spectral_scale > 0.0) {
+        return bad("the spectral scale must be finite and positive");
     }
     Ok(())
 }
@@ -622,6 +637,7 @@ pub fn detect(
         basis_v: unpermuted(&d.basis_v, &order),
         lambda2: unpermuted(&d.lambda2, &order),
         r_param: d.r_param.map(|r| unpermuted(&r, &order)),
+        spectral_scales: Vec::new(),
         summary: d.summary,
     })
 }
@@ -767,6 +783,7 @@ fn detect_in_order(
         basis_v: vec![[0.0; 3]; n],
         lambda2: vec![0.0; n],
         r_param,
+        spectral_scales: Vec::new(),
         summary: Summary { photons: n, ..Default::default() },
     };
     let mut factor_sum = 0.0f64;
@@ -861,14 +878,82 @@ pub fn detect_map(
     p: &DetectParams,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Detection, DetectError> {
-    let dims: Vec<u32> = map.meta().emitters.iter().map(|e| e.param_dims).collect();
+    check_params(p)?;
+    let emitters = &map.meta().emitters;
+    let dims: Vec<u32> = emitters.iter().map(|e| e.param_dims).collect();
     let mut input = map_input(map)?;
     input.params = input.params.map(|c| ParamColumn { dims: &dims, ..c });
-    detect(&input, p, progress).map_err(|e| match e {
+    // A wavelength component enters distances scaled (docs/spectral.md).
+    let mut scales = Vec::new();
+    let scaled = match input.params {
+        Some(c) if p.method == Method::ParamPca && emitters.iter().any(|e| e.is_spectral()) => {
+            scales = spectral_scales(emitters, c, input.emitters, p.spectral_scale);
+            let factors: Vec<Vec<f32>> = emitters
+                .iter()
+                .zip(&scales)
+                .map(|(e, s)| {
+                    let mut f = vec![1.0; e.param_dims as usize];
+                    if let (Some(k), Some(s)) = (e.parameterisation.spectral_component(), s) {
+                        f[k] = *s;
+                    }
+                    f
+                })
+                .collect();
+            Some(c.scaled(input.emitters, &factors))
+        }
+        _ => None,
+    };
+    if let (Some(values), Some(c)) = (scaled.as_deref(), input.params.as_mut()) {
+        c.values = values;
+    }
+    let mut d = detect(&input, p, progress).map_err(|e| match e {
         DetectError::NoParameters { .. } => DetectError::NoParameters { file: map.file_name().into() },
         DetectError::Spatial(source) => DetectError::Photons { file: map.file_name().into(), source },
         e => e,
-    })
+    })?;
+    d.spectral_scales = scales;
+    Ok(d)
+}
+
+/// Per emitter, the scale of its wavelength component in parameter-space distances (`None`
+/// for an emitter without one): S·ℓ/(λmax − λmin), where ℓ is the root-mean-square distance
+/// of the emitter's photons' other parameters from their mean and [λmin, λmax] the
+/// dimension's range. The visible range then spans S times the spread of the parameters
+/// that say where a photon left, whatever their units (a rectangle's (u, v), or directions in
+/// a narrow spot's cone) (docs/spectral.md).
+pub fn spectral_scales(
+    emitters: &[crate::format::Emitter],
+    params: ParamColumn,
+    photon_emitters: Option<&[u16]>,
+    s: f32,
+) -> Vec<Option<f32>> {
+    let n = params.values.len() / params.stride.max(1);
+    emitters
+        .iter()
+        .enumerate()
+        .map(|(e, em)| {
+            let k = em.parameterisation.spectral_component()?;
+            let [lo, hi] = em.dimensions().get(k).and_then(|d| d.range).unwrap_or_else(|| {
+                let (lo, hi) = crate::format::meta::WAVELENGTH_RANGE_NM;
+                [lo as f64, hi as f64]
+            });
+            let mine = |i: &usize| photon_emitters.map_or(e == 0, |pe| pe[*i] as usize == e);
+            let rows = || (0..n).filter(mine).map(|i| &params.values[i * params.stride..][..k]);
+            let count = rows().count().max(1) as f64;
+            let mut mean = vec![0.0f64; k];
+            for q in rows() {
+                mean.iter_mut().zip(q).for_each(|(m, &x)| *m += x as f64);
+            }
+            mean.iter_mut().for_each(|m| *m /= count);
+            let var: f64 = rows()
+                .map(|q| q.iter().zip(&mean).map(|(&x, m)| (x as f64 - m).powi(2)).sum::<f64>())
+                .sum::<f64>()
+                / count;
+            let spread = if var > 0.0 { var.sqrt() } else { 1.0 };
+            let width = if hi > lo { hi - lo } else { 1.0 };
+            Some((s as f64 * spread / width) as f32)
+        })
+        .collect()
 }
 
 /// Writes `map` with the constraint columns of `d` (replacing any from an earlier run), every
@@ -882,7 +967,16 @@ pub fn write_detected(
 ) -> Result<(), DetectError> {
     let mut info = map.meta().info();
     info.state = State::Detected;
-    let mut rec = StageRecord::now("detect", serde_json::to_value(p).unwrap_or_default());
+    let mut parameters = serde_json::to_value(p).unwrap_or_default();
+    for (e, s) in info.emitters.iter_mut().zip(&d.spectral_scales) {
+        if let (Some(k), Some(s)) = (e.parameterisation.spectral_component(), s) {
+            let mut dims = e.dimensions();
+            dims[k].scale = Some(*s as f64);
+            e.dimensions = dims;
+            parameters["spectral_scale"] = serde_json::json!(p.spectral_scale);
+        }
+    }
+    let mut rec = StageRecord::now("detect", parameters);
     let s = &d.summary;
     rec.report = serde_json::json!({
         "seconds": crate::format::meta::reported_seconds(seconds),

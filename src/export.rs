@@ -11,7 +11,7 @@
 use std::io::Write;
 use std::path::Path;
 
-use crate::format::columns::text_names;
+use crate::format::columns::text_names_in;
 use crate::format::{DType, Output, PhotonMap};
 
 /// Everything that can go wrong writing an export.
@@ -181,7 +181,7 @@ fn write_ply(map: &PhotonMap, out: &mut dyn Write, file: &str) -> Result<()> {
     );
     header.push_str(&format!("element vertex {}\n", map.len()));
     for (s, _) in &cols {
-        for t in text_names(&s.name, s.components) {
+        for t in text_names_in(&map.meta().emitters, &s.name, s.components) {
             header.push_str(&format!("property {} {t}\n", ply_type(s.dtype)));
         }
     }
@@ -214,7 +214,8 @@ fn write_csv(map: &PhotonMap, out: &mut dyn Write, file: &str) -> Result<()> {
     check_names(map, ExportFormat::Csv, file)?;
     let io = |source| ExportError::Io { file: file.into(), source };
     let cols = map.columns();
-    let header: Vec<String> = cols.iter().flat_map(|(s, _)| text_names(&s.name, s.components)).collect();
+    let header: Vec<String> =
+        cols.iter().flat_map(|(s, _)| text_names_in(&map.meta().emitters, &s.name, s.components)).collect();
     writeln!(out, "{}", header.join(",")).map_err(io)?;
     let mut line = String::new();
     for i in 0..map.len() {

@@ -9,7 +9,7 @@ use serde::Serialize;
 
 use crate::format::{
     BoundingBox, ColumnSpec, DType, Emitter, FormatError, MapInfo, Output, PhotonMap, StageRecord,
-    UNIT_TOLERANCE, Units, columns::text_names, name, write_map,
+    UNIT_TOLERANCE, Units, columns::text_names_in, name, write_map,
 };
 
 /// Statistics of one component of one column, over its finite values.
@@ -214,7 +214,8 @@ fn emitter_ids(map: &PhotonMap) -> Option<Vec<u16>> {
 /// Writes photons `[0, head)` (all when `None`) as TSV with a header row of text names.
 pub fn dump_tsv(map: &PhotonMap, head: Option<usize>, out: &mut dyn std::io::Write) -> std::io::Result<()> {
     let cols = map.columns();
-    let header: Vec<String> = cols.iter().flat_map(|(s, _)| text_names(&s.name, s.components)).collect();
+    let header: Vec<String> =
+        cols.iter().flat_map(|(s, _)| text_names_in(&map.meta().emitters, &s.name, s.components)).collect();
     writeln!(out, "{}", header.join("\t"))?;
     let n = head.map_or(map.len(), |h| h.min(map.len()));
     let mut line = String::new();

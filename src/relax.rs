@@ -535,14 +535,24 @@ pub fn relax_map_on(
         }
         None => None,
     };
+    let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
+    let emitters = map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, &order, 1));
+    let emitters = emitters.as_deref();
+    // A wavelength component enters distances with the scale detect gave it (the one its
+    // r_param was measured in; docs/spectral.md).
+    let params = match params {
+        Some((values, stride)) if meta.emitters.iter().any(|e| e.is_spectral()) => {
+            let factors: Vec<Vec<f32>> = meta.emitters.iter().map(|e| e.param_scales()).collect();
+            let column = ParamColumn { values: &values, stride, dims: &dims };
+            Some((column.scaled(emitters, &factors), stride))
+        }
+        p => p,
+    };
     let params = params.as_ref().map(|(v, s)| (v.as_slice(), *s));
     let space = match (meta.state, r_param, params) {
         (State::Detected, Some(_), Some(_)) => RelaxSpace::WorldParams,
         _ => RelaxSpace::World,
     };
-    let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
-    let emitters = map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, &order, 1));
-    let emitters = emitters.as_deref();
     let mut positions = permuted(map.positions(), &order, 1);
     // Coordinates far from 1 (near 1e30, or 1e-30) overflow or underflow squared distances in
     // f32; without a scene to return to, the photons are worked on scaled by a power of two

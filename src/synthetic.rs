@@ -100,6 +100,7 @@ pub fn collimated_emitter(id: u32, power_w: f64) -> Emitter {
         param_measure: Some(1.0),
         geometry: serde_json::json!({ "origin": [-0.5, -0.5, 2.0], "edge_u": [1.0, 0.0, 0.0],
                                       "edge_v": [0.0, 1.0, 0.0], "direction": [0.0, 0.0, -1.0] }),
+        dimensions: Vec::new(),
         extra: Default::default(),
     }
 }
@@ -115,6 +116,7 @@ pub fn point_emitter(id: u32, power_w: f64) -> Emitter {
         colour: [1.0, 0.9, 0.7],
         param_measure: Some(4.0 * std::f64::consts::PI),
         geometry: serde_json::json!({ "position": [0.0, 0.0, 1.0] }),
+        dimensions: Vec::new(),
         extra: Default::default(),
     }
 }

@@ -76,7 +76,7 @@ KNOWN_COLUMNS = {
     "normal": ("f32", (3,)),
     "incident": ("f32", (3,)),
     "emitter": ("u16", (1,)),
-    "params": ("f32", (2, 3)),
+    "params": ("f32", (2, 3, 4)),
     "path_length": ("f32", (1,)),
     "bounces": ("u8", (1,)),
     "emission_index": ("u64", (1,)),
@@ -210,7 +210,7 @@ def parse_metadata(region):
 
 
 # §3.1: the number of parameter dimensions of each known parameterisation.
-PARAM_DIMS = {"rect_uv": 2, "direction": 3, "none": 0}
+PARAM_DIMS = {"rect_uv": 2, "direction": 3, "rect_uv_spectral": 3, "direction_spectral": 4, "none": 0}
 
 
 def check_metadata(meta):
@@ -260,6 +260,21 @@ def check_metadata(meta):
             measure = e["param_measure"]
             if not is_number(measure) or measure <= 0:
                 raise PhmError(f"{where}: param_measure must be a number > 0")
+        if "dimensions" in e:
+            dl = e["dimensions"]
+            if not isinstance(dl, list) or (dl and len(dl) != dims):
+                raise PhmError(f"{where}: dimensions must be a list of param_dims entries")
+            for d in dl:
+                if not isinstance(d, dict):
+                    raise PhmError(f"{where}: a dimension is not an object")
+                need(d, "name", str, "a string", f"{where}.dimensions")
+                need(d, "kind", str, "a string", f"{where}.dimensions")
+                if "scale" in d and (not is_number(d["scale"]) or d["scale"] <= 0):
+                    raise PhmError(f"{where}: a dimension's scale must be a number > 0")
+                if "range" in d:
+                    rg = d["range"]
+                    if not (isinstance(rg, list) and len(rg) == 2 and all(is_number(x) for x in rg) and rg[0] <= rg[1]):
+                        raise PhmError(f"{where}: a dimension's range must be [lo, hi] with lo <= hi")
         if "geometry" in e and not isinstance(e["geometry"], dict):
             raise PhmError(f"{where}: geometry must be an object")
 

@@ -65,6 +65,11 @@ pub struct Args {
     /// Doublings of a constrained photon's parameter ball where it binds (`detect --growths`).
     #[arg(long, value_name = "N", default_value_t = photonkit::detect::DEFAULT_GROWTHS)]
     growths: u32,
+    /// The visible range's length in parameter space where photons carry their wavelength
+    /// (`detect --spectral-scale`).
+    #[arg(value_parser = super::finite_f32, long, value_name = "S",
+          default_value_t = photonkit::detect::DEFAULT_SPECTRAL_SCALE)]
+    spectral_scale: f32,
     /// k of the parameter-space density estimate ρ = k/(π r_k²) of Eq. 1; default Kc.
     #[arg(long, value_name = "K")]
     k_density: Option<usize>,
@@ -113,7 +118,7 @@ pub struct Args {
     /// Integrate the closed-form truth quickly (for tests) instead of to convergence.
     #[arg(long, hide = true)]
     fast_truth: bool,
-    /// Vary one setting over runs: photons=…, k=…, kc=…, beta=…, k-density=…, growths=… or iterations=…
+    /// Vary one setting over runs: photons=…, k=…, kc=…, beta=…, k-density=…, growths=…, spectral-scale=… or iterations=…
     /// (comma-separated values), e.g. photons=1e5,3e5,1e6. Progressive photon mapping runs
     /// again only when its photons per pass change (they follow --photons unless
     /// --ppm-photons is given).
@@ -153,12 +158,17 @@ fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(
             "beta" => o.beta = super::finite_f32(v).map_err(anyhow::Error::msg).with_context(bad)?,
             "k-density" => o.k_density = Some(v.parse().with_context(bad)?),
             "growths" => o.growths = v.parse().with_context(bad)?,
+            "spectral-scale" => {
+                o.spectral_scale = super::finite_f32(v).map_err(anyhow::Error::msg).with_context(bad)?
+            }
             "iterations" => {
                 o.iterations = v.parse().with_context(bad)?;
                 o.iterations_2009 = 2 * o.iterations;
             }
             k => {
-                bail!("--sweep: unknown setting '{k}' (photons, k, kc, beta, k-density, growths, iterations)")
+                bail!(
+                    "--sweep: unknown setting '{k}' (photons, k, kc, beta, k-density, growths, spectral-scale, iterations)"
+                )
             }
         }
         check_options(&o).with_context(|| format!("--sweep {key}: '{v}'"))?;
@@ -193,6 +203,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         beta: a.beta,
         k_density: a.k_density,
         growths: a.growths,
+        spectral_scale: a.spectral_scale,
         kf: a.kf,
         iterations: a.iterations,
         iterations_2009: a.iterations_2009,

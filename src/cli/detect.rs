@@ -41,6 +41,12 @@ pub struct Args {
     /// the paper's fixed ball (docs/parameter-ball.md).
     #[arg(long, value_name = "N", default_value_t = photonkit::detect::DEFAULT_GROWTHS)]
     growths: u32,
+    /// For maps whose photons carry their wavelength (a dispersive scene): the visible range's
+    /// length in parameter space, in units of the spread of the emitter's other parameters
+    /// (docs/spectral.md). Larger separates colours more.
+    #[arg(value_parser = super::finite_f32, long, value_name = "S",
+          default_value_t = photonkit::detect::DEFAULT_SPECTRAL_SCALE)]
+    spectral_scale: f32,
     /// k of the parameter-space density estimate ρ = k/(π r_k²); default Kc.
     #[arg(long, value_name = "K")]
     k_density: Option<usize>,
@@ -92,6 +98,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         k_density: a.k_density,
         gain: a.gain,
         growths: a.growths,
+        spectral_scale: a.spectral_scale,
         noise: match a.mu_sigma {
             NoiseArg::Simulated => NoiseModel::Simulated,
             NoiseArg::Paper => NoiseModel::Paper,

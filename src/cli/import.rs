@@ -51,6 +51,10 @@ enum Source {
 enum Param {
     RectUv,
     Direction,
+    /// (u, v) and a wavelength in nm.
+    RectUvSpectral,
+    /// A direction and a wavelength in nm.
+    DirectionSpectral,
     None,
 }
 
@@ -64,6 +68,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         parameterisation: a.parameterisation.map(|p| match p {
             Param::RectUv => Parameterisation::RectUv,
             Param::Direction => Parameterisation::Direction,
+            Param::RectUvSpectral => Parameterisation::RectUvSpectral,
+            Param::DirectionSpectral => Parameterisation::DirectionSpectral,
             Param::None => Parameterisation::None,
         }),
         caustic_only: a.caustic_only,

@@ -112,6 +112,18 @@ fn print_summary(s: &inspect::Summary, show_layout: bool, o: &mut dyn Write) -> 
             e.colour[1],
             e.colour[2]
         )?;
+        if let Some(k) = e.parameterisation.spectral_component() {
+            let d = &e.dimensions()[k];
+            let [lo, hi] = d.range.unwrap_or([f64::NAN; 2]);
+            writeln!(
+                o,
+                "       param_{k}: wavelength, {lo}–{hi} {}, distance scale {:.4e} per {}{}",
+                d.unit.as_deref().unwrap_or("?"),
+                d.distance_scale(),
+                d.unit.as_deref().unwrap_or("unit"),
+                if d.scale.is_some() { " (set by detect)" } else { " (default: the range spans 1)" }
+            )?;
+        }
     }
     writeln!(o, "\ncolumns:")?;
     // The file layout (offset, length, CRC-32) only on request: it serves format work, not
@@ -133,7 +145,8 @@ fn print_summary(s: &inspect::Summary, show_layout: bool, o: &mut dyn Write) -> 
             Some(x) => format!("{x:.6e}"),
         };
         for (k, st) in c.stats.iter().enumerate() {
-            let label = photonkit::format::columns::text_names(&c.name, c.components)[k].clone();
+            let label =
+                photonkit::format::columns::text_names_in(&s.emitters, &c.name, c.components)[k].clone();
             if k == 0 {
                 write!(o, "  {:<16} {:<7}", c.name, format!("{}×{}", c.dtype.name(), c.components))?;
                 layout(o, [&c.offset.to_string(), &c.length.to_string(), &format!("{:08x}", c.crc32)])?;

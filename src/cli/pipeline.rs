@@ -52,6 +52,10 @@ pub struct Args {
     /// --growths`; docs/parameter-ball.md); 0 keeps the paper's fixed ball.
     #[arg(long, value_name = "N", default_value_t = detect::DEFAULT_GROWTHS)]
     growths: u32,
+    /// The visible range's length in parameter space for photons that carry their wavelength
+    /// (`detect --spectral-scale`; docs/spectral.md).
+    #[arg(value_parser = super::finite_f32, long, value_name = "S", default_value_t = detect::DEFAULT_SPECTRAL_SCALE)]
+    spectral_scale: f32,
     /// R: relaxation iterations before the collapse and again after it.
     #[arg(short = 'R', long, default_value_t = 7)]
     iterations: usize,
@@ -109,7 +113,13 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (scene, label, text) = super::trace::load_scene(a.scene.as_deref())?;
     anyhow::ensure!(a.photons >= 1 && a.stored != Some(0), "--photons and --stored need at least 1");
     let budget = a.stored.map_or(Budget::Emitted(a.photons), Budget::Stored);
-    let dp = DetectParams { kc: a.kc, beta: a.beta, growths: a.growths, ..DetectParams::default() };
+    let dp = DetectParams {
+        kc: a.kc,
+        beta: a.beta,
+        growths: a.growths,
+        spectral_scale: a.spectral_scale,
+        ..DetectParams::default()
+    };
     let rp = RelaxParams { iterations: a.iterations, kf: a.kf, ..RelaxParams::default() };
     std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;
     let file = |name: &str| a.out_dir.join(name);

@@ -750,3 +750,77 @@ fn a_grown_ball_keeps_filaments_and_edges_held() {
         assert!(f < 0.15 && uy > 0.95, "grown ball, boundary of {name}: mean factor {f}, |u_b·ŷ| {uy}");
     }
 }
+
+/// A dispersed beam (issue 23): (u, v) uniform on the emitter, the wavelength λ uniform on
+/// 380–720 nm; a photon lands at x = 0.1·u + 0.4·t, y = 0.02·v, t = (λ − 380)/340 (the
+/// spectrum spreads a beam 0.1 m × 0.02 m over 0.4 m along x, as the prism does). Without the
+/// wavelength among the parameters, a photon's (u, v) ball holds every wavelength, which lands
+/// along a line 0.4 m long: a filament, so the smooth interior is held. With it (a
+/// `rect_uv_spectral` emitter, at S = 50, which makes the spectrum 20 times as long as v's
+/// range in parameter space, ℓ being about 0.41, as on the floor; both with the paper's fixed
+/// ball), the ball holds nearby wavelengths only and the interior is free like
+/// any uniform region; and the scale detect records is S·ℓ/340 with ℓ the RMS distance of
+/// (u, v) from its mean, recomputed here by brute force.
+#[test]
+fn a_wavelength_parameter_frees_the_interior_of_a_dispersed_beam() {
+    use crate::format::{Output, Parameterisation, PhotonMap, write_map};
+    let mut r = rng(23);
+    let n = 12_000;
+    let mut m = crate::synthetic::SyntheticMap {
+        param_dims: 3,
+        emitters: vec![crate::synthetic::collimated_emitter(0, 1.0)],
+        ..Default::default()
+    };
+    m.emitters[0].parameterisation = Parameterisation::RectUvSpectral;
+    m.emitters[0].param_dims = 3;
+    m.emitters[0].dimensions = Parameterisation::RectUvSpectral.dimensions();
+    for i in 0..n {
+        let (u, v, t) = (r.random::<f32>(), r.random::<f32>(), r.random::<f32>());
+        m.position.push([0.1 * u + 0.4 * t, 0.02 * v, 0.0]);
+        m.normal.push([0.0, 0.0, 1.0]);
+        m.flux.push([1.0 / n as f32; 3]);
+        m.incident.push([0.0, 0.0, -1.0]);
+        m.emitter.push(0);
+        m.params.extend([u, v, 380.0 + 340.0 * t]);
+        m.path_length.push(1.0);
+        m.bounces.push(1);
+        m.emission_index.push(i as u64);
+    }
+    let interior: Vec<usize> = (0..n)
+        .filter(|&i| (0.15..0.35).contains(&m.position[i][0]) && (0.005..0.015).contains(&m.position[i][1]))
+        .collect();
+    assert!(interior.len() > 2000);
+    let iso = isotropic_mean_factor(50, 4000, 1);
+
+    // (u, v) alone: the first two of the three components.
+    // The paper's fixed ball on both sides (a grown ball frees this filament for another reason:
+    // docs/parameter-ball.md).
+    let p = DetectParams { growths: 0, ..DetectParams::default() };
+    let d = detect(&input(&m, &[2], 3), &p, &|_| {}).unwrap();
+    let (f, _) = band_means(&d, &interior);
+    assert!(f < 0.3, "without the wavelength the interior is a filament: mean factor {f}");
+
+    let dir = tempfile::tempdir().unwrap();
+    let path = dir.path().join("dispersed.phm");
+    write_map(Output::Path(path.clone()), m.info("dispersed", 23, "2026-12-04T00:00:00Z"), &m.columns())
+        .unwrap();
+    let map = PhotonMap::open_path(&path).unwrap();
+    assert_eq!(map.version(), (1, 1), "a spectral dimension is a version 1.1 feature");
+    let p = DetectParams { spectral_scale: 50.0, ..p };
+    let d = detect_map(&map, &p, &|_| {}).unwrap();
+    let (f, _) = band_means(&d, &interior);
+    assert!(
+        (f - iso).abs() < 0.1,
+        "with the wavelength the interior is free: mean factor {f}, isotropic {iso}"
+    );
+    let (mu, mv) =
+        (0..n).fold((0.0, 0.0), |a, i| (a.0 + m.params[3 * i] as f64, a.1 + m.params[3 * i + 1] as f64));
+    let (mu, mv) = (mu / n as f64, mv / n as f64);
+    let l2 = (0..n)
+        .map(|i| (m.params[3 * i] as f64 - mu).powi(2) + (m.params[3 * i + 1] as f64 - mv).powi(2))
+        .sum::<f64>()
+        / n as f64;
+    let want = p.spectral_scale as f64 * l2.sqrt() / 340.0;
+    let got = d.spectral_scales[0].unwrap() as f64;
+    assert!((got / want - 1.0).abs() < 1e-5, "scale {got} against {want}");
+}

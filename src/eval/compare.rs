@@ -121,6 +121,8 @@ pub struct CompareOptions {
     pub k_density: Option<usize>,
     /// Doublings of a binding parameter ball ([`DetectParams::growths`]).
     pub growths: u32,
+    /// The wavelength's scale in parameter space ([`DetectParams::spectral_scale`]).
+    pub spectral_scale: f32,
     /// Kf of the repulsion force.
     pub kf: usize,
     /// R: iterations before the collapse and again after it (this method).
@@ -159,6 +161,7 @@ impl Default for CompareOptions {
             beta: 3.0,
             k_density: None,
             growths: crate::detect::DEFAULT_GROWTHS,
+            spectral_scale: crate::detect::DEFAULT_SPECTRAL_SCALE,
             kf: 16,
             iterations: 7,
             iterations_2009: 14,
@@ -513,6 +516,7 @@ fn run_seed(
             beta: o.beta,
             k_density: o.k_density,
             growths: o.growths,
+            spectral_scale: o.spectral_scale,
             method,
             ..DetectParams::default()
         };

@@ -317,6 +317,17 @@ pub struct RegionErrors {
     pub p90_rel: f64,
     pub bias2: f64,
     pub variance: f64,
+    /// Colour error: the root mean square over the region's cells (in every seed's image) of
+    /// the distance between the cell's chromaticity (r, g, b)/(r + g + b) and the truth's,
+    /// over cells where both are lit (NaN where none is). A grey-level error leaves it 0; a
+    /// spectrum's colour grain raises it.
+    pub chroma_rms: f64,
+}
+
+/// The chromaticity (r, g, b)/(r + g + b) of a cell, `None` where it is unlit.
+fn chromaticity(p: [f64; 3]) -> Option<[f64; 3]> {
+    let s = p[0] + p[1] + p[2];
+    (s > 0.0).then(|| p.map(|c| c / s))
 }
 
 /// [`RegionErrors`] for the whole image and for each class of `classes` (in [`Region::ALL`]
@@ -346,14 +357,22 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
             p90_rel: f64::NAN,
             bias2: f64::NAN,
             variance: f64::NAN,
+            chroma_rms: f64::NAN,
         };
         if cells.is_empty() {
             return nan;
         }
         let (mut mse, mut bias2, mut var, mut tsum) = (0.0, 0.0, 0.0, 0.0);
         let mut rel = Vec::with_capacity(cells.len() * images.len());
+        let (mut chroma2, mut chroma_n) = (0.0, 0usize);
         for &i in &cells {
             let t = truth[i];
+            if let Some(ct) = chromaticity(t) {
+                for cx in images.iter().filter_map(|im| chromaticity(im[i])) {
+                    chroma2 += (0..3).map(|c| (cx[c] - ct[c]).powi(2)).sum::<f64>();
+                    chroma_n += 1;
+                }
+            }
             tsum += t[0] + t[1] + t[2];
             for c in 0..3 {
                 let m = images.iter().map(|im| im[i][c]).sum::<f64>() / s;
@@ -384,6 +403,7 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
             p90_rel: q(&mut rel, 0.9),
             bias2: if several { bias2 / n / (norm * norm) } else { f64::NAN },
             variance: if several { var / n / (norm * norm) } else { f64::NAN },
+            chroma_rms: if chroma_n > 0 { (chroma2 / chroma_n as f64).sqrt() } else { f64::NAN },
             ..nan
         }
     };
@@ -593,5 +613,21 @@ mod tests {
         assert!(e.bias2.abs() < 0.01, "bias² {}", e.bias2);
         let mean = images.iter().flatten().map(|p| p[0]).sum::<f64>() / (30 * points.len()) as f64;
         assert!((mean - 1.0).abs() < 0.03, "mean {mean}");
+    }
+
+    /// Chroma RMS: a grey-level error (every channel scaled alike) leaves the chromaticity of
+    /// the truth, so 0; a cell (1, 1, 1) rendered (2, 1, 1) has chromaticity (½, ¼, ¼) against
+    /// (⅓, ⅓, ⅓): distance² = (1/6)² + 2·(1/12)² = 1/24. Unlit cells are left out.
+    #[test]
+    fn chroma_rms_sees_colour_errors_and_not_grey_level_ones() {
+        let truth = vec![[1.0; 3], [1.0; 3], [0.0; 3]];
+        let classes = vec![Region::Smooth, Region::Smooth, Region::Dark];
+        let grey = vec![[3.0; 3], [0.5; 3], [0.0; 3]];
+        assert_eq!(region_errors(&[grey], &truth, &classes)[0].chroma_rms, 0.0);
+        let red = vec![[2.0, 1.0, 1.0], [1.0; 3], [5.0, 0.0, 0.0]];
+        let e = region_errors(&[red], &truth, &classes);
+        // The whole image: two lit cells, one off by 1/24.
+        assert!((e[0].chroma_rms - (1.0f64 / 48.0).sqrt()).abs() < 1e-12, "{}", e[0].chroma_rms);
+        assert!(e[4].chroma_rms.is_nan(), "the dark cell has no chromaticity to compare");
     }
 }

@@ -181,8 +181,8 @@ pub const KNOWN_COLUMNS: &[KnownColumn] = &[
     KnownColumn {
         name: name::PARAMS,
         dtype: DType::F32,
-        components: &[2, 3],
-        text_names: &["param_0", "param_1", "param_2"],
+        components: &[2, 3, 4],
+        text_names: &["param_0", "param_1", "param_2", "param_3"],
     },
     KnownColumn {
         name: name::PATH_LENGTH,
@@ -230,6 +230,25 @@ pub fn text_names(column: &str, components: u32) -> Vec<String> {
         (0..components).map(|i| format!("{column}_{i}")).collect()
     }
 }
+
+/// [`text_names`] of a column of a map with these `emitters`: the same, except that the
+/// `params` component holding every emitter's wavelength (all of them spectral, with the
+/// wavelength last) is named `wavelength` (format-spec/phm-v1.md §7).
+pub fn text_names_in(emitters: &[super::Emitter], column: &str, components: u32) -> Vec<String> {
+    let mut names = text_names(column, components);
+    let with_params: Vec<_> = emitters.iter().filter(|e| e.param_dims > 0).collect();
+    let last = components as usize;
+    if column == name::PARAMS
+        && !with_params.is_empty()
+        && with_params.iter().all(|e| e.parameterisation.spectral_component().map(|k| k + 1) == Some(last))
+    {
+        names[last - 1] = WAVELENGTH_TEXT_NAME.to_string();
+    }
+    names
+}
+
+/// The text name of a wavelength in `params` ([`text_names_in`]).
+pub const WAVELENGTH_TEXT_NAME: &str = "wavelength";
 
 /// The type and shape of one column, without its place in a file.
 #[derive(Clone, Debug, PartialEq, Eq)]

@@ -64,6 +64,10 @@ pub enum Parameterisation {
     RectUv,
     /// The unit emission direction: 3 dimensions, on the unit sphere.
     Direction,
+    /// (u, v) and the photon's wavelength in nm: 3 dimensions (version 1.1).
+    RectUvSpectral,
+    /// The unit emission direction and the photon's wavelength in nm: 4 dimensions (version 1.1).
+    DirectionSpectral,
     /// No trajectory parameters: 0 dimensions.
     None,
     #[serde(other)]
@@ -75,9 +79,52 @@ impl Parameterisation {
     pub fn dims(self) -> Option<u32> {
         match self {
             Parameterisation::RectUv => Some(2),
-            Parameterisation::Direction => Some(3),
+            Parameterisation::Direction | Parameterisation::RectUvSpectral => Some(3),
+            Parameterisation::DirectionSpectral => Some(4),
             Parameterisation::None => Some(0),
             Parameterisation::Unknown => None,
+        }
+    }
+
+    /// The component holding the wavelength (the last), for the spectral parameterisations.
+    pub fn spectral_component(self) -> Option<usize> {
+        match self {
+            Parameterisation::RectUvSpectral => Some(2),
+            Parameterisation::DirectionSpectral => Some(3),
+            _ => None,
+        }
+    }
+
+    /// This parameterisation with a wavelength dimension added (`rect_uv` → `rect_uv_spectral`,
+    /// `direction` → `direction_spectral`); the others unchanged.
+    pub fn with_wavelength(self) -> Self {
+        match self {
+            Parameterisation::RectUv => Parameterisation::RectUvSpectral,
+            Parameterisation::Direction => Parameterisation::DirectionSpectral,
+            p => p,
+        }
+    }
+
+    /// The dimensions this parameterisation's components stand for, in order (the default of
+    /// [`Emitter::dimensions`]).
+    pub fn dimensions(self) -> Vec<ParamDimension> {
+        let dim = |name: &str, kind| ParamDimension::new(name, kind);
+        let spectral = || {
+            let (lo, hi) = WAVELENGTH_RANGE_NM;
+            ParamDimension {
+                unit: Some("nm".into()),
+                range: Some([lo as f64, hi as f64]),
+                ..dim("wavelength", DimensionKind::Spectral)
+            }
+        };
+        let uv = || vec![dim("u", DimensionKind::Spatial), dim("v", DimensionKind::Spatial)];
+        let dir = || ["x", "y", "z"].map(|n| dim(n, DimensionKind::Directional)).to_vec();
+        match self {
+            Parameterisation::RectUv => uv(),
+            Parameterisation::Direction => dir(),
+            Parameterisation::RectUvSpectral => [uv(), vec![spectral()]].concat(),
+            Parameterisation::DirectionSpectral => [dir(), vec![spectral()]].concat(),
+            Parameterisation::None | Parameterisation::Unknown => Vec::new(),
         }
     }
 
@@ -91,11 +138,16 @@ impl Parameterisation {
         if q.len() < used || q[used..].iter().any(|&x| x != 0.0) {
             return false;
         }
+        let wavelength = |l: f32| l > 0.0 && l.is_finite();
+        let unit =
+            |q: &[f32]| ((q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() - 1.0).abs() <= UNIT_TOLERANCE;
         match self {
             Parameterisation::RectUv => q[..2].iter().all(|x| (0.0..=1.0).contains(x)),
-            Parameterisation::Direction => {
-                ((q[0] * q[0] + q[1] * q[1] + q[2] * q[2]).sqrt() - 1.0).abs() <= UNIT_TOLERANCE
+            Parameterisation::RectUvSpectral => {
+                q[..2].iter().all(|x| (0.0..=1.0).contains(x)) && wavelength(q[2])
             }
+            Parameterisation::Direction => unit(q),
+            Parameterisation::DirectionSpectral => unit(q) && wavelength(q[3]),
             Parameterisation::None | Parameterisation::Unknown => true,
         }
     }
@@ -105,11 +157,16 @@ impl Parameterisation {
         match self {
             Parameterisation::RectUv => "rect_uv",
             Parameterisation::Direction => "direction",
+            Parameterisation::RectUvSpectral => "rect_uv_spectral",
+            Parameterisation::DirectionSpectral => "direction_spectral",
             Parameterisation::None => "none",
             Parameterisation::Unknown => "unknown",
         }
     }
 }
+
+/// The visible range photons' wavelengths are drawn from, nm.
+pub const WAVELENGTH_RANGE_NM: (f32, f32) = (380.0, 720.0);
 
 /// Tolerance on the length of unit vectors in the data invariants (format-spec/phm-v1.md §5);
 /// f32 vectors normalised in f32 are good to about 1e-6.
@@ -135,8 +192,88 @@ pub struct Emitter {
     /// Kind-specific placement (free form; see the spec).
     #[serde(default, skip_serializing_if = "Value::is_null")]
     pub geometry: Value,
+    /// What each `params` component is (version 1.1; written for the spectral
+    /// parameterisations). Empty: the parameterisation's [`Parameterisation::dimensions`].
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub dimensions: Vec<ParamDimension>,
     #[serde(flatten)]
     pub extra: Map<String, Value>,
+}
+
+impl Emitter {
+    /// The dimensions of this emitter's parameters: the record's, else its parameterisation's.
+    pub fn dimensions(&self) -> Vec<ParamDimension> {
+        if self.dimensions.is_empty() { self.parameterisation.dimensions() } else { self.dimensions.clone() }
+    }
+
+    /// Per component, the factor parameter-space distances (Eq. 1) apply to it: 1 for the
+    /// spatial and directional components, [`ParamDimension::scale`] for a spectral one
+    /// (docs/spectral.md).
+    pub fn param_scales(&self) -> Vec<f32> {
+        let dims = self.dimensions();
+        (0..self.param_dims as usize)
+            .map(|c| dims.get(c).map_or(1.0, |d| d.distance_scale() as f32))
+            .collect()
+    }
+
+    /// Whether some component is a wavelength.
+    pub fn is_spectral(&self) -> bool {
+        self.parameterisation.spectral_component().is_some()
+    }
+}
+
+/// What one component of the `params` column stands for (format-spec/phm-v1.md §3.1).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct ParamDimension {
+    /// `u`, `v`, `x`, `y`, `z` or `wavelength`.
+    pub name: String,
+    pub kind: DimensionKind,
+    /// Unit of the stored values (`nm` for a wavelength); absent for dimensionless ones.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unit: Option<String>,
+    /// The interval the values are drawn from.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub range: Option<[f64; 2]>,
+    /// Parameter-space units per stored unit, the factor distances apply to this component
+    /// (written by `detect` for a spectral dimension; absent: 1, or for a spectral dimension
+    /// one over its range's width).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub scale: Option<f64>,
+    #[serde(flatten)]
+    pub extra: Map<String, Value>,
+}
+
+impl ParamDimension {
+    pub fn new(name: &str, kind: DimensionKind) -> Self {
+        ParamDimension { name: name.into(), kind, unit: None, range: None, scale: None, extra: Map::new() }
+    }
+
+    /// [`Self::scale`] or its default.
+    pub fn distance_scale(&self) -> f64 {
+        match (self.scale, self.kind, self.range) {
+            (Some(s), _, _) => s,
+            (None, DimensionKind::Spectral, Some([lo, hi])) if hi > lo => 1.0 / (hi - lo),
+            (None, DimensionKind::Spectral, _) => {
+                let (lo, hi) = WAVELENGTH_RANGE_NM;
+                1.0 / (hi - lo) as f64
+            }
+            (None, _, _) => 1.0,
+        }
+    }
+}
+
+/// The kind of quantity a parameter dimension measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum DimensionKind {
+    /// A position on the emitter (u or v).
+    Spatial,
+    /// A component of the emission direction.
+    Directional,
+    /// The photon's wavelength.
+    Spectral,
+    #[serde(other)]
+    Unknown,
 }
 
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -257,6 +394,14 @@ impl Metadata {
             history: self.history.clone(),
             extra: self.extra.clone(),
         }
+    }
+
+    /// The lowest minor version that describes this metadata: 1 when an emitter has a spectral
+    /// parameterisation or a `dimensions` list (added in 1.1), else 0, so maps without a
+    /// spectral dimension stay byte-identical to those of earlier builds.
+    pub fn minor_version(&self) -> u16 {
+        let v1_1 = self.emitters.iter().any(|e| e.is_spectral() || !e.dimensions.is_empty());
+        u16::from(v1_1)
     }
 
     pub fn column(&self, name: &str) -> Option<&ColumnEntry> {

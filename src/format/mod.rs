@@ -18,8 +18,8 @@ mod writer;
 
 pub use columns::{ColumnSpec, DType, Element, name};
 pub use meta::{
-    BoundingBox, ColumnEntry, Emitter, EmitterKind, MapInfo, Metadata, Parameterisation, StageRecord, State,
-    UNIT_TOLERANCE, Units,
+    BoundingBox, ColumnEntry, DimensionKind, Emitter, EmitterKind, MapInfo, Metadata, ParamDimension,
+    Parameterisation, StageRecord, State, UNIT_TOLERANCE, Units,
 };
 pub use reader::PhotonMap;
 pub use writer::{Output, PhotonWriter, folder_of, persist, temp_beside, write_map};

@@ -7,8 +7,10 @@ pub const MAGIC: [u8; 8] = *b"\x89PHM\r\n\x1a\n";
 pub const PREAMBLE_LEN: usize = 32;
 /// The major version this build reads and writes.
 pub const VERSION_MAJOR: u16 = 1;
-/// The minor version this build writes.
-pub const VERSION_MINOR: u16 = 0;
+/// The newest minor version this build writes. A file is written with the lowest minor
+/// version that describes it ([`super::meta::Metadata::minor_version`]): 1.0 unless it uses
+/// what 1.1 added (a spectral parameter dimension).
+pub const VERSION_MINOR: u16 = 1;
 /// Upper bound on the metadata length a reader accepts (16 MiB), so a corrupt length can not
 /// make us allocate or parse gigabytes.
 pub const MAX_METADATA_LEN: u64 = 16 << 20;

@@ -430,6 +430,29 @@ pub(super) fn validate_emitters(file: &str, meta: &Metadata) -> Result<()> {
         if e.param_measure.is_some_and(|m| !(m.is_finite() && m > 0.0)) {
             return Err(invalid(file, format!("emitter {i}: param_measure must be finite and positive")));
         }
+        if !e.dimensions.is_empty() && e.dimensions.len() != e.param_dims as usize {
+            return Err(invalid(
+                file,
+                format!(
+                    "emitter {i}: {} dimensions described, not param_dims = {}",
+                    e.dimensions.len(),
+                    e.param_dims
+                ),
+            ));
+        }
+        for d in &e.dimensions {
+            if d.scale.is_some_and(|s| !(s.is_finite() && s > 0.0))
+                || d.range.is_some_and(|[lo, hi]| !(lo.is_finite() && hi.is_finite() && lo <= hi))
+            {
+                return Err(invalid(
+                    file,
+                    format!(
+                        "emitter {i}: dimension '{}' needs a finite positive scale and a finite range lo ≤ hi",
+                        d.name
+                    ),
+                ));
+            }
+        }
     }
     if meta.emitters.len() > 1 && meta.column(name::EMITTER).is_none() {
         return Err(invalid(

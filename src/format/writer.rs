@@ -271,7 +271,7 @@ impl PhotonWriter {
         region.push(b'\n');
         let pre = Preamble {
             version_major: VERSION_MAJOR,
-            version_minor: VERSION_MINOR,
+            version_minor: meta.minor_version().min(VERSION_MINOR),
             metadata_crc32: crc32fast::hash(&region),
             metadata_len: self.metadata_len,
             file_len: self.file_len,

@@ -168,6 +168,7 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
     let lay = layout(file, &fields, options.flux_from_colour, &|i| {
         infer(rows.iter().map(|(_, r)| r.get(i + first).unwrap_or("")))
     })?;
+    let lay_spectral = lay.spectral;
     let mut cols = Columns::new(file, lay.specs, rows.len());
     for (ln, record) in &rows {
         cols.begin_row();
@@ -186,7 +187,8 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
     for n in &notes {
         eprintln!("photonkit import: {file}: {n}");
     }
-    with_emitters(file, SourceFormat::Csv, cols.into_columns(), options.parameterisation, report)
+    let spectral = lay_spectral;
+    with_emitters(file, SourceFormat::Csv, cols.into_columns(), options.parameterisation, spectral, report)
 }
 
 /// The type of a column this importer does not know, from its text: integers as i64, floats

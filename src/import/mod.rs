@@ -20,7 +20,7 @@ use std::path::Path;
 
 use serde_json::{Value, json};
 
-use crate::format::columns::{KNOWN_COLUMNS, KnownColumn};
+use crate::format::columns::{KNOWN_COLUMNS, KnownColumn, WAVELENGTH_TEXT_NAME};
 use crate::format::{
     ColumnSpec, DType, Emitter, EmitterKind, FormatError, MapInfo, Output, Parameterisation, StageRecord,
     State, name, write_map,
@@ -338,6 +338,9 @@ pub(crate) struct Slot {
 pub(crate) struct Layout {
     pub specs: Vec<ColumnSpec>,
     pub slots: Vec<Option<Slot>>,
+    /// Whether a `wavelength` field became the last component of `params` (a spectral
+    /// parameterisation; docs/spectral.md).
+    pub spectral: bool,
 }
 
 /// What the layout needs to know of one source field.
@@ -412,10 +415,16 @@ pub(crate) fn layout(
         }
     };
 
+    // A wavelength beside (u, v) or a direction is their last trajectory parameter.
+    let spectral = seen.contains_key(WAVELENGTH_TEXT_NAME) && seen.contains_key("param_0");
+    let base_params = if seen.contains_key("param_2") { 3 } else { 2 };
     // Known columns first, in the order of their first field.
     for (i, f) in fields.iter().enumerate() {
         let (known, comp, scale) = if let Some((k, comp)) = known_field(f.name) {
             (k, comp, None)
+        } else if spectral && f.name == WAVELENGTH_TEXT_NAME {
+            let k = KNOWN_COLUMNS.iter().find(|k| k.name == name::PARAMS).expect("params is known");
+            (k, base_params, None)
         } else if let Some(c) = COLOUR_NAMES.iter().position(|c| *c == f.name) {
             if !colours_as_flux {
                 continue; // display colours beside flux (as `export` writes them): not data
@@ -440,7 +449,7 @@ pub(crate) fn layout(
             ));
         }
         let comps = if known.name == name::PARAMS {
-            if seen.contains_key("param_2") { 3 } else { 2 }
+            if seen.contains_key("param_3") { 4 } else { base_params as u32 + u32::from(spectral) }
         } else {
             known.components[0]
         };
@@ -453,7 +462,11 @@ pub(crate) fn layout(
             COLOUR_NAMES.to_vec()
         } else {
             let k = crate::format::columns::known_column(&s.name).expect("known");
-            k.text_names[..s.components as usize].to_vec()
+            if s.name == name::PARAMS && spectral {
+                [&k.text_names[..s.components as usize - 1], &[WAVELENGTH_TEXT_NAME]].concat()
+            } else {
+                k.text_names[..s.components as usize].to_vec()
+            }
         };
         let missing: Vec<&str> = names.iter().copied().filter(|n| !seen.contains_key(n)).collect();
         if !missing.is_empty() {
@@ -518,7 +531,7 @@ pub(crate) fn layout(
         }
         i += n;
     }
-    Ok(Layout { specs, slots })
+    Ok(Layout { specs, slots, spectral })
 }
 
 /// Whether values of type `from` can be stored in a column of type `to` without losing their
@@ -670,6 +683,7 @@ pub(crate) fn with_emitters(
     format: SourceFormat,
     columns: Vec<(ColumnSpec, Vec<u8>)>,
     param_override: Option<Parameterisation>,
+    spectral: bool,
     report: Value,
 ) -> Result<Imported> {
     let invalid = |message: String| ImportError::Invalid { file: file.to_string(), message };
@@ -692,7 +706,9 @@ pub(crate) fn with_emitters(
     let dims = params.as_ref().map_or(0, |p| p.0);
     if let Some(p) = param_override {
         let needed = p.dims().ok_or_else(|| invalid("unknown parameterisation".into()))? as usize;
-        if needed != dims && !(p == Parameterisation::RectUv && dims == 3) {
+        let padded =
+            matches!(p, Parameterisation::RectUv | Parameterisation::RectUvSpectral) && dims == needed + 1;
+        if needed != dims && !padded {
             return Err(invalid(format!(
                 "parameterisation '{}' needs {needed} trajectory parameters (param_0 …) but the file has {dims}",
                 p.name()
@@ -719,7 +735,13 @@ pub(crate) fn with_emitters(
         (Some(p), _) => vec![p],
         (None, 0) => vec![Parameterisation::None],
         (None, 2) => vec![Parameterisation::RectUv],
-        (None, _) => vec![Parameterisation::Direction, Parameterisation::RectUv],
+        // A `wavelength` field after (u, v) or a direction.
+        (None, 3) if spectral => vec![Parameterisation::RectUvSpectral],
+        (None, 4) if spectral => vec![Parameterisation::DirectionSpectral],
+        (None, 3) => vec![Parameterisation::Direction, Parameterisation::RectUv],
+        // param_0 … param_3: a spectral map of collimated and point emitters (export names
+        // the wavelength `wavelength` only where it is every emitter's last parameter).
+        (None, _) => vec![Parameterisation::DirectionSpectral, Parameterisation::RectUvSpectral],
     };
     let mut open: Vec<Vec<Parameterisation>> = vec![candidates.clone(); count];
     if let Some((d, v)) = &params {
@@ -769,6 +791,7 @@ pub(crate) fn external_emitter(id: u32, p: Parameterisation, flux_w: [f64; 3]) -
         colour,
         param_measure: None,
         geometry: Value::Null,
+        dimensions: if p.spectral_component().is_some() { p.dimensions() } else { Vec::new() },
         extra: Default::default(),
     }
 }

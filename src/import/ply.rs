@@ -192,6 +192,7 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
         fields.push(Field { name, dtype: Some(t), colour_max, at: At::Line(p.line) });
     }
     let lay = layout(file, &fields, options.flux_from_colour, &|_| DType::F32)?;
+    let spectral = lay.spectral;
     let columns = match h.encoding {
         Encoding::Ascii => read_ascii(file, bytes, &h, vi, lay)?,
         Encoding::BinaryLe | Encoding::BinaryBe => read_binary(file, bytes, &h, vi, lay)?,
@@ -206,7 +207,7 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
         "photons": n,
         "properties": vertex.props.iter().map(|p| p.name.clone()).collect::<Vec<_>>(),
     });
-    with_emitters(file, SourceFormat::Ply, columns, options.parameterisation, report)
+    with_emitters(file, SourceFormat::Ply, columns, options.parameterisation, spectral, report)
 }
 
 /// A value read from a binary PLY file.

@@ -105,11 +105,14 @@ impl Emitter {
         }
     }
 
-    pub fn param_dims(&self) -> u32 {
-        match self.kind {
+    /// Number of trajectory parameters: 2 ((u, v)) or 3 (a direction), plus the wavelength
+    /// when `spectral` (the scene disperses light: docs/spectral.md).
+    pub fn param_dims(&self, spectral: bool) -> u32 {
+        let base = match self.kind {
             EmitterShape::Collimated { .. } => 2,
             _ => 3,
-        }
+        };
+        base + u32::from(spectral)
     }
 
     /// Area of the parameter manifold: the rectangle in m², or the emission solid angle in sr.
@@ -123,8 +126,8 @@ impl Emitter {
         }
     }
 
-    /// The PHM metadata record of this emitter.
-    pub fn record(&self, id: u32) -> format::Emitter {
+    /// The PHM metadata record of this emitter, with a wavelength dimension when `spectral`.
+    pub fn record(&self, id: u32, spectral: bool) -> format::Emitter {
         let a = |v: Vec3| serde_json::json!([v.x, v.y, v.z]);
         let (kind, parameterisation, geometry) = match self.kind {
             EmitterShape::Collimated { origin, edge_u, edge_v, direction } => (
@@ -144,15 +147,22 @@ impl Emitter {
                 serde_json::json!({ "position": a(position), "axis": a(axis), "half_angle_rad": half_angle_rad }),
             ),
         };
+        let (parameterisation, dimensions) = if spectral {
+            let p = parameterisation.with_wavelength();
+            (p, p.dimensions())
+        } else {
+            (parameterisation, Vec::new())
+        };
         format::Emitter {
             id,
             kind,
             parameterisation,
-            param_dims: self.param_dims(),
+            param_dims: self.param_dims(spectral),
             power_w: self.power_w,
             colour: self.colour.to_array(),
             param_measure: Some(self.param_measure()),
             geometry,
+            dimensions,
             extra: Default::default(),
         }
     }
@@ -223,7 +233,7 @@ mod tests {
         assert_eq!(ray.origin, Vec3::new(-0.5, 0.5, 3.0));
         assert_eq!(c.ray_from_params(&p[..2]), Some(ray));
         assert_eq!(c.param_measure(), 4.0);
-        let rec = c.record(0);
+        let rec = c.record(0, false);
         assert_eq!((rec.param_dims, rec.parameterisation), (2, Parameterisation::RectUv));
     }
 }

@@ -121,8 +121,9 @@ pub fn fresnel_cosines(cos_i: f32, cos_t: f32, eta: f32) -> f32 {
     0.5 * (rs * rs + rp * rp)
 }
 
-/// The visible range photons' wavelengths are drawn from, nm.
-pub const WAVELENGTH_RANGE_NM: (f32, f32) = (380.0, 720.0);
+/// The visible range photons' wavelengths are drawn from, nm (the range a spectral parameter
+/// dimension records in the format).
+pub use crate::format::meta::WAVELENGTH_RANGE_NM;
 
 /// Linear sRGB weight of a wavelength, scaled so that each channel averages 1 over
 /// [`WAVELENGTH_RANGE_NM`]: a white photon that takes a uniformly drawn wavelength and

@@ -450,7 +450,20 @@ impl Scene {
 
     /// Largest number of trajectory parameters of any emitter (the `params` column's width).
     pub fn param_dims(&self) -> u32 {
-        self.emitters.iter().map(|e| e.param_dims()).max().unwrap_or(0)
+        let spectral = self.is_spectral();
+        self.emitters.iter().map(|e| e.param_dims(spectral)).max().unwrap_or(0)
+    }
+
+    /// Whether photons carry their wavelength as a trajectory parameter: when some material
+    /// disperses light (docs/spectral.md). Every emitter then has the spectral dimension.
+    pub fn is_spectral(&self) -> bool {
+        self.has_dispersion()
+    }
+
+    /// The PHM metadata records of the emitters.
+    pub fn emitter_records(&self) -> Vec<crate::format::Emitter> {
+        let spectral = self.is_spectral();
+        self.emitters.iter().enumerate().map(|(i, e)| e.record(i as u32, spectral)).collect()
     }
 
     /// The nearest surface the ray meets with `t` in (`t_min`, `t_max`).

@@ -539,16 +539,20 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
 /// and the same k, finds among them every record within `g2` of itself that its ball admits
 /// (each axis's offset to a box that holds the query is at most its offset to the query, and
 /// rounding keeps that order): when at least k are, its k nearest are exact.
+/// Axes of a [`Group`]'s boxes: the most of either kind a tree has ([`super::MAX_PARAM_DIMS`]).
+const GROUP_AXES: usize = super::MAX_PARAM_DIMS;
+
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Group {
     /// The tree build the candidates came from (0: none).
     build: u64,
     k: usize,
     ball: bool,
-    lo_w: [f32; 3],
-    hi_w: [f32; 3],
-    lo_p: [f32; 3],
-    hi_p: [f32; 3],
+    // Sized for the widest tree: 4 distance axes (parameters alone), 4 ball axes.
+    lo_w: [f32; GROUP_AXES],
+    hi_w: [f32; GROUP_AXES],
+    lo_p: [f32; GROUP_AXES],
+    hi_p: [f32; GROUP_AXES],
     g2: f32,
     r2: f32,
     /// The leaves that may hold candidates (their records are scanned from the tree).
@@ -645,10 +649,10 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             let n = &self.nodes[node];
             Leaf { lo: 0, hi: 0, min_idx: 0, lo_w: n.lo_w, hi_w: n.hi_w, lo_p: n.lo_p, hi_p: n.hi_p }
         };
-        g.lo_w = [0.0; 3];
-        g.hi_w = [0.0; 3];
-        g.lo_p = [0.0; 3];
-        g.hi_p = [0.0; 3];
+        g.lo_w = [0.0; GROUP_AXES];
+        g.hi_w = [0.0; GROUP_AXES];
+        g.lo_p = [0.0; GROUP_AXES];
+        g.hi_p = [0.0; GROUP_AXES];
         for (a, &q) in qw.iter().enumerate() {
             (g.lo_w[a], g.hi_w[a]) = (l.lo_w[a].min(q), l.hi_w[a].max(q));
         }

@@ -96,6 +96,21 @@ impl ParamColumn<'_> {
     pub fn dims_of(&self, emitter: u16) -> usize {
         self.dims.get(emitter as usize).map_or(self.stride, |&d| (d as usize).min(self.stride))
     }
+
+    /// A copy of the values with component c of a photon of emitter e (`emitters[i]`, or 0
+    /// without them) multiplied by `factors[e][c]`: a weighted Euclidean distance (a
+    /// wavelength's scale, docs/spectral.md) searched as a plain one. Components past an
+    /// emitter's factors are unchanged.
+    pub fn scaled(&self, emitters: Option<&[u16]>, factors: &[Vec<f32>]) -> Vec<f32> {
+        let mut out = self.values.to_vec();
+        for (i, q) in out.chunks_exact_mut(self.stride.max(1)).enumerate() {
+            let e = emitters.map_or(0, |pe| pe[i] as usize);
+            if let Some(f) = factors.get(e) {
+                q.iter_mut().zip(f).for_each(|(x, f)| *x *= f);
+            }
+        }
+        out
+    }
 }
 
 /// The photons an index is built over: positions, and optionally trajectory parameters and
@@ -200,8 +215,8 @@ impl<'a> PointSet<'a> {
     }
 }
 
-/// Most parameter dimensions an emitter may use (the sphere embedded in 3-D).
-pub const MAX_PARAM_DIMS: usize = 3;
+/// Most parameter dimensions an emitter may use (the sphere embedded in 3-D, and a wavelength).
+pub const MAX_PARAM_DIMS: usize = 4;
 
 /// One k-NN request.
 #[derive(Clone, Copy, Debug)]
@@ -399,9 +414,11 @@ enum Tree {
     D1(KdTree<1, 0>),
     D2(KdTree<2, 0>),
     D3(KdTree<3, 0>),
+    D4(KdTree<4, 0>),
     D3B1(KdTree<3, 1>),
     D3B2(KdTree<3, 2>),
     D3B3(KdTree<3, 3>),
+    D3B4(KdTree<3, 4>),
 }
 
 impl Tree {
@@ -411,9 +428,11 @@ impl Tree {
             Tree::D1(t) => Box::new(t.order()),
             Tree::D2(t) => Box::new(t.order()),
             Tree::D3(t) => Box::new(t.order()),
+            Tree::D4(t) => Box::new(t.order()),
             Tree::D3B1(t) => Box::new(t.order()),
             Tree::D3B2(t) => Box::new(t.order()),
             Tree::D3B3(t) => Box::new(t.order()),
+            Tree::D3B4(t) => Box::new(t.order()),
         }
     }
 }
@@ -505,7 +524,8 @@ impl SpatialIndex {
                 Tree::D3B1(t) => t.refit(|i| pos[i as usize]),
                 Tree::D3B2(t) => t.refit(|i| pos[i as usize]),
                 Tree::D3B3(t) => t.refit(|i| pos[i as usize]),
-                Tree::Empty(_) | Tree::D1(_) | Tree::D2(_) => {}
+                Tree::D3B4(t) => t.refit(|i| pos[i as usize]),
+                Tree::Empty(_) | Tree::D1(_) | Tree::D2(_) | Tree::D4(_) => {}
             }
         }
         Ok(())
@@ -565,9 +585,11 @@ impl SpatialIndex {
             (Tree::D3B1(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
             (Tree::D3B2(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
             (Tree::D3B3(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
+            (Tree::D3B4(tree), _) => tree.knn(pos, &arr(q.params), radius, q.exclude, k, out),
             (Tree::D1(tree), _) => tree.knn(&arr(q.params), &[], None, q.exclude, k, out),
             (Tree::D2(tree), _) => tree.knn(&arr(q.params), &[], None, q.exclude, k, out),
             (Tree::D3(tree), Space::Params) => tree.knn(&arr(q.params), &[], None, q.exclude, k, out),
+            (Tree::D4(tree), _) => tree.knn(&arr(q.params), &[], None, q.exclude, k, out),
         }
     }
 }
@@ -601,11 +623,13 @@ fn build_tree(space: Space, dims: usize, points: &PointSet, members: &[u32], old
         (Space::World, _) | (Space::WorldParams, 0) => tree!(D3, 3, 0, |i| pos[i as usize], [0.0f32; 0]),
         (Space::WorldParams, 1) => tree!(D3B1, 3, 1, |i| pos[i as usize], par(i)),
         (Space::WorldParams, 2) => tree!(D3B2, 3, 2, |i| pos[i as usize], par(i)),
-        (Space::WorldParams, _) => tree!(D3B3, 3, 3, |i| pos[i as usize], par(i)),
+        (Space::WorldParams, 3) => tree!(D3B3, 3, 3, |i| pos[i as usize], par(i)),
+        (Space::WorldParams, _) => tree!(D3B4, 3, 4, |i| pos[i as usize], par(i)),
         (Space::Params, 0) => Tree::Empty(members.to_vec()),
         (Space::Params, 1) => tree!(D1, 1, 0, |i| std::array::from_fn(|a| par(i)[a]), [0.0f32; 0]),
         (Space::Params, 2) => tree!(D2, 2, 0, |i| std::array::from_fn(|a| par(i)[a]), [0.0f32; 0]),
-        (Space::Params, _) => tree!(D3, 3, 0, |i| std::array::from_fn(|a| par(i)[a]), [0.0f32; 0]),
+        (Space::Params, 3) => tree!(D3, 3, 0, |i| std::array::from_fn(|a| par(i)[a]), [0.0f32; 0]),
+        (Space::Params, _) => tree!(D4, 4, 0, |i| std::array::from_fn(|a| par(i)[a]), [0.0f32; 0]),
     }
 }
 

@@ -102,24 +102,27 @@ fn world_knn_equals_brute_force_on_random_points() {
 }
 
 #[test]
-fn constrained_knn_equals_brute_force_with_two_and_three_parameter_emitters() {
+fn constrained_knn_equals_brute_force_with_two_three_and_four_parameter_emitters() {
     let mut rng = Pcg64Mcg::seed_from_u64(2);
-    let n = 600;
-    // Emitter 0: (u, v) in the unit square; emitter 1: no parameters; emitter 2: directions.
-    let emitters: Vec<u16> = (0..n).map(|_| rng.random_range(0..3u16)).collect();
-    let mut params = Vec::with_capacity(3 * n);
+    let n = 800;
+    // Emitter 0: (u, v) in the unit square; emitter 1: no parameters; emitter 2: directions;
+    // emitter 3: (u, v, scaled wavelength); emitter 4: direction and scaled wavelength.
+    let emitters: Vec<u16> = (0..n).map(|_| rng.random_range(0..5u16)).collect();
+    let mut params = Vec::with_capacity(4 * n);
     for &e in &emitters {
         match e {
-            0 => params.extend([rng.random::<f32>(), rng.random::<f32>(), 0.0]),
-            1 => params.extend([0.0; 3]),
-            _ => params.extend(unit(&mut rng)),
+            0 => params.extend([rng.random::<f32>(), rng.random::<f32>(), 0.0, 0.0]),
+            1 => params.extend([0.0; 4]),
+            2 => params.extend(unit(&mut rng).into_iter().chain([0.0])),
+            3 => params.extend([rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>(), 0.0]),
+            _ => params.extend(unit(&mut rng).into_iter().chain([rng.random::<f32>()])),
         }
     }
     let o = Owned {
         pos: random_points(n, &mut rng),
         params,
-        stride: 3,
-        dims: vec![2, 0, 3],
+        stride: 4,
+        dims: vec![2, 0, 3, 3, 4],
         emitters: Some(emitters),
     };
     let radii = [None, Some(0.0), Some(0.05), Some(0.3), Some(10.0), Some(-1.0), Some(f32::NAN)];

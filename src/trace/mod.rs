@@ -169,8 +169,8 @@ struct Landing {
     flux: Vec3,
     incident: Vec3,
     emitter: u16,
-    /// All three; the first `dims` are kept.
-    params: [f32; 3],
+    /// All four; the first `dims` are kept.
+    params: [f32; 4],
     path_length: f32,
     bounces: u8,
     emission_offset: u16,
@@ -183,15 +183,15 @@ struct Landing {
 struct Scratch {
     first: u64,
     len: usize,
-    /// Trajectory parameters per photon (at most 3).
+    /// Trajectory parameters per photon (at most 4).
     dims: usize,
     position: Box<[[f32; 3]; CHUNK_LEN]>,
     normal: Box<[[f32; 3]; CHUNK_LEN]>,
     flux: Box<[[f32; 3]; CHUNK_LEN]>,
     incident: Box<[[f32; 3]; CHUNK_LEN]>,
     emitter: Box<[u16; CHUNK_LEN]>,
-    /// `dims` values per photon; each photon writes three, the next overwriting the surplus.
-    params: Box<[f32; 3 * CHUNK_LEN]>,
+    /// `dims` values per photon; each photon writes four, the next overwriting the surplus.
+    params: Box<[f32; 4 * CHUNK_LEN]>,
     path_length: Box<[f32; CHUNK_LEN]>,
     bounces: Box<[u8; CHUNK_LEN]>,
     emission_offset: Box<[u16; CHUNK_LEN]>,
@@ -203,7 +203,7 @@ impl Scratch {
         fn column<T: Copy + Default, const N: usize>() -> Box<[T; N]> {
             vec![T::default(); N].into_boxed_slice().try_into().unwrap_or_else(|_| unreachable!())
         }
-        assert!(dims <= 3, "at most three trajectory parameters");
+        assert!(dims <= 4, "at most four trajectory parameters");
         Scratch {
             first: 0,
             len: 0,
@@ -238,8 +238,8 @@ impl Scratch {
         self.flux[n] = p.flux.to_array();
         self.incident[n] = p.incident.to_array();
         self.emitter[n] = p.emitter;
-        let at = n * self.dims.min(3);
-        self.params[at..at + 3].copy_from_slice(&p.params);
+        let at = n * self.dims.min(4);
+        self.params[at..at + 4].copy_from_slice(&p.params);
         self.path_length[n] = p.path_length;
         self.bounces[n] = p.bounces;
         self.emission_offset[n] = p.emission_offset;
@@ -374,7 +374,7 @@ pub fn map_info(
     scene_label: &str,
     scene_text: &str,
 ) -> MapInfo {
-    let emitters = scene.emitters.iter().enumerate().map(|(i, e)| e.record(i as u32)).collect();
+    let emitters = scene.emitter_records();
     let mut info = MapInfo::new(emitters, State::Traced);
     let mut params = json!({
         "scene": scene_label,
@@ -527,6 +527,9 @@ struct Tracer<'a> {
     power_w: f64,
     /// The scene's dispersive dielectric when it has exactly one.
     dispersive: Option<&'a Dielectric>,
+    /// Per emitter, the parameter component that holds the photon's wavelength (its spatial
+    /// or directional dimensions come first) when the scene is spectral.
+    wavelength_slot: Vec<Option<usize>>,
 }
 
 impl<'a> Tracer<'a> {
@@ -556,6 +559,11 @@ impl<'a> Tracer<'a> {
             table,
             halton: Halton::new(opts.seed),
             dims: scene.param_dims() as usize,
+            wavelength_slot: scene
+                .emitters
+                .iter()
+                .map(|e| scene.is_spectral().then(|| e.param_dims(false) as usize))
+                .collect(),
             emitter_column: scene.emitters.len() > 1,
             cull: scene
                 .emitters
@@ -677,7 +685,11 @@ impl Tracer<'_> {
         let scene = self.scene;
         let [u0, u1, u2, u3] = point;
         let e = self.table.cdf.iter().position(|&c| u0 < c).unwrap_or(self.table.cdf.len() - 1);
-        let (mut ray, params) = scene.emitters[e].emit(u1, u2);
+        let (mut ray, [p0, p1, p2]) = scene.emitters[e].emit(u1, u2);
+        let mut params = [p0, p1, p2, 0.0];
+        if let Some(slot) = self.wavelength_slot[e] {
+            params[slot] = wavelength_nm(u3);
+        }
         if CULL && self.cull[e] && !scene.may_meet_specular(&ray) {
             return false; // it can never be a caustic photon
         }

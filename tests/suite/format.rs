@@ -259,6 +259,8 @@ fn emitter(id: u32) -> impl Strategy<Value = Emitter> {
         (EmitterKind::Point, Parameterisation::Direction, 3),
         (EmitterKind::Spot, Parameterisation::Direction, 3),
         (EmitterKind::External, Parameterisation::None, 0),
+        (EmitterKind::Collimated, Parameterisation::RectUvSpectral, 3),
+        (EmitterKind::Point, Parameterisation::DirectionSpectral, 4),
     ]);
     let power = {
         use proptest::num::f64::*;
@@ -268,21 +270,38 @@ fn emitter(id: u32) -> impl Strategy<Value = Emitter> {
         use proptest::num::f64::*;
         prop::option::of(POSITIVE | NORMAL | SUBNORMAL)
     };
-    (kinds, power, [finite_f32(), finite_f32(), finite_f32()], measure, json_value(), extra_keys()).prop_map(
-        move |((kind, parameterisation, param_dims), power_w, colour, param_measure, geometry, extra)| {
-            Emitter {
-                id,
-                kind,
-                parameterisation,
-                param_dims,
+    // A spectral dimension's scale as detect writes it: an f32 value, or none.
+    let scale = prop::option::of(proptest::num::f32::POSITIVE | proptest::num::f32::NORMAL);
+    (kinds, power, [finite_f32(), finite_f32(), finite_f32()], measure, json_value(), extra_keys(), scale)
+        .prop_map(
+            move |(
+                (kind, parameterisation, param_dims),
                 power_w,
                 colour,
                 param_measure,
                 geometry,
                 extra,
-            }
-        },
-    )
+                scale,
+            )| {
+                let mut dimensions = Vec::new();
+                if let Some(k) = parameterisation.spectral_component() {
+                    dimensions = parameterisation.dimensions();
+                    dimensions[k].scale = scale.map(|s| s.abs() as f64).filter(|s| *s > 0.0);
+                }
+                Emitter {
+                    id,
+                    kind,
+                    parameterisation,
+                    param_dims,
+                    power_w,
+                    colour,
+                    param_measure,
+                    geometry,
+                    dimensions,
+                    extra,
+                }
+            },
+        )
 }
 
 fn stage_record() -> impl Strategy<Value = StageRecord> {
@@ -401,7 +420,9 @@ proptest! {
         let map = PhotonMap::from_bytes("a.phm", &first).unwrap();
         let n = case.columns[0].1.len() / case.columns[0].0.stride() as usize;
         prop_assert_eq!(map.len(), n);
-        prop_assert_eq!(map.version(), (1, 0));
+        // 1.1 exactly when an emitter has a wavelength dimension (format-spec §8).
+        let spectral = case.info.emitters.iter().any(|e| e.parameterisation.spectral_component().is_some());
+        prop_assert_eq!(map.version(), (1, u16::from(spectral)));
         prop_assert_eq!(map.columns().len(), case.columns.len());
         for ((spec, bytes), (rspec, rbytes)) in case.columns.iter().zip(map.columns()) {
             prop_assert_eq!(spec, &rspec);
@@ -626,7 +647,7 @@ fn every_metadata_field_corrupted_in_turn_is_refused() {
         ("components u32::MAX", e(&|m| col(m, "normal")["components"] = json!(u32::MAX)), "components"),
         ("components 2^40", e(&|m| col(m, "normal")["components"] = json!(1u64 << 40)), "expected u32"),
         ("position with 2 components", e(&|m| col(m, "position")["components"] = json!(2)), "PHM 1 defines"),
-        ("params with 4 components", e(&|m| col(m, "params")["components"] = json!(4)), "PHM 1 defines"),
+        ("params with 5 components", e(&|m| col(m, "params")["components"] = json!(5)), "PHM 1 defines"),
         // names
         ("duplicate column name", e(&|m| col(m, "normal")["name"] = json!("position")), "appears twice"),
         ("empty column name", e(&|m| col(m, "normal")["name"] = json!("")), "empty or longer"),

@@ -698,3 +698,30 @@ fn export_refuses_what_import_refuses() {
     assert!(stderr(&o).contains("photon 3") && stderr(&o).contains("position"), "{}", stderr(&o));
     assert!(!out.exists());
 }
+
+/// Issue 23: a spectral map's wavelength leaves as a `wavelength` field (PLY property, CSV
+/// column) and comes back as the last trajectory parameter of a spectral parameterisation,
+/// the parameters bit for bit.
+#[test]
+fn a_wavelength_round_trips_through_ply_and_csv() {
+    let dir = tempfile::tempdir().unwrap();
+    let traced = dir.path().join("prism.phm");
+    let scene = root().join("samples/scenes/prism.toml");
+    let o =
+        photonkit(&["trace", scene.to_str().unwrap(), "--photons", "5000", "-o", traced.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let m = PhotonMap::open_path(&traced).unwrap();
+    let want: &[u8] = m.column_bytes("params").unwrap();
+    for to in ["ply", "csv"] {
+        let text = dir.path().join(format!("prism.{to}"));
+        let back = dir.path().join(format!("back-{to}.phm"));
+        let o = photonkit(&["export", "--to", to, traced.to_str().unwrap(), "-o", text.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let o = photonkit(&["import", text.to_str().unwrap(), "-o", back.to_str().unwrap()]);
+        assert!(o.status.success(), "{to}: {}", stderr(&o));
+        let b = PhotonMap::open_path(&back).unwrap();
+        let e = &b.meta().emitters[0];
+        assert_eq!((e.parameterisation, e.param_dims), (Parameterisation::RectUvSpectral, 3), "{to}");
+        assert_eq!(b.column_bytes("params").unwrap(), want, "{to}: params");
+    }
+}

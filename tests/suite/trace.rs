@@ -649,3 +649,49 @@ fn trace_reports_a_missing_scene_before_a_missing_output() {
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
     assert!(stderr(&o).contains("--output FILE is required"), "{}", stderr(&o));
 }
+
+/// Issue 23: a scene that disperses gives its photons their wavelength as a trajectory
+/// parameter (format 1.1, `rect_uv_spectral`, the wavelength in nm within the visible range,
+/// `wavelength` in the text form, and `inspect --check` passes); a scene that does not keeps
+/// format 1.0 and the emitter record of earlier builds (no `dimensions`).
+#[test]
+fn a_dispersive_scene_carries_the_wavelength_and_others_stay_version_1_0() {
+    use photonkit::format::Parameterisation;
+    let dir = tempfile::tempdir().unwrap();
+    let prism = dir.path().join("prism.phm");
+    let sphere = dir.path().join("sphere.phm");
+    let scenes = root().join("samples/scenes");
+    for (scene, out) in [("prism.toml", &prism), ("glass-sphere.toml", &sphere)] {
+        let o = photonkit(&[
+            "trace",
+            scenes.join(scene).to_str().unwrap(),
+            "--photons",
+            "20000",
+            "-o",
+            out.to_str().unwrap(),
+        ]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let o = photonkit(&["inspect", "--check", out.to_str().unwrap()]);
+        assert!(o.status.success(), "{}", stderr(&o));
+    }
+    let m = PhotonMap::open_path(&sphere).unwrap();
+    assert_eq!(m.version(), (1, 0));
+    let e = &m.meta().emitters[0];
+    assert_eq!((e.parameterisation, e.param_dims, e.dimensions.len()), (Parameterisation::RectUv, 2, 0));
+
+    let m = PhotonMap::open_path(&prism).unwrap();
+    assert_eq!(m.version(), (1, 1));
+    let e = &m.meta().emitters[0];
+    assert_eq!((e.parameterisation, e.param_dims), (Parameterisation::RectUvSpectral, 3));
+    assert_eq!(e.dimensions[2].name, "wavelength");
+    assert_eq!(e.dimensions[2].unit.as_deref(), Some("nm"));
+    let params: &[f32] = bytemuck::cast_slice(m.column_bytes("params").unwrap());
+    let l: Vec<f32> = params.chunks_exact(3).map(|q| q[2]).collect();
+    assert!(l.iter().all(|l| (380.0..=720.0).contains(l)), "wavelengths in the visible range");
+    // Drawn uniformly: the mean is the range's middle within a few standard errors.
+    let mean = l.iter().map(|&x| x as f64).sum::<f64>() / l.len() as f64;
+    assert!((mean - 550.0).abs() < 5.0, "mean wavelength {mean}");
+    let o = photonkit(&["inspect", "--dump", prism.to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(String::from_utf8_lossy(&o.stdout).lines().next().unwrap().contains("param_1\twavelength"));
+}

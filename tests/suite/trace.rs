@@ -694,4 +694,27 @@ fn a_dispersive_scene_carries_the_wavelength_and_others_stay_version_1_0() {
     let o = photonkit(&["inspect", "--dump", prism.to_str().unwrap()]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(String::from_utf8_lossy(&o.stdout).lines().next().unwrap().contains("param_1\twavelength"));
+
+    // A point-lit prism: (x, y, z, λ), four parameter dimensions through every stage.
+    let out = dir.path().join("point");
+    let o = photonkit(&[
+        "pipeline",
+        scenes.join("prism-point.toml").to_str().unwrap(),
+        "--photons",
+        "100000",
+        "--out-dir",
+        out.to_str().unwrap(),
+        "--",
+        "--width",
+        "32",
+        "--height",
+        "32",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let m = PhotonMap::open_path(&out.join("detected.phm")).unwrap();
+    let e = &m.meta().emitters[0];
+    assert_eq!((e.parameterisation, e.param_dims), (Parameterisation::DirectionSpectral, 4));
+    assert!(e.dimensions[3].scale.is_some_and(|s| s > 0.0), "detect records the wavelength's scale");
+    let o = photonkit(&["inspect", "--check", out.join("relaxed.phm").to_str().unwrap()]);
+    assert!(o.status.success(), "{}", stderr(&o));
 }

@@ -271,7 +271,7 @@ fn ring_photons_and_render_match_the_floor_truth() {
 /// Scenes without a known truth are refused, not integrated wrongly.
 #[test]
 fn other_scenes_have_no_truth() {
-    for f in ["cognac.toml", "reflector.toml", "point-glass.toml", "sphere-point.toml"] {
+    for f in ["cognac.toml", "reflector.toml", "point-glass.toml", "sphere-point.toml", "prism-point.toml"] {
         let scene = Scene::load(&root().join("samples/scenes").join(f)).unwrap();
         let g = FloorGrid { min: [-1.0, -1.0], max: [1.0, 1.0], cells: [4, 4], z: 0.0 };
         match floor_truth(&scene, &g, Quality::Test) {

@@ -143,6 +143,28 @@ pub fn collimated_cusp(n: usize, seed: u64) -> SyntheticMap {
     m
 }
 
+/// `n` photons of a collimated beam dispersed as by a prism (format 1.1's `rect_uv_spectral`):
+/// (u, v) uniform on the emitter, the wavelength λ uniform on 380–720 nm, landing at
+/// x = 0.1·u + 0.4·t, y = 0.02·v with t = (λ − 380)/340: the spectrum spreads the beam over
+/// 0.4 m along x, each photon's flux that of its wavelength's colour.
+pub fn dispersed_beam(n: usize, seed: u64) -> SyntheticMap {
+    use crate::format::Parameterisation;
+    let mut e = collimated_emitter(0, 10.0);
+    e.parameterisation = Parameterisation::RectUvSpectral;
+    e.param_dims = 3;
+    e.dimensions = Parameterisation::RectUvSpectral.dimensions();
+    let mut m = SyntheticMap { param_dims: 3, emitters: vec![e], ..Default::default() };
+    let mut rng = Pcg64Mcg::seed_from_u64(seed);
+    let per = 10.0 / 3.0 / n.max(1) as f64;
+    for _ in 0..n {
+        let (u, v, t) = (rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>());
+        let l = 380.0 + 340.0 * t;
+        let flux = crate::scene::material::wavelength_rgb(l).to_array().map(|c| (per * c as f64) as f32);
+        m.push([0.1 * u + 0.4 * t, 0.02 * v, 0.0], flux, [0.0, 0.0, -1.0], 0, &[u, v, l], 2.0);
+    }
+    m
+}
+
 /// `n` photons from a point emitter whose lower hemisphere is focused into a ring of radius
 /// 0.3 m on the floor (as by a ring lens): direction parameters on the sphere, positions on a
 /// thin annulus with a sharp inner edge.

@@ -763,29 +763,9 @@ fn a_grown_ball_keeps_filaments_and_edges_held() {
 /// (u, v) from its mean, recomputed here by brute force.
 #[test]
 fn a_wavelength_parameter_frees_the_interior_of_a_dispersed_beam() {
-    use crate::format::{Output, Parameterisation, PhotonMap, write_map};
-    let mut r = rng(23);
-    let n = 12_000;
-    let mut m = crate::synthetic::SyntheticMap {
-        param_dims: 3,
-        emitters: vec![crate::synthetic::collimated_emitter(0, 1.0)],
-        ..Default::default()
-    };
-    m.emitters[0].parameterisation = Parameterisation::RectUvSpectral;
-    m.emitters[0].param_dims = 3;
-    m.emitters[0].dimensions = Parameterisation::RectUvSpectral.dimensions();
-    for i in 0..n {
-        let (u, v, t) = (r.random::<f32>(), r.random::<f32>(), r.random::<f32>());
-        m.position.push([0.1 * u + 0.4 * t, 0.02 * v, 0.0]);
-        m.normal.push([0.0, 0.0, 1.0]);
-        m.flux.push([1.0 / n as f32; 3]);
-        m.incident.push([0.0, 0.0, -1.0]);
-        m.emitter.push(0);
-        m.params.extend([u, v, 380.0 + 340.0 * t]);
-        m.path_length.push(1.0);
-        m.bounces.push(1);
-        m.emission_index.push(i as u64);
-    }
+    use crate::format::{Output, PhotonMap, write_map};
+    let m = crate::synthetic::dispersed_beam(12_000, 23);
+    let n = m.len();
     let interior: Vec<usize> = (0..n)
         .filter(|&i| (0.15..0.35).contains(&m.position[i][0]) && (0.005..0.015).contains(&m.position[i][1]))
         .collect();

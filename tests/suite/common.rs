@@ -15,6 +15,7 @@ pub const SAMPLES: &[(&str, Generator)] = &[
     ("collimated-cusp.phm", || photonkit::synthetic::collimated_cusp(2000, 11)),
     ("point-ring.phm", || photonkit::synthetic::point_ring(1500, 12)),
     ("two-emitters.phm", || photonkit::synthetic::two_emitters(1500, 13)),
+    ("dispersed-beam.phm", || photonkit::synthetic::dispersed_beam(1500, 14)),
 ];
 
 /// The fixed history time stamped into sample files so they are reproducible.

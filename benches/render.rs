@@ -102,6 +102,7 @@ fn main() {
                 &scene,
                 cam.ray(x as f32 + 0.5, y as f32 + 0.5),
                 &EyeOptions::default(),
+                None,
                 &mut rng,
                 &mut hits,
             );

@@ -25,11 +25,14 @@ pub struct Image {
     pub width: u32,
     pub height: u32,
     pub pixels: Vec<Vec3>,
+    /// The pixels the automatic exposure meters, when not all: a render with a background
+    /// meters those that see a surface, so the sky does not set the exposure of the caustics.
+    pub metered: Option<Vec<bool>>,
 }
 
 impl Image {
     pub fn new(width: u32, height: u32) -> Image {
-        Image { width, height, pixels: vec![Vec3::ZERO; width as usize * height as usize] }
+        Image { width, height, pixels: vec![Vec3::ZERO; width as usize * height as usize], metered: None }
     }
 
     pub fn get(&self, x: u32, y: u32) -> Vec3 {

@@ -9,6 +9,7 @@
 //! its floor cell.
 
 pub mod diagnostics;
+pub mod environment;
 pub mod estimate;
 pub mod image;
 pub mod reference;
@@ -233,28 +234,44 @@ impl Renderer<'_> {
             View::Scene { camera, .. } => Some(Camera { resolution: [o.width, o.height], ..camera.clone() }),
             View::Plane(_) => None,
         };
+        // The background is part of what is seen (full and direct light), not of a measurement.
+        let background = match &self.view {
+            View::Scene { scene, .. }
+                if matches!(o.mode, Mode::Full | Mode::Direct) && self.diagnostic.is_none() =>
+            {
+                scene.background.as_ref().map(environment::Environment::load).transpose()?
+            }
+            _ => None,
+        };
+        let seen = Seen { camera: camera.as_ref(), lights: lights.as_ref(), background: background.as_ref() };
         let tiles_x = o.width.div_ceil(TILE);
-        let results: Vec<(Vec<Vec3>, RenderStats)> = (0..self.tiles())
+        let results: Vec<(Vec<Vec3>, Vec<bool>, RenderStats)> = (0..self.tiles())
             .into_par_iter()
             .map_init(TileScratch::default, |s, t| {
                 let (tx, ty) = ((t % tiles_x as u64) as u32, (t / tiles_x as u64) as u32);
-                let r = self.tile(tx * TILE, ty * TILE, camera.as_ref(), lights.as_ref(), s);
+                let r = self.tile(tx * TILE, ty * TILE, &seen, s);
                 progress(1);
                 r
             })
             .collect();
         let mut img = Image::new(o.width, o.height);
+        // With a background, the exposure meters the pixels that see a surface.
+        let mut metered = background.is_some().then(|| vec![false; img.pixels.len()]);
         let mut stats = RenderStats::default();
-        for (t, (pixels, st)) in results.into_iter().enumerate() {
+        for (t, (pixels, surface, st)) in results.into_iter().enumerate() {
             let (x0, y0) = ((t as u32 % tiles_x) * TILE, (t as u32 / tiles_x) * TILE);
             let w = TILE.min(o.width - x0);
-            for (k, p) in pixels.into_iter().enumerate() {
+            for (k, (p, seen)) in pixels.into_iter().zip(surface).enumerate() {
                 let (x, y) = (x0 + k as u32 % w, y0 + k as u32 / w);
                 img.pixels[(y * o.width + x) as usize] = p;
+                if let Some(m) = metered.as_mut() {
+                    m[(y * o.width + x) as usize] = seen;
+                }
             }
             stats.samples += st.samples;
             stats.lookups += st.lookups;
         }
+        img.metered = metered;
         Ok((img, stats))
     }
 
@@ -262,13 +279,14 @@ impl Renderer<'_> {
         &self,
         x0: u32,
         y0: u32,
-        camera: Option<&Camera>,
-        lights: Option<&Lights>,
+        seen: &Seen,
         s: &mut TileScratch,
-    ) -> (Vec<Vec3>, RenderStats) {
+    ) -> (Vec<Vec3>, Vec<bool>, RenderStats) {
         let o = &self.opts;
         let (w, h) = (TILE.min(o.width - x0), TILE.min(o.height - y0));
         let mut out = Vec::with_capacity((w * h) as usize);
+        // Per pixel: whether some sample's eye path reached a surface.
+        let mut surface = Vec::with_capacity((w * h) as usize);
         let mut stats = RenderStats::default();
         let grid = (o.spp as f64).sqrt() as u32;
         let stratified = grid * grid == o.spp;
@@ -277,6 +295,7 @@ impl Renderer<'_> {
                 let mut rng = PhotonRng::new(o.seed, y as u64 * o.width as u64 + x as u64);
                 let (jx, jy) = (rng.next_f32(), rng.next_f32());
                 let mut sum = Vec3::ZERO;
+                let mut hit = false;
                 for k in 0..o.spp {
                     // A jittered grid, or the R2 sequence (Roberts) shifted by the pixel's offset.
                     let (dx, dy) = if stratified {
@@ -287,30 +306,31 @@ impl Renderer<'_> {
                     } else {
                         ((jx + 0.754_877_7 * k as f32).fract(), (jy + 0.569_840_3 * k as f32).fract())
                     };
-                    sum += self.sample(x as f32 + dx, y as f32 + dy, camera, lights, &mut rng, s, &mut stats);
+                    sum += self.sample(x as f32 + dx, y as f32 + dy, seen, &mut rng, s, &mut stats);
+                    hit |= !s.hits.is_empty();
                 }
+                surface.push(hit);
                 stats.samples += o.spp as u64;
                 out.push(sum / o.spp as f32);
             }
         }
-        (out, stats)
+        (out, surface, stats)
     }
 
     /// The value of one image-plane sample at (px, py) pixels.
-    #[allow(clippy::too_many_arguments)]
     fn sample(
         &self,
         px: f32,
         py: f32,
-        camera: Option<&Camera>,
-        lights: Option<&Lights>,
+        seen: &Seen,
         rng: &mut PhotonRng,
         s: &mut TileScratch,
         stats: &mut RenderStats,
     ) -> Vec3 {
         let o = &self.opts;
         s.hits.clear();
-        let scene = match (&self.view, camera) {
+        let mut escaped = Vec3::ZERO;
+        let scene = match (&self.view, seen.camera) {
             (View::Plane(p), _) => {
                 let at = p.origin + p.right * (px / o.width as f32) + p.down * (py / o.height as f32);
                 s.hits.push(DiffuseHit {
@@ -325,7 +345,7 @@ impl Renderer<'_> {
             (View::Scene { scene, .. }, Some(cam)) => {
                 let eye =
                     EyeOptions { see_through: o.eye.see_through || o.mode == Mode::Irradiance, ..o.eye };
-                shade::eye_path(scene, cam.ray(px, py), &eye, rng, &mut s.hits);
+                escaped = shade::eye_path(scene, cam.ray(px, py), &eye, seen.background, rng, &mut s.hits);
                 Some(*scene)
             }
             (View::Scene { .. }, None) => unreachable!("a scene view has a camera"),
@@ -340,7 +360,7 @@ impl Renderer<'_> {
             stats.lookups += 1;
             return d.colour(photons, hit.point, &mut s.estimate);
         }
-        let mut value = Vec3::ZERO;
+        let mut value = escaped;
         for hit in &s.hits {
             let caustic = match (o.mode, self.photons) {
                 (Mode::Direct, _) | (_, None) => Vec3::ZERO,
@@ -349,7 +369,7 @@ impl Renderer<'_> {
                     p.irradiance(&o.estimator, hit.point, hit.normal, &mut s.estimate)
                 }
             };
-            let direct = match (lights, scene) {
+            let direct = match (seen.lights, scene) {
                 (Some(l), Some(sc)) => l.irradiance(sc, hit.point, hit.normal),
                 _ => Vec3::ZERO,
             };
@@ -362,6 +382,14 @@ impl Renderer<'_> {
         }
         value
     }
+}
+
+/// What a sample looks through and at: the camera, the emitters' direct light and the
+/// background, each where the view and mode have one.
+struct Seen<'a> {
+    camera: Option<&'a Camera>,
+    lights: Option<&'a Lights>,
+    background: Option<&'a environment::Environment>,
 }
 
 #[derive(Default)]
@@ -447,6 +475,64 @@ mod tests {
         let r = Renderer { view: View::Plane(plane), ..r };
         let (flat, _) = r.render(&|_| {}).unwrap();
         assert!((flat.mean().z - 1.0).abs() < 0.02, "{}", flat.mean());
+    }
+
+    /// `[background]` with an equirectangular EXR: an orthographic view along +x above the floor
+    /// meets nothing and sees the image at azimuth 0, polar angle 90°: with pixel (x, y) of an
+    /// 8 × 4 image holding (x, y, 1), the bilinear value between columns 3, 4 and rows 1, 2 is
+    /// (3.5, 1.5, 1), times the strength. A uniform colour is seen as it is; neither shows in
+    /// irradiance mode, which measures the photons only.
+    #[test]
+    fn a_background_is_seen_by_escaping_eye_rays() {
+        let dir = tempfile::tempdir().unwrap();
+        exr::prelude::write_rgb_file(dir.path().join("sky.exr"), 8, 4, |x, y| (x as f32, y as f32, 1.0f32))
+            .unwrap();
+        let floor = "[materials.floor]\nkind = \"diffuse\"\n[[shapes]]\nkind = \"plane\"\nnormal = [0, 0, 1]\n\
+                     material = \"floor\"\n[[emitters]]\nkind = \"point\"\nposition = [0, 0, 2]\npower_w = 1\n";
+        let along_x = Camera::look_at(
+            Projection::Orthographic { height_m: 0.1 },
+            Vec3::new(0.0, 0.0, 1.0),
+            Vec3::new(10.0, 0.0, 1.0),
+            Vec3::Z,
+            [2, 2],
+        )
+        .unwrap();
+        let render = |background: &str, mode: Mode| {
+            let src = format!("{floor}[background]\n{background}\n");
+            let scene = Scene::parse(&src, "t.toml", dir.path()).unwrap();
+            let view = View::Scene { scene: &scene, camera: along_x.clone() };
+            let r = Renderer {
+                view,
+                photons: None,
+                diagnostic: None,
+                opts: RenderOptions { width: 2, height: 2, spp: 1, ..opts(mode) },
+            };
+            r.render(&|_| {}).unwrap().0.mean()
+        };
+        let seen = render("image = \"sky.exr\"\nstrength = 2", Mode::Direct);
+        assert!((seen - Vec3::new(7.0, 3.0, 2.0)).abs().max_element() < 1e-4, "{seen}");
+        let seen = render("colour = [0.1, 0.2, 0.3]", Mode::Direct);
+        assert!((seen - Vec3::new(0.1, 0.2, 0.3)).abs().max_element() < 1e-6, "{seen}");
+        // Irradiance mode, top down over photons: the same image with and without a background.
+        let (pos, flux) = grid_photons(40, 12.0);
+        let photons =
+            PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
+        let measured = |background: &str| {
+            let scene = Scene::parse(&format!("{floor}{background}"), "t.toml", dir.path()).unwrap();
+            let view = View::Scene { scene: &scene, camera: top_down() };
+            let r =
+                Renderer { view, photons: Some(&photons), diagnostic: None, opts: opts(Mode::Irradiance) };
+            r.render(&|_| {}).unwrap().0.pixels
+        };
+        assert_eq!(measured(""), measured("[background]\ncolour = [5, 5, 5]\n"));
+        let err = Scene::parse(&format!("{floor}[background]\nimage = \"none.exr\"\n"), "t.toml", dir.path());
+        assert!(err.unwrap_err().to_string().contains("no such file"));
+        let err = Scene::parse(
+            &format!("{floor}[background]\ncolour = [1, 1, 1]\nimage = \"sky.exr\"\n"),
+            "t.toml",
+            dir.path(),
+        );
+        assert!(err.unwrap_err().to_string().contains("either colour"));
     }
 
     #[test]

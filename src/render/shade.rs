@@ -23,6 +23,7 @@ use std::f32::consts::PI;
 
 use glam::Vec3;
 
+use super::environment::Environment;
 use crate::scene::material::{fresnel, reflect, refract};
 use crate::scene::{EmitterShape, Material, Ray, Scene, Shape};
 use crate::trace::halton::PhotonRng;
@@ -67,11 +68,26 @@ pub struct DiffuseHit {
     pub dir: Vec3,
 }
 
-/// Follows `ray` through specular surfaces and appends its diffuse hits to `out`.
-pub fn eye_path(scene: &Scene, ray: Ray, opts: &EyeOptions, rng: &mut PhotonRng, out: &mut Vec<DiffuseHit>) {
+/// Follows `ray` through specular surfaces and appends its diffuse hits to `out`. Returns the
+/// radiance of `background` that its branches see where they leave the scene, each times its
+/// path's weight (zero without a background).
+pub fn eye_path(
+    scene: &Scene,
+    ray: Ray,
+    opts: &EyeOptions,
+    background: Option<&Environment>,
+    rng: &mut PhotonRng,
+    out: &mut Vec<DiffuseHit>,
+) -> Vec3 {
     let mut stack = vec![(ray, Vec3::ONE, 0u32)];
+    let mut escaped = Vec3::ZERO;
     while let Some((ray, weight, depth)) = stack.pop() {
-        let Some(hit) = scene.intersect(&ray, 0.0, f32::INFINITY) else { continue };
+        let Some(hit) = scene.intersect(&ray, 0.0, f32::INFINITY) else {
+            if let Some(env) = background {
+                escaped += weight * env.radiance(ray.dir);
+            }
+            continue;
+        };
         let p = ray.at(hit.t);
         let front = ray.dir.dot(hit.normal) < 0.0;
         let ng = if front { hit.normal } else { -hit.normal };
@@ -139,6 +155,7 @@ pub fn eye_path(scene: &Scene, ray: Ray, opts: &EyeOptions, rng: &mut PhotonRng,
             }
         }
     }
+    escaped
 }
 
 /// Mirror direction about the shading normal, or the geometric one when the shading normal
@@ -344,11 +361,23 @@ material = "floor"
         let mut out = Vec::new();
         let mut rng = PhotonRng::new(1, 1);
         let opts = EyeOptions { min_weight: 1e-9, ..Default::default() };
-        eye_path(&s, Ray::new(Vec3::new(0.0, 0.0, 2.0), -Vec3::Z), &opts, &mut rng, &mut out);
+        // A white background: what the paths that leave upwards see.
+        let white = Environment::Uniform(Vec3::ONE);
+        let escaped = eye_path(
+            &s,
+            Ray::new(Vec3::new(0.0, 0.0, 2.0), -Vec3::Z),
+            &opts,
+            Some(&white),
+            &mut rng,
+            &mut out,
+        );
         let total: f32 = out.iter().map(|h| h.weight.x).sum();
         let r = 0.04f32;
         // Geometric series over the inner bounces: (1 − R)² / (1 − R²) = (1 − R)/(1 + R).
         assert!((total - (1.0 - r) / (1.0 + r)).abs() < 1e-4, "{total}");
+        // The rest leaves upwards and sees the background: 2R/(1 + R); nothing is lost.
+        assert!((escaped.x - 2.0 * r / (1.0 + r)).abs() < 1e-4, "{escaped}");
+        assert!((escaped.x + total - 1.0).abs() < 1e-4);
         assert!(
             out.iter().all(|h| h.point.z.abs() < 1e-4 && h.normal == Vec3::Z && h.albedo == Vec3::splat(0.5))
         );
@@ -359,14 +388,14 @@ material = "floor"
         for i in 0..n {
             out.clear();
             let mut rng = PhotonRng::new(2, i);
-            eye_path(&s, Ray::new(Vec3::new(0.0, 0.0, 2.0), -Vec3::Z), &opts, &mut rng, &mut out);
+            eye_path(&s, Ray::new(Vec3::new(0.0, 0.0, 2.0), -Vec3::Z), &opts, None, &mut rng, &mut out);
             hits += out.len();
         }
         assert!((hits as f32 / n as f32 - (1.0 - r) / (1.0 + r)).abs() < 0.01);
         // Seeing through: one hit of weight 1, straight below.
         let opts = EyeOptions { see_through: true, ..Default::default() };
         out.clear();
-        eye_path(&s, Ray::new(Vec3::new(0.3, 0.2, 2.0), -Vec3::Z), &opts, &mut rng, &mut out);
+        eye_path(&s, Ray::new(Vec3::new(0.3, 0.2, 2.0), -Vec3::Z), &opts, None, &mut rng, &mut out);
         assert_eq!(out.len(), 1);
         assert_eq!(out[0].weight, Vec3::ONE);
         assert!((out[0].point - Vec3::new(0.3, 0.2, 0.0)).length() < 1e-4);

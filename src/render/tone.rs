@@ -29,10 +29,17 @@ pub const MID_GREY: f32 = 0.18;
 pub const WHITE: f32 = 16.0;
 
 /// The automatic exposure in stops: log2([`MID_GREY`] / log-average luminance of the lit
-/// pixels); 0 for an image without light.
+/// pixels among those metered ([`Image::metered`]); 0 for an image without light.
 pub fn auto_exposure(img: &Image) -> f32 {
-    let mut luma: Vec<f32> =
-        img.pixels.iter().map(|p| p.dot(LUMA)).filter(|l| l.is_finite() && *l > 0.0).collect();
+    let metered = |i: usize| img.metered.as_ref().is_none_or(|m| m[i]);
+    let mut luma: Vec<f32> = img
+        .pixels
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| metered(i))
+        .map(|(_, p)| p.dot(LUMA))
+        .filter(|l| l.is_finite() && *l > 0.0)
+        .collect();
     if luma.is_empty() {
         return 0.0;
     }
@@ -121,7 +128,7 @@ mod tests {
     }
 
     fn uniform(w: u32, h: u32, v: Vec3) -> Image {
-        Image { width: w, height: h, pixels: vec![v; (w * h) as usize] }
+        Image { width: w, height: h, pixels: vec![v; (w * h) as usize], metered: None }
     }
 
     /// Mid-grey is where documented: a uniform image is exposed to 0.18, which the shoulder

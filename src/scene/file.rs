@@ -15,7 +15,7 @@ use super::emitter::{Emitter, EmitterShape};
 use super::material::{Dielectric, Dispersion, Material};
 use super::mesh::{self, Mesh, Transform};
 use super::shape::Shape;
-use super::{Scene, SceneError, SurfaceGeometry};
+use super::{Background, Scene, SceneError, SurfaceGeometry};
 
 type Sp<T> = Spanned<T>;
 
@@ -48,6 +48,8 @@ struct RawScene {
     #[serde(default)]
     camera: Option<Sp<RawCamera>>,
     #[serde(default)]
+    background: Option<Sp<RawBackground>>,
+    #[serde(default)]
     materials: BTreeMap<String, Sp<RawMaterial>>,
     #[serde(default)]
     emitters: Vec<Sp<RawEmitter>>,
@@ -64,6 +66,19 @@ raw_table!(RawCamera {
     height: f32,
     resolution: [u32; 2],
 });
+
+#[derive(Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawBackground {
+    #[serde(default)]
+    colour: Option<Sp<[f32; 3]>>,
+    #[serde(default)]
+    image: Option<Sp<String>>,
+    #[serde(default)]
+    strength: Option<Sp<f32>>,
+    #[serde(default)]
+    rotate_deg: Option<Sp<f32>>,
+}
 
 raw_table!(RawMaterial {
     kind: String,
@@ -337,6 +352,7 @@ pub(super) fn parse(src: &str, file: &str, dir: &Path) -> Result<Scene, SceneErr
         None => 1.0,
     };
     let camera = raw.camera.as_ref().map(|c| camera(&cx, c)).transpose()?;
+    let background = raw.background.as_ref().map(|b| background(&cx, b, dir)).transpose()?;
 
     let mut material_index = BTreeMap::new();
     let mut materials = Vec::new();
@@ -364,6 +380,7 @@ pub(super) fn parse(src: &str, file: &str, dir: &Path) -> Result<Scene, SceneErr
     let mut scene = Scene::empty();
     scene.name = raw.name.clone();
     scene.camera = camera;
+    scene.background = background;
     scene.materials = materials;
     scene.material_names = material_names;
     scene.emitters = emitters;
@@ -451,6 +468,47 @@ fn fraction(cx: &Ctx, what: &str, key: &str, v: &Option<Sp<[f32; 3]>>) -> Result
         }
         Some(s) => Ok(Some(vec3(s.get_ref()))),
         None => Ok(None),
+    }
+}
+
+/// `[background]`: a uniform `colour` or an equirectangular `image` (its path relative to the
+/// scene file, checked to exist here and read by the renderer), times `strength`.
+fn background(cx: &Ctx, b: &Sp<RawBackground>, dir: &Path) -> Result<Background, SceneError> {
+    let (span, r) = (b.span(), b.get_ref());
+    let strength = match &r.strength {
+        Some(s) if !(s.get_ref().is_finite() && *s.get_ref() >= 0.0) => {
+            return Err(cx.err(s.span(), "background.strength", "must be finite and ≥ 0"));
+        }
+        Some(s) => *s.get_ref(),
+        None => 1.0,
+    };
+    match (&r.colour, &r.image) {
+        (Some(c), None) => {
+            if r.rotate_deg.is_some() {
+                return Err(cx.err(span, "background.rotate_deg", "applies to an image only"));
+            }
+            let c = *c.get_ref();
+            if c.iter().any(|x| !(x.is_finite() && *x >= 0.0)) {
+                return Err(cx.err(b.span(), "background.colour", "needs three finite values ≥ 0"));
+            }
+            Ok(Background::Uniform(Vec3::from_array(c) * strength))
+        }
+        (None, Some(f)) => {
+            let path = dir.join(f.get_ref());
+            if !path.is_file() {
+                return Err(cx.err(
+                    f.span(),
+                    "background.image",
+                    format!("{}: no such file (an equirectangular OpenEXR image)", path.display()),
+                ));
+            }
+            let rotate_deg = r.rotate_deg.as_ref().map_or(0.0, |s| *s.get_ref());
+            if !rotate_deg.is_finite() {
+                return Err(cx.err(span, "background.rotate_deg", "must be finite"));
+            }
+            Ok(Background::Image { path, strength, rotate_deg })
+        }
+        _ => Err(cx.err(span, "background", "give either colour = [r, g, b] or image = \"file.exr\"")),
     }
 }
 

@@ -83,6 +83,9 @@ struct TriInfo {
 pub struct Scene {
     pub name: Option<String>,
     pub camera: Option<Camera>,
+    /// What eye rays that leave the scene see (docs/scene.md, `[background]`); `None`: black.
+    /// It is seen, not a light: it sends no photons and lights no surface.
+    pub background: Option<Background>,
     pub materials: Vec<Material>,
     pub material_names: Vec<String>,
     pub emitters: Vec<Emitter>,
@@ -108,6 +111,18 @@ pub struct Scene {
     mesh_apart: bool,
 }
 
+/// The background of a scene: seen by eye rays that escape, directly or through glass and
+/// mirrors (docs/scene.md). Radiance in W/(m²·sr) per channel.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Background {
+    /// The same radiance in every direction.
+    Uniform(Vec3),
+    /// An equirectangular image (linear RGB OpenEXR), loaded by the renderer: the image's
+    /// top row looks up (+z), its horizontal centre along +x turned by `rotate_deg` about z
+    /// (anticlockwise seen from above), each pixel times `strength`.
+    Image { path: std::path::PathBuf, strength: f32, rotate_deg: f32 },
+}
+
 /// Which shapes a ray continuing from a surface can meet first ([`Scene::reach_after`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Reach {
@@ -124,6 +139,7 @@ impl Scene {
         Scene {
             name: None,
             camera: None,
+            background: None,
             materials: Vec::new(),
             material_names: Vec::new(),
             emitters: Vec::new(),
@@ -391,6 +407,15 @@ impl Scene {
         s.name = self.name.clone();
         s.emitter_names = self.emitter_names.clone();
         s.camera = self.camera.as_ref().map(|c| c.scaled(f));
+        // The same power over areas f² as large: every radiance, the background's too, is
+        // divided by f², so the scaled scene looks the same up to exposure.
+        let k = 1.0 / (f * f);
+        s.background = self.background.as_ref().map(|b| match b {
+            Background::Uniform(c) => Background::Uniform(*c * k),
+            Background::Image { path, strength, rotate_deg } => {
+                Background::Image { path: path.clone(), strength: strength * k, rotate_deg: *rotate_deg }
+            }
+        });
         s
     }
 

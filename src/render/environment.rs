@@ -1,0 +1,112 @@
+//! The scene's background as the renderer sees it: the radiance an escaping eye ray carries
+//! back, a uniform colour or a lookup in an equirectangular image (docs/scene.md,
+//! `[background]`).
+
+use std::f32::consts::{PI, TAU};
+
+use glam::Vec3;
+
+use super::RenderError;
+use super::image::{Image, read_exr};
+use crate::scene::Background;
+
+/// A loaded background.
+#[derive(Clone, Debug)]
+pub enum Environment {
+    Uniform(Vec3),
+    /// Pixels already multiplied by the strength; `turn` is the rotation about z in radians.
+    Equirect {
+        image: Image,
+        turn: f32,
+    },
+}
+
+impl Environment {
+    /// Loads `b` (reads its image, if any).
+    pub fn load(b: &Background) -> Result<Environment, RenderError> {
+        Ok(match b {
+            Background::Uniform(c) => Environment::Uniform(*c),
+            Background::Image { path, strength, rotate_deg } => {
+                let (mut image, _) = read_exr(path)?;
+                image.pixels.iter_mut().for_each(|p| *p *= *strength);
+                Environment::Equirect { image, turn: rotate_deg.to_radians() }
+            }
+        })
+    }
+
+    /// Radiance seen looking along the unit direction `d`. The image's pixel (x, y) covers
+    /// azimuth φ = 2π((x + ½)/W − ½) + turn (φ = atan2(d_y, d_x)) and polar angle
+    /// θ = π(y + ½)/H from +z; values between pixel centres are bilinear, wrapping in φ.
+    pub fn radiance(&self, d: Vec3) -> Vec3 {
+        match self {
+            Environment::Uniform(c) => *c,
+            Environment::Equirect { image, turn } => {
+                let (w, h) = (image.width as usize, image.height as usize);
+                let phi = d.y.atan2(d.x) - turn;
+                let theta = d.z.clamp(-1.0, 1.0).acos();
+                // Continuous pixel coordinates, pixel centres at integers.
+                let u = ((phi / TAU + 0.5).rem_euclid(1.0)) * w as f32 - 0.5;
+                let v = (theta / PI) * h as f32 - 0.5;
+                let (x0, fx) = (u.floor(), u - u.floor());
+                let (y0, fy) = (v.floor(), v - v.floor());
+                let px = |x: f32| (x as isize).rem_euclid(w as isize) as usize;
+                let py = |y: f32| (y.max(0.0) as usize).min(h - 1);
+                let at = |x: f32, y: f32| image.pixels[py(y) * w + px(x)];
+                let top = at(x0, y0).lerp(at(x0 + 1.0, y0), fx);
+                let bottom = at(x0, y0 + 1.0).lerp(at(x0 + 1.0, y0 + 1.0), fx);
+                top.lerp(bottom, fy)
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 8×4 image whose pixel (x, y) holds (x, y, 1): looking at a pixel centre's direction
+    /// reads that pixel exactly.
+    fn ramp() -> Image {
+        let mut img = Image::new(8, 4);
+        for y in 0..4 {
+            for x in 0..8 {
+                img.pixels[y * 8 + x] = Vec3::new(x as f32, y as f32, 1.0);
+            }
+        }
+        img
+    }
+
+    fn direction(phi: f32, theta: f32) -> Vec3 {
+        Vec3::new(theta.sin() * phi.cos(), theta.sin() * phi.sin(), theta.cos())
+    }
+
+    #[test]
+    fn pixel_centres_map_to_their_directions() {
+        let env = Environment::Equirect { image: ramp(), turn: 0.0 };
+        for y in 0..4 {
+            for x in 0..8 {
+                let phi = TAU * ((x as f32 + 0.5) / 8.0 - 0.5);
+                let theta = PI * (y as f32 + 0.5) / 4.0;
+                let got = env.radiance(direction(phi, theta));
+                assert!(
+                    (got - Vec3::new(x as f32, y as f32, 1.0)).abs().max_element() < 1e-3,
+                    "({x}, {y}): {got}"
+                );
+            }
+        }
+        // Halfway between two pixel centres in φ: their mean; across the seam, wrapping.
+        let mid = env.radiance(direction(TAU * (4.0 / 8.0 - 0.5), PI * 1.5 / 4.0));
+        assert!((mid.x - 3.5).abs() < 1e-3, "{mid}");
+        let seam = env.radiance(direction(PI, PI * 1.5 / 4.0));
+        assert!((seam.x - 3.5).abs() < 1e-3, "seam between x = 7 and x = 0: {seam}");
+    }
+
+    #[test]
+    fn a_turn_moves_the_image_about_z() {
+        let env = Environment::Equirect { image: ramp(), turn: TAU / 8.0 };
+        // Turned by one pixel's width, pixel 4 is seen one pixel further anticlockwise.
+        let phi = TAU * ((4.0 + 0.5) / 8.0 - 0.5) + TAU / 8.0;
+        let got = env.radiance(direction(phi, PI * 2.5 / 4.0));
+        assert!((got - Vec3::new(4.0, 2.0, 1.0)).abs().max_element() < 1e-3, "{got}");
+    }
+}

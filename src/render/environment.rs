@@ -109,4 +109,41 @@ mod tests {
         let got = env.radiance(direction(phi, PI * 2.5 / 4.0));
         assert!((got - Vec3::new(4.0, 2.0, 1.0)).abs().max_element() < 1e-3, "{got}");
     }
+
+    /// Issue 29's check: the background seen through an ideal glass sphere (R = 1, n = 1.5),
+    /// looking along +x. An image whose value is its column (so the value seen gives the
+    /// azimuth φ of the ray that left: bilinear lookups of a linear ramp are exact) shows the
+    /// ray through the centre undeviated (φ = 0) and the ray at height b bent towards the axis
+    /// by D = 2(θi − θt), sin θi = b, sin θt = b/n (two refractions): φ = −D.
+    #[test]
+    fn a_glass_sphere_bends_the_background_by_the_refraction_closed_form() {
+        use crate::render::shade::{EyeOptions, eye_path};
+        use crate::scene::{Ray, Scene};
+        use crate::trace::halton::PhotonRng;
+        let w = 720;
+        let mut image = Image::new(w, 4);
+        for (i, p) in image.pixels.iter_mut().enumerate() {
+            *p = Vec3::splat((i % w as usize) as f32);
+        }
+        let env = Environment::Equirect { image, turn: 0.0 };
+        let src = "[materials.glass]\nkind = \"dielectric\"\nior = 1.5\nideal = true\n[[shapes]]\nkind = \"sphere\"\n\
+                   center = [0, 0, 0]\nradius = 1\nmaterial = \"glass\"\n[[emitters]]\nkind = \"point\"\n\
+                   position = [0, 0, 9]\npower_w = 1\n";
+        let scene = Scene::parse(src, "t.toml", std::path::Path::new(".")).unwrap();
+        let seen_azimuth = |b: f32| {
+            let mut rng = PhotonRng::new(1, 1);
+            let mut hits = Vec::new();
+            let ray = Ray::new(Vec3::new(-5.0, b, 0.0), Vec3::X);
+            let v = eye_path(&scene, ray, &EyeOptions::default(), Some(&env), &mut rng, &mut hits);
+            assert!(hits.is_empty());
+            TAU * ((v.x + 0.5) / w as f32 - 0.5)
+        };
+        assert!(seen_azimuth(0.0).abs() < 1e-4, "through the centre: {}", seen_azimuth(0.0));
+        for b in [0.3f32, 0.6] {
+            let (ti, tt) = (b.asin(), (b / 1.5).asin());
+            let want = -2.0 * (ti - tt);
+            let got = seen_azimuth(b);
+            assert!((got - want).abs() < 1e-3, "b = {b}: azimuth {got}, closed form {want}");
+        }
+    }
 }

@@ -13,6 +13,9 @@ mod cli;
 #[derive(Parser)]
 #[command(name = "photonkit", version, about, long_about)]
 struct Cli {
+    /// No progress bars and no notes on standard error (warnings and errors are still printed).
+    #[arg(long, short, global = true)]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -43,10 +46,16 @@ enum Command {
     Import(cli::import::Args),
     /// Export a photon map as PLY or CSV for point-cloud viewers.
     Export(cli::export::Args),
+    /// Print a shell completion script, e.g. `photonkit completions bash > ~/.local/share/bash-completion/completions/photonkit`.
+    Completions {
+        /// The shell: bash, zsh, fish, elvish or powershell.
+        shell: clap_complete::Shell,
+    },
 }
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    cli::set_quiet(cli.quiet);
     if let Err(e) = photonkit::format::guard::install_signal_handlers() {
         eprintln!("photonkit: warning: no signal handlers ({e}): an interrupt may leave temporary files");
     }
@@ -63,6 +72,11 @@ fn main() -> ExitCode {
         Command::Inspect(a) => cli::inspect::run(a),
         Command::Import(a) => cli::import::run(a),
         Command::Export(a) => cli::export::run(a),
+        Command::Completions { shell } => {
+            use clap::CommandFactory;
+            clap_complete::generate(shell, &mut Cli::command(), "photonkit", &mut std::io::stdout());
+            Ok(ExitCode::SUCCESS)
+        }
     };
     match result {
         Ok(code) => code,

@@ -225,7 +225,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let target = match Target::closed_form(&scene, a.cells, quality) {
         Ok(t) => t,
         Err(CompareError::Truth(TruthError::Unsupported(why))) => {
-            eprintln!(
+            super::note!(
                 "photonkit compare: note: no closed-form truth for this scene ({why}): the truth is a progressive \
                  reference of {} passes",
                 a.reference_passes
@@ -244,17 +244,21 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 a.reference_passes,
                 per_pass,
                 a.spp,
-                &|p| eprint!("\rreference pass {p}/{}", a.reference_passes),
+                &|p| {
+                    if !super::quiet() {
+                        eprint!("\rreference pass {p}/{}", a.reference_passes)
+                    }
+                },
             )?
         }
         Err(e) => return Err(e.into()),
     };
-    eprintln!("truth: {}", target.description);
+    super::note!("truth: {}", target.description);
 
     let mut done = Vec::new();
     for (i, (label_run, o)) in runs.iter().enumerate() {
         if !label_run.is_empty() {
-            eprintln!("— {label_run}");
+            super::note!("— {label_run}");
         }
         // Progressive photon mapping depends on none of the swept settings but the photon
         // count (when its photons per pass follow it): run it again only when that changed.
@@ -267,7 +271,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let bar = super::pipeline::spinner("compare");
         let rows = compare::run(&scene, &label, &text, &target, o, &a.out_dir, &|p| match p {
             Progress::Started(what) => bar.set_message(format!("{what}…")),
-            Progress::Finished(line) => bar.suspend(|| eprintln!("  {line}")),
+            Progress::Finished(line) => bar.suspend(|| super::note!("  {line}")),
         });
         bar.finish_and_clear();
         let rows = rows?;
@@ -282,7 +286,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         }
         println!("{}", report::table_markdown(&r.rows));
     }
-    eprintln!("report: {}", a.out_dir.join("report.md").display());
+    super::note!("report: {}", a.out_dir.join("report.md").display());
     Ok(ExitCode::SUCCESS)
 }
 

@@ -1,11 +1,10 @@
 //! `photonkit detect`.
 
-use std::io::IsTerminal;
 use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::detect::{self, DetectParams, Method, NoiseModel};
 use photonkit::format::{Output, PhotonMap};
 
@@ -89,7 +88,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     });
     let (method, note) = detect::choose_method(&map, requested)?;
     if let Some(note) = note {
-        eprintln!("note: {note}");
+        super::note!("note: {note}");
     }
     let p = DetectParams {
         method,
@@ -106,19 +105,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     let capped = p.capped(map.len());
     if capped.kc < p.kc {
-        eprintln!("note: --kc {} exceeds the map's {} photons: using Kc = {}", p.kc, map.len(), capped.kc);
+        super::note!("note: --kc {} exceeds the map's {} photons: using Kc = {}", p.kc, map.len(), capped.kc);
     }
     let p = capped;
     let units = detect::work_units(&detect::map_input(&map)?, p.method);
-    let bar = ProgressBar::with_draw_target(
-        Some(units),
-        if std::io::stderr().is_terminal() {
-            ProgressDrawTarget::stderr()
-        } else {
-            ProgressDrawTarget::hidden()
-        },
-    )
-    .with_style(
+    let bar = ProgressBar::with_draw_target(Some(units), super::draw_target()).with_style(
         ProgressStyle::with_template("detect {bar:30} {percent}% {elapsed} (eta {eta})")
             .expect("valid template"),
     );
@@ -129,7 +120,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     detect::write_detected(&map, &d, &p, seconds, Output::parse(&a.output))
         .context("writing the detected map")?;
     let s = &d.summary;
-    eprintln!(
+    super::note!(
         "detected {} photons with {} (Kc = {}) in {seconds:.2} s ({:.2} µs/photon): {:.1} % constrained \
          (factor < 0.5), mean factor {:.3}{}",
         s.photons,

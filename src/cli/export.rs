@@ -46,7 +46,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     export::export(&map, to, &target)?;
     if let Output::Path(p) = &target {
-        eprintln!("photonkit export: {} photons to {}", map.len(), p.display());
+        super::note!("photonkit export: {} photons to {}", map.len(), p.display());
     }
     Ok(ExitCode::SUCCESS)
 }

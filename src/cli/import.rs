@@ -87,7 +87,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     } else {
         format!("{dims} trajectory parameters")
     };
-    eprintln!(
+    super::note!(
         "photonkit import: {n} photons from {} ({}), {emitters} emitter(s), {params}",
         a.input,
         format.name()

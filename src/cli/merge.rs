@@ -23,6 +23,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let maps = a.shards.iter().map(|s| PhotonMap::open(s)).collect::<Result<Vec<_>, _>>()?;
     super::refuse_input_as_output(&a.output)?;
     let n = photonkit::trace::merge(&maps, Output::parse(&a.output))?;
-    eprintln!("photonkit merge: {} shards, {n} photons", maps.len());
+    super::note!("photonkit merge: {} shards, {n} photons", maps.len());
     Ok(ExitCode::SUCCESS)
 }

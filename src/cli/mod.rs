@@ -1,4 +1,42 @@
 //! One module per subcommand: its arguments (clap) and the call into the library.
+
+use std::io::IsTerminal;
+use std::sync::atomic::{AtomicBool, Ordering};
+
+use indicatif::ProgressDrawTarget;
+
+/// `--quiet`: no progress bars and no notes on standard error (warnings and errors stay).
+static QUIET: AtomicBool = AtomicBool::new(false);
+
+pub(crate) fn set_quiet(quiet: bool) {
+    QUIET.store(quiet, Ordering::Relaxed);
+}
+
+pub(crate) fn quiet() -> bool {
+    QUIET.load(Ordering::Relaxed)
+}
+
+/// Where progress bars draw: standard error when it is a terminal and `--quiet` is not given,
+/// nowhere otherwise.
+pub(crate) fn draw_target() -> ProgressDrawTarget {
+    if std::io::stderr().is_terminal() && !quiet() {
+        ProgressDrawTarget::stderr()
+    } else {
+        ProgressDrawTarget::hidden()
+    }
+}
+
+/// `eprintln!` for what a command reports as it works (timings, counts, notes); silent under
+/// `--quiet`. Warnings and errors use `eprintln!` directly.
+macro_rules! note {
+    ($($t:tt)*) => {
+        if !$crate::cli::quiet() {
+            eprintln!($($t)*);
+        }
+    };
+}
+pub(crate) use note;
+
 pub mod compare;
 pub mod detect;
 pub mod export;

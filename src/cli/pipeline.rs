@@ -1,13 +1,12 @@
 //! `photonkit pipeline`: the paper's Algorithm 1 end to end, one stage after another.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::Context;
 use clap::Parser;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::detect::{self, DetectParams};
 use photonkit::format::{Output, PhotonMap};
 use photonkit::relax::{self, RelaxParams};
@@ -92,12 +91,7 @@ struct RenderCommand {
 
 /// A spinner on a terminal, nothing otherwise.
 pub(super) fn spinner(what: &str) -> ProgressBar {
-    let target = if std::io::stderr().is_terminal() {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
-    let bar = ProgressBar::with_draw_target(None, target)
+    let bar = ProgressBar::with_draw_target(None, super::draw_target())
         .with_style(ProgressStyle::with_template("{spinner} {msg} {elapsed}").expect("valid template"));
     bar.set_message(what.to_string());
     bar.enable_steady_tick(std::time::Duration::from_millis(200));
@@ -106,7 +100,7 @@ pub(super) fn spinner(what: &str) -> ProgressBar {
 
 /// One line of the stage table.
 fn report(stage: &str, seconds: f64, photons: usize, file: &Path, note: &str) {
-    eprintln!("{stage:<16} {seconds:>8.2} s {photons:>10} photons  {}{note}", file.display());
+    super::note!("{stage:<16} {seconds:>8.2} s {photons:>10} photons  {}{note}", file.display());
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -124,7 +118,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;
     let file = |name: &str| a.out_dir.join(name);
     let total = Instant::now();
-    eprintln!("{:<16} {:>10} {:>18}  output", "stage", "time", "");
+    super::note!("{:<16} {:>10} {:>18}  output", "stage", "time", "");
 
     // Trace.
     let opts = TraceOptions {
@@ -160,7 +154,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open_path(&file("traced.phm"))?;
     let (method, note) = detect::choose_method(&map, None)?;
     if let Some(note) = note {
-        eprintln!("note: {note}");
+        super::note!("note: {note}");
     }
     let dp = DetectParams { method, ..dp };
     let bar = spinner("detect");
@@ -216,11 +210,12 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     // Render, with the render subcommand's defaults (the scene's camera, 600×600, 4 samples
     // per pixel, K = 15 Epanechnikov): the relaxed map, or with too few photons the traced one.
     let rendered = if traced.stored < a.min_relax_photons && !a.relax_anyway {
-        eprintln!(
+        super::note!(
             "note: only {} photons stored (fewer than --min-relax-photons {}): relaxation at this \
              count spreads the caustic instead of sharpening it, so the image is rendered from \
              traced.phm (relaxed.phm is written all the same; --relax-anyway renders it)",
-            traced.stored, a.min_relax_photons
+            traced.stored,
+            a.min_relax_photons
         );
         "traced.phm"
     } else {
@@ -243,8 +238,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         &format!("  (and render.png, from {rendered})"),
     );
 
-    eprintln!("{:<16} {:>8.2} s", "total", total.elapsed().as_secs_f64());
-    eprintln!(
+    super::note!("{:<16} {:>8.2} s", "total", total.elapsed().as_secs_f64());
+    super::note!(
         "look at {} (or the EXR), and at the photons with `photonkit inspect {}`",
         file("render.png").display(),
         file("relaxed.phm").display()

@@ -79,13 +79,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     );
     let capped = p.capped(map.len());
     if capped.kf < p.kf {
-        eprintln!(
+        super::note!(
             "note: --kf {} exceeds the {} other photons in the map: using Kf = {}",
-            p.kf, capped.kf, capped.kf
+            p.kf,
+            capped.kf,
+            capped.kf
         );
     }
     let p = capped;
-    let bar = ProgressBar::new(p.iterations as u64).with_style(
+    let bar = ProgressBar::with_draw_target(Some(p.iterations as u64), super::draw_target()).with_style(
         ProgressStyle::with_template("relax {bar:30} {pos}/{len} iterations {elapsed} (eta {eta}) {msg}")
             .expect("valid template"),
     );
@@ -95,7 +97,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         bar.inc(1);
         // Printed whether or not the bar is drawn (stderr may not be a terminal).
         bar.suspend(|| {
-            eprintln!(
+            super::note!(
                 "iteration {:>2}: nearest-neighbour spread {:.4} (local {:.4}), mean step {:.3e}, largest step {:.3e}",
                 m.iteration + 1,
                 m.nn_cv,
@@ -108,13 +110,13 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
     if relaxed.refused_moves > 0 {
-        eprintln!(
+        super::note!(
             "note: {} moves were refused because the photon's surface was not found where it moved",
             relaxed.refused_moves
         );
     }
     if !relaxed.constrained {
-        eprintln!(
+        super::note!(
             "note: {} has no constraint basis (run `photonkit detect` first): relaxed unconstrained",
             map.file_name()
         );
@@ -126,7 +128,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     relax::write_relaxed(&map, &relaxed, &p, seconds, Output::parse(&a.output))
         .context("writing the relaxed map")?;
-    eprintln!(
+    super::note!(
         "relaxed {} photons, {} iterations in {space}, {seconds:.2} s ({:.0} ns/photon/iteration)",
         map.len(),
         p.iterations,

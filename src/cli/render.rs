@@ -1,13 +1,12 @@
 //! `photonkit render` and `photonkit reference`.
 
-use std::io::IsTerminal;
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 use std::time::Instant;
 
 use anyhow::{Context, bail};
 use glam::Vec3;
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::format::{PhotonMap, name};
 use photonkit::render::{
     self, Diagnostic, Diagnostics, Estimator, EyeOptions, Kernel, Mode, Outputs, PhotonData, PhotonLookup,
@@ -318,7 +317,7 @@ fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Sc
     match named {
         None => {
             if let Some(m) = map {
-                eprintln!(
+                super::note!(
                     "photonkit render: note: {} does not name the scene it was traced from: using the embedded \
                      default scene (pass --scene FILE, or --plane for a scene-less view)",
                     m.file_name()
@@ -366,11 +365,7 @@ fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Sc
 }
 
 fn progress_bar(len: u64, what: &str) -> ProgressBar {
-    let target = if std::io::stderr().is_terminal() {
-        ProgressDrawTarget::stderr()
-    } else {
-        ProgressDrawTarget::hidden()
-    };
+    let target = super::draw_target();
     ProgressBar::with_draw_target(Some(len), target).with_style(
         ProgressStyle::with_template(&format!("{what} {{bar:30}} {{percent}}% {{elapsed}} (eta {{eta}})"))
             .expect("valid template"),
@@ -427,7 +422,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         .and_then(|r| r.parameters.get("store"))
         .is_some_and(|s| s == "direct");
     if traced_direct && mode == Mode::Full {
-        eprintln!(
+        super::note!(
             "photonkit render: note: the map stores direct photons too, so direct light is not added again"
         );
         mode = Mode::Caustic;
@@ -556,7 +551,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     ];
     let outputs = Outputs { codes: a.diagnostic.is_some(), ..a.common.outputs(&a.output) };
     render::image::write(&img, &outputs, &notes)?;
-    eprintln!(
+    super::note!(
         "photonkit render: {}×{} × {} spp, {} ({}), {} photons: {:.2} s ({:.3} µs/sample, {} lookups)",
         o.width,
         o.height,
@@ -708,7 +703,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
             bail!("{}: saved with other pass options ({:?})", a.output.display(), state.options);
         }
         if state.passes >= a.passes {
-            eprintln!("photonkit reference: {} already holds {} passes", a.output.display(), state.passes);
+            super::note!("photonkit reference: {} already holds {} passes", a.output.display(), state.passes);
             return Ok(ExitCode::SUCCESS);
         }
         (image, state)
@@ -758,7 +753,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
             format!("radius {:.4} m → {:.4} m", state.initial_radius, state.initial_radius as f64 * shrink)
         }
     };
-    eprintln!(
+    super::note!(
         "photonkit reference: passes {}..{} of {} photons in {secs:.2} s ({:.3} s/pass); {radius}",
         first + 1,
         state.passes,

@@ -1,13 +1,12 @@
 //! `photonkit trace`: caustic photons from a scene file, with their trajectory parameters.
 
-use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, bail};
-use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
+use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::format::Output;
 use photonkit::scene::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, Scene};
 use photonkit::trace::{self, Budget, Shard, Spool, StorePolicy, TraceOptions};
@@ -142,10 +141,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         (Budget::Emitted(n), None) => Some(n),
         (Budget::Stored(_), _) => None,
     };
-    let bar = ProgressBar::with_draw_target(total, ProgressDrawTarget::stderr());
-    if !std::io::stderr().is_terminal() {
-        bar.set_draw_target(ProgressDrawTarget::hidden());
-    }
+    let bar = ProgressBar::with_draw_target(total, super::draw_target());
     bar.set_style(
         ProgressStyle::with_template(
             "trace {bar:30} {human_pos}/{human_len} emitted, {msg} stored  {rate} {elapsed} (eta {eta})",
@@ -184,7 +180,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     traced.write(Output::parse(&output), info)?;
     let traced_n = traced.range.end - traced.range.start;
-    eprintln!(
+    super::note!(
         "photonkit trace: {} emitted, {} stored in {:.2} s ({:.2} M emitted/s, {:.2} M stored/s){}",
         traced_n,
         traced.stored,

@@ -171,3 +171,30 @@ fn every_exr_has_a_utf8_header_whatever_the_paths() {
     assert!(o.status.success(), "{}", stderr(&o));
     read_exr(&out);
 }
+
+/// Issue 29 item 5: `--quiet` leaves standard error empty on success (every stage of the
+/// pipeline, whose notes and timings otherwise fill it) while errors still print; and
+/// `completions SHELL` prints a script that names the subcommands.
+#[test]
+fn quiet_silences_notes_and_completions_name_the_subcommands() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("out");
+    let args =
+        ["pipeline", "--photons", "20000", "--out-dir", s(&out), "--", "--width", "16", "--height", "16"];
+    let loud = photonkit(&args);
+    assert!(loud.status.success() && !stderr(&loud).is_empty(), "{}", stderr(&loud));
+    let quiet = photonkit(&[&["--quiet"], &args[..]].concat());
+    assert!(quiet.status.success(), "{}", stderr(&quiet));
+    assert_eq!(stderr(&quiet), "", "--quiet printed to standard error");
+    let failed = photonkit(&["-q", "inspect", s(&dir.path().join("missing.phm"))]);
+    assert!(!failed.status.success() && stderr(&failed).contains("error"), "{}", stderr(&failed));
+    for shell in ["bash", "zsh", "fish"] {
+        let o = photonkit(&["completions", shell]);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let script = stdout(&o);
+        assert!(
+            ["pipeline", "detect", "relax", "render", "spectral-scale"].iter().all(|w| script.contains(w)),
+            "{shell}"
+        );
+    }
+}

@@ -16,6 +16,11 @@ struct Cli {
     /// No progress bars and no notes on standard error (warnings and errors are still printed).
     #[arg(long, short, global = true)]
     quiet: bool,
+    /// Stages that write a photon map (trace, merge, detect, relax, collapse, import) print the
+    /// record they add to its history — parameters and measurements — as one JSON line on
+    /// standard output; `pipeline` prints one line per stage.
+    #[arg(long, global = true)]
+    json: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -56,6 +61,7 @@ enum Command {
 fn main() -> ExitCode {
     let cli = Cli::parse();
     cli::set_quiet(cli.quiet);
+    cli::set_json(cli.json);
     if let Err(e) = photonkit::format::guard::install_signal_handlers() {
         eprintln!("photonkit: warning: no signal handlers ({e}): an interrupt may leave temporary files");
     }

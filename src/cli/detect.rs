@@ -135,5 +135,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             String::new()
         }
     );
+    super::print_record(&a.output)?;
     Ok(ExitCode::SUCCESS)
 }

@@ -92,5 +92,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         a.input,
         format.name()
     );
+    super::print_record(&a.output)?;
     Ok(ExitCode::SUCCESS)
 }

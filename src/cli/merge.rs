@@ -24,5 +24,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     super::refuse_input_as_output(&a.output)?;
     let n = photonkit::trace::merge(&maps, Output::parse(&a.output))?;
     super::note!("photonkit merge: {} shards, {n} photons", maps.len());
+    super::print_record(&a.output)?;
     Ok(ExitCode::SUCCESS)
 }

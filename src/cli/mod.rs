@@ -8,6 +8,25 @@ use indicatif::ProgressDrawTarget;
 /// `--quiet`: no progress bars and no notes on standard error (warnings and errors stay).
 static QUIET: AtomicBool = AtomicBool::new(false);
 
+/// `--json`: a stage that writes a photon map prints the record it added to the map's history
+/// (its parameters and what it measured) as one line of JSON on standard output.
+static JSON: AtomicBool = AtomicBool::new(false);
+
+pub(crate) fn set_json(json: bool) {
+    JSON.store(json, Ordering::Relaxed);
+}
+
+/// Under `--json`, prints the last history record of the map just written to `output` as one
+/// JSON line on standard output (a script's summary of the stage).
+pub(crate) fn print_record(output: &str) -> anyhow::Result<()> {
+    if JSON.load(Ordering::Relaxed) {
+        let map = photonkit::format::PhotonMap::open_path(std::path::Path::new(output))?;
+        let record = map.meta().history.last().cloned();
+        println!("{}", serde_json::to_string(&record)?);
+    }
+    Ok(())
+}
+
 pub(crate) fn set_quiet(quiet: bool) {
     QUIET.store(quiet, Ordering::Relaxed);
 }
@@ -51,6 +70,11 @@ pub mod trace;
 /// Refuses, before any work, an output that is one of the command's inputs (opened inputs are
 /// registered by the library; the final rename checks again).
 pub(crate) fn refuse_input_as_output(output: &str) -> anyhow::Result<()> {
+    if output == "-" && JSON.load(Ordering::Relaxed) {
+        anyhow::bail!(
+            "--json prints the stage's summary on standard output: write the map to a file (-o FILE)"
+        );
+    }
     if output != "-" {
         photonkit::format::guard::check_output(std::path::Path::new(output))?;
     }

@@ -98,9 +98,13 @@ pub(super) fn spinner(what: &str) -> ProgressBar {
     bar
 }
 
-/// One line of the stage table.
-fn report(stage: &str, seconds: f64, photons: usize, file: &Path, note: &str) {
+/// One line of the stage table; under `--json`, a photon map's new history record.
+fn report(stage: &str, seconds: f64, photons: usize, file: &Path, note: &str) -> anyhow::Result<()> {
     super::note!("{stage:<16} {seconds:>8.2} s {photons:>10} photons  {}{note}", file.display());
+    if file.extension().is_some_and(|e| e == "phm") {
+        super::print_record(&file.to_string_lossy())?;
+    }
+    Ok(())
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
@@ -148,7 +152,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         traced.stored as usize,
         &file("traced.phm"),
         &format!("  ({} emitted)", traced.emitted),
-    );
+    )?;
 
     // Detect.
     let map = PhotonMap::open_path(&file("traced.phm"))?;
@@ -170,7 +174,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         map.len(),
         &file("detected.phm"),
         &format!("  ({}, {:.1} % constrained)", method.name(), 100.0 * d.summary.constrained_fraction()),
-    );
+    )?;
     drop(map);
 
     // Relax in the high-dimensional space, collapse, relax in world space.
@@ -196,14 +200,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 cv(0),
                 cv(r.measures.len().saturating_sub(1))
             ),
-        );
+        )?;
         Ok(())
     };
     relax_stage("detected.phm", "relaxed-params.phm", "relax (params)")?;
     let t = Instant::now();
     let map = PhotonMap::open_path(&file("relaxed-params.phm"))?;
     relax::collapse(&map, Output::Path(file("collapsed.phm")))?;
-    report("collapse", t.elapsed().as_secs_f64(), map.len(), &file("collapsed.phm"), "");
+    report("collapse", t.elapsed().as_secs_f64(), map.len(), &file("collapsed.phm"), "")?;
     drop(map);
     relax_stage("collapsed.phm", "relaxed.phm", "relax (world)")?;
 
@@ -236,7 +240,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         map.len(),
         &file("render.exr"),
         &format!("  (and render.png, from {rendered})"),
-    );
+    )?;
 
     super::note!("{:<16} {:>8.2} s", "total", total.elapsed().as_secs_f64());
     super::note!(

@@ -134,6 +134,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         p.iterations,
         seconds * 1e9 / (map.len().max(1) * p.iterations.max(1)) as f64
     );
+    super::print_record(&a.output)?;
     Ok(ExitCode::SUCCESS)
 }
 
@@ -154,5 +155,6 @@ pub fn collapse(a: CollapseArgs) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
     super::refuse_input_as_output(&a.output)?;
     relax::collapse(&map, Output::parse(&a.output))?;
+    super::print_record(&a.output)?;
     Ok(ExitCode::SUCCESS)
 }

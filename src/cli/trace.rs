@@ -193,5 +193,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             String::new()
         }
     );
+    super::print_record(&output)?;
     Ok(ExitCode::SUCCESS)
 }

@@ -198,3 +198,39 @@ fn quiet_silences_notes_and_completions_name_the_subcommands() {
         );
     }
 }
+
+/// Issue 29 item 5: `--json` prints the history record each photon-map stage adds, one JSON
+/// line on standard output (the same record the file holds); a map on standard output is
+/// refused with it; `pipeline --json` prints one line per map it writes.
+#[test]
+fn json_prints_each_stages_history_record() {
+    let dir = tempfile::tempdir().unwrap();
+    let t = dir.path().join("t.phm");
+    let o = photonkit(&["--json", "trace", "--photons", "5000", "-o", s(&t)]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let line: serde_json::Value = serde_json::from_str(stdout(&o).trim()).unwrap();
+    assert_eq!(line["stage"], "trace");
+    let map = photonkit::format::PhotonMap::open_path(&t).unwrap();
+    assert_eq!(line, serde_json::to_value(map.meta().history.last().unwrap()).unwrap());
+    let o = photonkit(&["--json", "detect", s(&t), "-o", "-"]);
+    assert!(!o.status.success() && stderr(&o).contains("--json"), "{}", stderr(&o));
+    let out = dir.path().join("p");
+    let o = photonkit(&[
+        "--json",
+        "-q",
+        "pipeline",
+        "--photons",
+        "20000",
+        "--out-dir",
+        s(&out),
+        "--",
+        "--width",
+        "8",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let stages: Vec<String> = stdout(&o)
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["stage"].as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(stages, ["trace", "detect", "relax", "collapse", "relax"]);
+}

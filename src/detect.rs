@@ -888,15 +888,12 @@ pub fn detect_map(
     let scaled = match input.params {
         Some(c) if p.method == Method::ParamPca && emitters.iter().any(|e| e.is_spectral()) => {
             scales = spectral_scales(emitters, c, input.emitters, p.spectral_scale);
+            // The factors relax will read back from the records write_detected makes.
             let factors: Vec<Vec<f32>> = emitters
                 .iter()
                 .zip(&scales)
                 .map(|(e, s)| {
-                    let mut f = vec![1.0; e.param_dims as usize];
-                    if let (Some(k), Some(s)) = (e.parameterisation.spectral_component(), s) {
-                        f[k] = *s;
-                    }
-                    f
+                    s.map_or_else(|| e.param_scales(), |s| e.with_spectral_scale(s as f64).param_scales())
                 })
                 .collect();
             Some(c.scaled(input.emitters, &factors))
@@ -969,10 +966,8 @@ pub fn write_detected(
     info.state = State::Detected;
     let mut parameters = serde_json::to_value(p).unwrap_or_default();
     for (e, s) in info.emitters.iter_mut().zip(&d.spectral_scales) {
-        if let (Some(k), Some(s)) = (e.parameterisation.spectral_component(), s) {
-            let mut dims = e.dimensions();
-            dims[k].scale = Some(*s as f64);
-            e.dimensions = dims;
+        if let Some(s) = s {
+            *e = e.with_spectral_scale(*s as f64);
             parameters["spectral_scale"] = serde_json::json!(p.spectral_scale);
         }
     }

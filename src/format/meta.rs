@@ -216,6 +216,18 @@ impl Emitter {
             .collect()
     }
 
+    /// This emitter with its wavelength dimension's [`ParamDimension::scale`] set to `scale`
+    /// (unchanged without one).
+    pub fn with_spectral_scale(&self, scale: f64) -> Emitter {
+        let mut e = self.clone();
+        if let Some(k) = e.parameterisation.spectral_component() {
+            let mut dims = e.dimensions();
+            dims[k].scale = Some(scale);
+            e.dimensions = dims;
+        }
+        e
+    }
+
     /// Whether some component is a wavelength.
     pub fn is_spectral(&self) -> bool {
         self.parameterisation.spectral_component().is_some()

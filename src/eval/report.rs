@@ -539,6 +539,7 @@ pub fn grid_png(target: &Target, rows: &[Row]) -> Result<Vec<u8>, CompareError> 
         height: ih as u32,
         pixels: target.truth.iter().map(|p| glam::DVec3::from_array(*p).as_vec3()).collect(),
         metered: None,
+        samples: None,
     };
     let scale = crate::render::tone::auto_exposure(&truth).exp2();
     let tone = |p: [f64; 3]| {

@@ -28,11 +28,21 @@ pub struct Image {
     /// The pixels the automatic exposure meters, when not all: a render with a background
     /// meters those that see a surface, so the sky does not set the exposure of the caustics.
     pub metered: Option<Vec<bool>>,
+    /// Each pixel's samples (`spp` per pixel, pixel-major), when kept: the preview then tone-maps
+    /// every sample before averaging, so a pixel half in a beam too bright for the display is
+    /// half bright, not white (an edge anti-aliased after the clipping, not before).
+    pub samples: Option<(u32, Vec<Vec3>)>,
 }
 
 impl Image {
     pub fn new(width: u32, height: u32) -> Image {
-        Image { width, height, pixels: vec![Vec3::ZERO; width as usize * height as usize], metered: None }
+        Image {
+            width,
+            height,
+            pixels: vec![Vec3::ZERO; width as usize * height as usize],
+            metered: None,
+            samples: None,
+        }
     }
 
     pub fn get(&self, x: u32, y: u32) -> Vec3 {
@@ -92,7 +102,16 @@ fn png_temp(path: &Path, img: &Image, out: &Outputs) -> Result<tempfile::NamedTe
         img.pixels.iter().flat_map(|p| (*p * scale).to_array().map(srgb8)).collect()
     } else {
         let scale = out.preview_stops(img).exp2();
-        img.pixels.iter().flat_map(|p| super::tone::tone_map(*p, scale).to_array().map(srgb8)).collect()
+        let tone = |p: Vec3| super::tone::tone_map(p, scale);
+        match &img.samples {
+            Some((spp, s)) if *spp > 0 && s.len() == img.pixels.len() * *spp as usize => s
+                .chunks_exact(*spp as usize)
+                .flat_map(|px| {
+                    (px.iter().map(|&v| tone(v)).sum::<Vec3>() / *spp as f32).to_array().map(srgb8)
+                })
+                .collect(),
+            _ => img.pixels.iter().flat_map(|p| tone(*p).to_array().map(srgb8)).collect(),
+        }
     };
     let mut enc = png::Encoder::new(std::io::BufWriter::new(tmp.as_file()), img.width, img.height);
     enc.set_color(png::ColorType::Rgb);
@@ -230,6 +249,33 @@ mod tests {
             std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
         names.sort();
         assert_eq!(names, ["a.exr", "a.png"]);
+    }
+
+    /// Issue 29 item 3: a pixel whose two samples are a beam far too bright for the display
+    /// and darkness is shown half bright when each sample is tone-mapped first (the shoulder
+    /// maps the bright one to 1: (1 + 0)/2 = ½, sRGB code 188), where tone-mapping the mean
+    /// clips it to white (255); without kept samples the mean is used.
+    #[test]
+    fn the_preview_tone_maps_each_sample_before_averaging() {
+        let dir = tempfile::tempdir().unwrap();
+        let bright = Vec3::splat(1e4);
+        let mut img = Image::new(1, 1);
+        img.pixels[0] = bright / 2.0;
+        let out = Outputs { png: Some(dir.path().join("a.png")), fixed_exposure: true, ..Outputs::default() };
+        let code = |img: &Image| {
+            write(img, &out, &Vec::new()).unwrap();
+            let dec = png::Decoder::new(std::io::BufReader::new(
+                std::fs::File::open(dir.path().join("a.png")).unwrap(),
+            ));
+            let mut r = dec.read_info().unwrap();
+            let mut buf = vec![0; r.output_buffer_size().unwrap()];
+            r.next_frame(&mut buf).unwrap();
+            buf[0]
+        };
+        assert_eq!(code(&img), 255);
+        img.samples = Some((2, vec![bright, Vec3::ZERO]));
+        assert_eq!(code(&img), srgb8(0.5));
+        assert_eq!(srgb8(0.5), 188);
     }
 
     #[test]

@@ -166,6 +166,9 @@ pub struct RenderStats {
     pub lookups: u64,
 }
 
+/// Most samples a render keeps for the preview ([`Image::samples`]): 2²³, about 100 MB.
+const KEPT_SAMPLES_MAX: u64 = 1 << 23;
+
 /// Pixels per side of a unit of parallel work.
 pub const TILE: u32 = 16;
 
@@ -245,11 +248,14 @@ impl Renderer<'_> {
         };
         let seen = Seen { camera: camera.as_ref(), lights: lights.as_ref(), background: background.as_ref() };
         let tiles_x = o.width.div_ceil(TILE);
-        let results: Vec<(Vec<Vec3>, Vec<bool>, RenderStats)> = (0..self.tiles())
+        // Every sample kept for the preview's anti-aliasing after tone mapping (Image::samples),
+        // up to a bound on memory.
+        let keep = self.diagnostic.is_none() && o.spp > 1 && pixels * o.spp as u64 <= KEPT_SAMPLES_MAX;
+        let results: Vec<TileResult> = (0..self.tiles())
             .into_par_iter()
             .map_init(TileScratch::default, |s, t| {
                 let (tx, ty) = ((t % tiles_x as u64) as u32, (t / tiles_x as u64) as u32);
-                let r = self.tile(tx * TILE, ty * TILE, &seen, s);
+                let r = self.tile(tx * TILE, ty * TILE, &seen, keep, s);
                 progress(1);
                 r
             })
@@ -257,36 +263,39 @@ impl Renderer<'_> {
         let mut img = Image::new(o.width, o.height);
         // With a background, the exposure meters the pixels that see a surface.
         let mut metered = background.is_some().then(|| vec![false; img.pixels.len()]);
+        let spp = o.spp as usize;
+        let mut samples = keep.then(|| vec![Vec3::ZERO; img.pixels.len() * spp]);
         let mut stats = RenderStats::default();
-        for (t, (pixels, surface, st)) in results.into_iter().enumerate() {
+        for (t, TileResult { pixels, surface, each, stats: st }) in results.into_iter().enumerate() {
             let (x0, y0) = ((t as u32 % tiles_x) * TILE, (t as u32 / tiles_x) * TILE);
             let w = TILE.min(o.width - x0);
             for (k, (p, seen)) in pixels.into_iter().zip(surface).enumerate() {
                 let (x, y) = (x0 + k as u32 % w, y0 + k as u32 / w);
-                img.pixels[(y * o.width + x) as usize] = p;
+                let at = (y * o.width + x) as usize;
+                img.pixels[at] = p;
                 if let Some(m) = metered.as_mut() {
-                    m[(y * o.width + x) as usize] = seen;
+                    m[at] = seen;
+                }
+                if let Some(all) = samples.as_mut() {
+                    all[at * spp..(at + 1) * spp].copy_from_slice(&each[k * spp..(k + 1) * spp]);
                 }
             }
             stats.samples += st.samples;
             stats.lookups += st.lookups;
         }
         img.metered = metered;
+        img.samples = samples.map(|s| (o.spp, s));
         Ok((img, stats))
     }
 
-    fn tile(
-        &self,
-        x0: u32,
-        y0: u32,
-        seen: &Seen,
-        s: &mut TileScratch,
-    ) -> (Vec<Vec3>, Vec<bool>, RenderStats) {
+    fn tile(&self, x0: u32, y0: u32, seen: &Seen, keep: bool, s: &mut TileScratch) -> TileResult {
         let o = &self.opts;
         let (w, h) = (TILE.min(o.width - x0), TILE.min(o.height - y0));
         let mut out = Vec::with_capacity((w * h) as usize);
         // Per pixel: whether some sample's eye path reached a surface.
         let mut surface = Vec::with_capacity((w * h) as usize);
+        // Every sample, pixel by pixel, when kept.
+        let mut each = Vec::with_capacity(if keep { (w * h * o.spp) as usize } else { 0 });
         let mut stats = RenderStats::default();
         let grid = (o.spp as f64).sqrt() as u32;
         let stratified = grid * grid == o.spp;
@@ -306,7 +315,11 @@ impl Renderer<'_> {
                     } else {
                         ((jx + 0.754_877_7 * k as f32).fract(), (jy + 0.569_840_3 * k as f32).fract())
                     };
-                    sum += self.sample(x as f32 + dx, y as f32 + dy, seen, &mut rng, s, &mut stats);
+                    let v = self.sample(x as f32 + dx, y as f32 + dy, seen, &mut rng, s, &mut stats);
+                    sum += v;
+                    if keep {
+                        each.push(v);
+                    }
                     hit |= !s.hits.is_empty();
                 }
                 surface.push(hit);
@@ -314,7 +327,7 @@ impl Renderer<'_> {
                 out.push(sum / o.spp as f32);
             }
         }
-        (out, surface, stats)
+        TileResult { pixels: out, surface, each, stats }
     }
 
     /// The value of one image-plane sample at (px, py) pixels.
@@ -382,6 +395,14 @@ impl Renderer<'_> {
         }
         value
     }
+}
+
+/// One tile's pixels (row by row), whether each saw a surface, its samples when kept, and counts.
+struct TileResult {
+    pixels: Vec<Vec3>,
+    surface: Vec<bool>,
+    each: Vec<Vec3>,
+    stats: RenderStats,
 }
 
 /// What a sample looks through and at: the camera, the emitters' direct light and the

@@ -128,7 +128,7 @@ mod tests {
     }
 
     fn uniform(w: u32, h: u32, v: Vec3) -> Image {
-        Image { width: w, height: h, pixels: vec![v; (w * h) as usize], metered: None }
+        Image { width: w, height: h, pixels: vec![v; (w * h) as usize], metered: None, samples: None }
     }
 
     /// Mid-grey is where documented: a uniform image is exposed to 0.18, which the shoulder

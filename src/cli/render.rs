@@ -294,6 +294,7 @@ impl Common {
             estimator,
             eye: self.eye_options(),
             seed: self.seed,
+            keep_samples: true,
         }
     }
 
@@ -504,6 +505,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 estimator,
                 eye: a.common.eye_options(),
                 seed: a.common.seed,
+                keep_samples: true,
             };
             let name = format!(
                 "plane {}={offset} [{}, {}] × [{}, {}]",

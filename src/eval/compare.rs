@@ -502,6 +502,7 @@ fn run_seed(
                 estimator,
                 eye: EyeOptions::default(),
                 seed: 0,
+                keep_samples: false,
             },
         };
         let (img, _) = renderer.render(&|_| {})?;

@@ -102,6 +102,10 @@ pub struct RenderOptions {
     pub eye: EyeOptions,
     /// Seeds the sub-pixel jitter and sampled Fresnel choices.
     pub seed: u64,
+    /// Keep every sample in the image ([`Image::samples`], up to [`KEPT_SAMPLES_MAX`]) so its
+    /// preview tone-maps each before averaging: for images written for people, not for
+    /// measurements or the passes of a reference.
+    pub keep_samples: bool,
 }
 
 impl Default for RenderOptions {
@@ -115,6 +119,7 @@ impl Default for RenderOptions {
             estimator: Estimator::DEFAULT,
             eye: EyeOptions::default(),
             seed: 0,
+            keep_samples: false,
         }
     }
 }
@@ -167,7 +172,7 @@ pub struct RenderStats {
 }
 
 /// Most samples a render keeps for the preview ([`Image::samples`]): 2²³, about 100 MB.
-const KEPT_SAMPLES_MAX: u64 = 1 << 23;
+pub const KEPT_SAMPLES_MAX: u64 = 1 << 23;
 
 /// Pixels per side of a unit of parallel work.
 pub const TILE: u32 = 16;
@@ -250,7 +255,10 @@ impl Renderer<'_> {
         let tiles_x = o.width.div_ceil(TILE);
         // Every sample kept for the preview's anti-aliasing after tone mapping (Image::samples),
         // up to a bound on memory.
-        let keep = self.diagnostic.is_none() && o.spp > 1 && pixels * o.spp as u64 <= KEPT_SAMPLES_MAX;
+        let keep = o.keep_samples
+            && self.diagnostic.is_none()
+            && o.spp > 1
+            && pixels * o.spp as u64 <= KEPT_SAMPLES_MAX;
         let results: Vec<TileResult> = (0..self.tiles())
             .into_par_iter()
             .map_init(TileScratch::default, |s, t| {

@@ -217,6 +217,8 @@ impl Progressive<'_> {
             let opts = RenderOptions {
                 estimator,
                 seed: self.render.seed.wrapping_add((i - 1).wrapping_mul(0x9E37_79B9)),
+                // A pass is summed into the reference, not shown.
+                keep_samples: false,
                 ..self.render.clone()
             };
             let renderer = Renderer {
@@ -297,6 +299,7 @@ mod tests {
             estimator: Estimator::DEFAULT,
             eye: EyeOptions::default(),
             seed: 0,
+            keep_samples: false,
         };
         let p = Progressive { scene: &scene, camera, render, kernel: Kernel::Epanechnikov, bounces: None };
         let r1 = 0.015f64;

@@ -114,6 +114,10 @@ pub struct CompareOptions {
     /// The K values standard photon mapping runs at, each a row (the baseline at its best,
     /// not only at the relaxed maps' K: more neighbours trade its noise for blur).
     pub pm_ks: Vec<usize>,
+    /// Whether the fixed-K estimates (standard PM, the relaxed maps) use the variable kernel
+    /// ([`Estimator::Variable`]: each photon's radius its own K-NN distance) instead of the
+    /// paper's k-NN estimate.
+    pub variable_kernel: bool,
     /// Kc and β of feature detection.
     pub kc: usize,
     pub beta: f32,
@@ -157,6 +161,7 @@ impl Default for CompareOptions {
             seed: 1,
             k: 15,
             pm_ks: vec![15, 50, 200],
+            variable_kernel: false,
             kc: 50,
             beta: 3.0,
             k_density: None,
@@ -489,7 +494,7 @@ fn run_seed(
         let t = Instant::now();
         let normals = map.column::<[f32; 3]>(crate::format::name::NORMAL)?;
         let data = PhotonData { positions: map.positions(), flux: map.flux(), normals };
-        let lookup = PhotonLookup::new(map.file_name(), data)?;
+        let lookup = PhotonLookup::new(map.file_name(), data)?.prepared_for(&estimator);
         let renderer = Renderer {
             view: View::Scene { scene, camera: target.camera.clone() },
             photons: Some(&lookup),
@@ -508,7 +513,16 @@ fn run_seed(
         let (img, _) = renderer.render(&|_| {})?;
         Ok((img, t.elapsed().as_secs_f64()))
     };
-    let knn = Estimator::Knn { k: o.k, kernel: Kernel::Epanechnikov, max_radius: None };
+    let fixed_k = |k: usize| match o.variable_kernel {
+        false => Estimator::Knn { k, kernel: Kernel::Epanechnikov, max_radius: None },
+        true => Estimator::Variable { k, kernel: Kernel::Epanechnikov },
+    };
+    let knn = fixed_k(o.k);
+    // How a setting names its estimate's K (and the variable kernel, when chosen).
+    let k_label = |k: usize| match o.variable_kernel {
+        false => format!("K = {k}"),
+        true => format!("K = {k}, variable kernel"),
+    };
 
     let detect_stage = |input: &str, output: &str, method: Method| -> Result<f64, CompareError> {
         let map = PhotonMap::open_path(&file(input))?;
@@ -575,10 +589,9 @@ fn run_seed(
         log(Progress::Started(MethodKind::StandardPm.label()));
         let map = PhotonMap::open_path(&file("traced.phm"))?;
         for &k in &o.pm_ks {
-            let (img, secs) =
-                render(&map, Estimator::Knn { k, kernel: Kernel::Epanechnikov, max_radius: None })?;
+            let (img, secs) = render(&map, fixed_k(k))?;
             let times = StageTimes::of(trace_secs, None, None, secs);
-            push(MethodKind::StandardPm, format!("K = {k}"), &map, k, times, img);
+            push(MethodKind::StandardPm, k_label(k), &map, k, times, img);
         }
     }
     if wants(MethodKind::DiffusionPm) {
@@ -605,7 +618,7 @@ fn run_seed(
         let times = StageTimes::of(trace_secs, Some(det), Some(col + rel), secs);
         push(
             MethodKind::Relaxation2009,
-            format!("gradient, {} world iterations, K = {}", o.iterations_2009, o.k),
+            format!("gradient, {} world iterations, {}", o.iterations_2009, k_label(o.k)),
             &map,
             o.k,
             times,
@@ -626,7 +639,7 @@ fn run_seed(
         let times = StageTimes::of(trace_secs, Some(det), Some(r1 + col + r2), secs);
         push(
             MethodKind::Ours,
-            format!("{}, {} + {} iterations, K = {}", method.name(), o.iterations, o.iterations, o.k),
+            format!("{}, {} + {} iterations, {}", method.name(), o.iterations, o.iterations, k_label(o.k)),
             &map,
             o.k,
             times,

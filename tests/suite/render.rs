@@ -93,6 +93,33 @@ fn plane_view_measures_the_irradiance_of_a_uniform_map() {
     // Random photons, K = 50: each estimate has ≈ 14 % noise; the mean over 1600 lookups, ≈ 1 %.
     assert!((m.x - 1.0).abs() < 0.05 && (m.y - 1.0).abs() < 0.05, "{m}");
     assert!(notes.iter().any(|(k, v)| k == "photonkit:units" && v.starts_with("W/m^2")), "{notes:?}");
+    // The variable kernel measures the same irradiance, and the header says which estimate.
+    let o = photonkit(&[
+        "render",
+        map.to_str().unwrap(),
+        "--plane",
+        "z=0",
+        "--rect",
+        "0.2,0.2,0.8,0.8",
+        "-o",
+        out.to_str().unwrap(),
+        "--width",
+        "20",
+        "--spp",
+        "4",
+        "-k",
+        "50",
+        "--estimator",
+        "variable",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let (img, notes) = read_exr(&out);
+    let m = img.mean();
+    assert!((m.x - 1.0).abs() < 0.05 && (m.y - 1.0).abs() < 0.05, "{m}");
+    assert!(
+        notes.iter().any(|(k, v)| k == "photonkit:estimator" && v.starts_with("variable kernel")),
+        "{notes:?}"
+    );
     // A plane view is irradiance only.
     let o = photonkit(&["render", map.to_str().unwrap(), "--plane", "z=0", "--mode", "full", "-o", "x.exr"]);
     assert!(!o.status.success());

@@ -49,7 +49,7 @@ use serde::Serialize;
 
 pub use noise::{NoiseModel, Row, SIMULATED, in_disc, lambda2_of, simulate};
 
-use crate::format::{ColumnSpec, FormatError, Output, PhotonMap, StageRecord, State, name};
+use crate::format::{FormatError, MapView, PhotonTable, StageRecord, State, name};
 use crate::spatial::{Neighbours, ParamColumn, PointSet, Space, SpatialError, SpatialIndex};
 
 /// How constraints are computed.
@@ -818,7 +818,7 @@ fn detect_in_order(
 /// has no trajectory parameters), else `param-pca`, or `world-pca` with a note to show the
 /// user when the map has no trajectory parameters.
 pub fn choose_method(
-    map: &PhotonMap,
+    map: &MapView,
     requested: Option<Method>,
 ) -> Result<(Method, Option<String>), DetectError> {
     let has = map_input(map)?.has_params();
@@ -837,9 +837,9 @@ pub fn choose_method(
 }
 
 /// The columns of `map` that detection reads, validated.
-pub fn map_input(map: &PhotonMap) -> Result<DetectInput<'_>, DetectError> {
+pub fn map_input<'a>(map: &MapView<'a>) -> Result<DetectInput<'a>, DetectError> {
     let file = map.file_name();
-    let meta = map.meta();
+    let meta = map.info();
     let input = |message: String| DetectError::Input { file: file.to_string(), message };
     let emitters = map.column::<u16>(name::EMITTER)?;
     if let Some(e) = emitters
@@ -851,7 +851,7 @@ pub fn map_input(map: &PhotonMap) -> Result<DetectInput<'_>, DetectError> {
             meta.emitters.len()
         )));
     }
-    let params = match meta.column(name::PARAMS) {
+    let params = match map.spec(name::PARAMS) {
         None => None,
         Some(c) if c.dtype != crate::format::DType::F32 => {
             return Err(input(format!("the params column is {}, expected f32", c.dtype.name())));
@@ -874,12 +874,12 @@ pub fn map_input(map: &PhotonMap) -> Result<DetectInput<'_>, DetectError> {
 
 /// [`detect`] over a map (the file's emitter list gives each emitter's parameter dimensions).
 pub fn detect_map(
-    map: &PhotonMap,
+    map: &MapView,
     p: &DetectParams,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Detection, DetectError> {
     check_params(p)?;
-    let emitters = &map.meta().emitters;
+    let emitters = &map.info().emitters;
     let dims: Vec<u32> = emitters.iter().map(|e| e.param_dims).collect();
     let mut input = map_input(map)?;
     input.params = input.params.map(|c| ParamColumn { dims: &dims, ..c });
@@ -953,16 +953,15 @@ pub fn spectral_scales(
         .collect()
 }
 
-/// Writes `map` with the constraint columns of `d` (replacing any from an earlier run), every
-/// other column carried through unchanged, state `detected`, and a stage record.
-pub fn write_detected(
-    map: &PhotonMap,
+/// `map` with the constraint columns of `d` (replacing any from an earlier run), every other
+/// column carried through unchanged (borrowed), state `detected`, and a stage record.
+pub fn detected_map<'a>(
+    map: &MapView<'a>,
     d: &Detection,
     p: &DetectParams,
     seconds: f64,
-    target: Output,
-) -> Result<(), DetectError> {
-    let mut info = map.meta().info();
+) -> Result<PhotonTable<'a>, DetectError> {
+    let mut info = map.info().clone();
     info.state = State::Detected;
     let mut parameters = serde_json::to_value(p).unwrap_or_default();
     for (e, s) in info.emitters.iter_mut().zip(&d.spectral_scales) {
@@ -984,20 +983,17 @@ pub fn write_detected(
         "parameter_space": d.r_param.is_some(),
     });
     info.history.push(rec);
-    let ours: Vec<(ColumnSpec, &[u8])> = [
-        Some((ColumnSpec::of::<[f32; 3]>(name::BASIS_U), bytemuck::cast_slice::<_, u8>(&d.basis_u))),
-        Some((ColumnSpec::of::<[f32; 3]>(name::BASIS_V), bytemuck::cast_slice(&d.basis_v))),
-        Some((ColumnSpec::of::<f32>(name::LAMBDA2), bytemuck::cast_slice(&d.lambda2))),
-        d.r_param.as_ref().map(|r| (ColumnSpec::of::<f32>(name::R_PARAM), bytemuck::cast_slice(r))),
-    ]
-    .into_iter()
-    .flatten()
-    .collect();
-    let replaced = [name::BASIS_U, name::BASIS_V, name::LAMBDA2, name::R_PARAM];
-    let mut columns: Vec<(ColumnSpec, &[u8])> =
-        map.columns().into_iter().filter(|(s, _)| !replaced.contains(&s.name.as_str())).collect();
-    columns.extend(ours);
-    Ok(crate::format::write_map(target, info, &columns)?)
+    let mut table = PhotonTable::carrying(map, info);
+    for column in [name::BASIS_U, name::BASIS_V, name::LAMBDA2, name::R_PARAM] {
+        table.remove(column);
+    }
+    table.set(name::BASIS_U, &d.basis_u)?;
+    table.set(name::BASIS_V, &d.basis_v)?;
+    table.set(name::LAMBDA2, &d.lambda2)?;
+    if let Some(r) = &d.r_param {
+        table.set(name::R_PARAM, r)?;
+    }
+    Ok(table)
 }
 
 #[cfg(test)]

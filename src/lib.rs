@@ -12,6 +12,8 @@
 //!    drops the parameter dimensions; relax again in world space.
 //! 4. [`render`]: eye rays to diffuse hits, k-NN density estimation, OpenEXR and PNG.
 //!
+//! [`pipeline`] runs stages 2–3 in memory, one map handed to the next.
+//!
 //! Around it: [`import`] and [`export`] (PLY, CSV, Radiance), [`inspect`], and [`eval`]
 //! (ground truth, error metrics and the comparison of every method).
 pub mod detect;
@@ -20,6 +22,7 @@ pub mod export;
 pub mod format;
 pub mod import;
 pub mod inspect;
+pub mod pipeline;
 pub mod relax;
 pub mod render;
 pub mod scene;

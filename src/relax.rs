@@ -467,7 +467,7 @@ pub fn index_positions(
 /// `basis_u`/`basis_v` columns constrain the motion, or, without them, its `normal` column
 /// keeps photons in their tangent plane.
 pub fn relax_map(
-    map: &crate::format::PhotonMap,
+    map: &crate::format::MapView,
     p: &RelaxParams,
     on_iteration: impl FnMut(&IterationMeasure),
 ) -> Result<Relaxed, RelaxError> {
@@ -478,7 +478,7 @@ pub fn relax_map(
 /// `surface` column names it) by [`return_to_surface`], and their normals follow: photons on
 /// curved receivers stay on them. A move whose surface is not found is refused.
 pub fn relax_map_on(
-    map: &crate::format::PhotonMap,
+    map: &crate::format::MapView,
     p: &RelaxParams,
     scene: Option<&crate::scene::Scene>,
     mut on_iteration: impl FnMut(&IterationMeasure),
@@ -497,7 +497,7 @@ pub fn relax_map_on(
         )));
     }
     let p = &p.capped(map.len());
-    let meta = map.meta();
+    let meta = map.info();
     // Photons are worked on in spatial order (see [`crate::spatial::order`]): every column
     // the iterations read is relabelled here, and what they change is put back at the end.
     let order = locality_order(map.positions());
@@ -519,7 +519,7 @@ pub fn relax_map_on(
     };
     let r_param = map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, &order, 1));
     let r_param = r_param.as_deref();
-    let params = match meta.column(name::PARAMS) {
+    let params = match map.spec(name::PARAMS) {
         Some(c) => {
             let values = bytemuck::try_cast_slice::<u8, f32>(map.column_bytes(name::PARAMS).unwrap_or(&[]))
                 .map_err(|e| input(format!("params column: {e}")))?;
@@ -737,17 +737,17 @@ pub fn return_to_surface(
 /// The most per-iteration measures a relax record keeps (about 200 bytes each).
 pub const MAX_ITERATION_RECORDS: usize = 1000;
 
-/// Writes `map` with its positions replaced by `relaxed`, every other column carried through,
-/// and a stage record holding the parameters and the per-iteration measures.
-pub fn write_relaxed(
-    map: &crate::format::PhotonMap,
+/// `map` with its positions replaced by `relaxed` (and its normals and flux, where relaxation
+/// changed them), every other column carried through (borrowed), and a stage record holding
+/// the parameters and the per-iteration measures.
+pub fn relaxed_map<'a>(
+    map: &crate::format::MapView<'a>,
     relaxed: &Relaxed,
     p: &RelaxParams,
     seconds: f64,
-    target: crate::format::Output,
-) -> Result<(), RelaxError> {
-    use crate::format::{StageRecord, name};
-    let mut info = map.meta().info();
+) -> Result<crate::format::PhotonTable<'a>, RelaxError> {
+    use crate::format::{PhotonTable, StageRecord, name};
+    let mut info = map.info().clone();
     let mut rec = StageRecord::now("relax", serde_json::to_value(p).unwrap_or_default());
     // At most MAX_ITERATION_RECORDS per-iteration measures (every k-th and the last), so a
     // long run's history stays far below the metadata limit.
@@ -767,29 +767,24 @@ pub fn write_relaxed(
         "iterations": kept,
     });
     info.history.push(rec);
-    let columns: Vec<_> = map
-        .columns()
-        .into_iter()
-        .map(|(spec, bytes)| {
-            let b: &[u8] = match (spec.name.as_str(), &relaxed.normals) {
-                (name::POSITION, _) => bytemuck::cast_slice(&relaxed.positions),
-                (name::NORMAL, Some(n)) => bytemuck::cast_slice(n),
-                (name::FLUX, _) if relaxed.flux.is_some() => {
-                    bytemuck::cast_slice(relaxed.flux.as_deref().unwrap_or_default())
-                }
-                _ => bytes,
-            };
-            (spec, b)
-        })
-        .collect();
-    Ok(crate::format::write_map(target, info, &columns)?)
+    let mut table = PhotonTable::carrying(map, info);
+    table.set(name::POSITION, &relaxed.positions)?;
+    if let Some(n) = &relaxed.normals
+        && map.spec(name::NORMAL).is_some()
+    {
+        table.set(name::NORMAL, n)?;
+    }
+    if let Some(f) = &relaxed.flux {
+        table.set(name::FLUX, f)?;
+    }
+    Ok(table)
 }
 
 /// Collapse: drops the parameter dimensions from the neighbour search by moving the map to the
 /// `collapsed` state. Every column stays (the parameters remain for diagnostics).
-pub fn collapse(map: &crate::format::PhotonMap, target: crate::format::Output) -> Result<(), RelaxError> {
-    use crate::format::{StageRecord, State};
-    let from = map.meta().state;
+pub fn collapse<'a>(map: &crate::format::MapView<'a>) -> Result<crate::format::PhotonTable<'a>, RelaxError> {
+    use crate::format::{PhotonTable, StageRecord, State};
+    let from = map.info().state;
     if from != State::Detected {
         return Err(RelaxError::Input {
             file: map.file_name().to_string(),
@@ -799,10 +794,10 @@ pub fn collapse(map: &crate::format::PhotonMap, target: crate::format::Output) -
             ),
         });
     }
-    let mut info = map.meta().info();
+    let mut info = map.info().clone();
     info.state = State::Collapsed;
     info.history.push(StageRecord::now("collapse", serde_json::json!({ "from_state": from.name() })));
-    Ok(crate::format::write_map(target, info, &map.columns())?)
+    Ok(PhotonTable::carrying(map, info))
 }
 
 /// Distance from photon `i` to the nearest photon not on top of it among its 4 Kf nearest;
@@ -1144,9 +1139,12 @@ mod tests {
         dir: &std::path::Path,
         file: &str,
     ) -> crate::format::PhotonMap {
-        let r = relax_map(map, p, |_| {}).unwrap();
+        let r = relax_map(&map.view(), p, |_| {}).unwrap();
         let path = dir.join(file);
-        write_relaxed(map, &r, p, 0.0, crate::format::Output::Path(path.clone())).unwrap();
+        relaxed_map(&map.view(), &r, p, 0.0)
+            .unwrap()
+            .write(crate::format::Output::Path(path.clone()))
+            .unwrap();
         crate::format::PhotonMap::open_path(&path).unwrap()
     }
 
@@ -1157,9 +1155,10 @@ mod tests {
         file: &str,
     ) -> crate::format::PhotonMap {
         let p = crate::detect::DetectParams::default();
-        let d = crate::detect::detect_map(map, &p, &|_| {}).unwrap();
+        let d = crate::detect::detect_map(&map.view(), &p, &|_| {}).unwrap();
         let path = dir.join(file);
-        crate::detect::write_detected(map, &d, &p, 0.0, crate::format::Output::Path(path.clone())).unwrap();
+        let table = crate::detect::detected_map(&map.view(), &d, &p, 0.0).unwrap();
+        table.write(crate::format::Output::Path(path.clone())).unwrap();
         crate::format::PhotonMap::open_path(&path).unwrap()
     }
 
@@ -1215,7 +1214,7 @@ mod tests {
         let r1 = relax_to(&detected, &p, dir.path(), "r1.phm");
         assert_eq!(r1.meta().history.last().unwrap().report["space"], "world_params");
         let c_path = dir.path().join("c.phm");
-        collapse(&r1, crate::format::Output::Path(c_path.clone())).unwrap();
+        collapse(&r1.view()).unwrap().write(crate::format::Output::Path(c_path.clone())).unwrap();
         let c = crate::format::PhotonMap::open_path(&c_path).unwrap();
         let r2 = relax_to(&c, &p, dir.path(), "r2.phm");
         assert_eq!(r2.meta().history.last().unwrap().report["space"], "world");
@@ -1240,13 +1239,16 @@ mod tests {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().unwrap();
             pool.install(|| {
                 let d = detect_to(&input, dir.path(), &format!("d{tag}.phm"));
-                let dp = crate::detect::detect_map(&input, &Default::default(), &|_| {}).unwrap();
-                let r1 = relax_map(&d, &p, |_| {}).unwrap();
+                let dp = crate::detect::detect_map(&input.view(), &Default::default(), &|_| {}).unwrap();
+                let r1 = relax_map(&d.view(), &p, |_| {}).unwrap();
                 let r1_file = relax_to(&d, &p, dir.path(), &format!("r{tag}.phm"));
                 let c_path = dir.path().join(format!("c{tag}.phm"));
-                collapse(&r1_file, crate::format::Output::Path(c_path.clone())).unwrap();
+                collapse(&r1_file.view())
+                    .unwrap()
+                    .write(crate::format::Output::Path(c_path.clone()))
+                    .unwrap();
                 let c = crate::format::PhotonMap::open_path(&c_path).unwrap();
-                let r2 = relax_map(&c, &p, |_| {}).unwrap();
+                let r2 = relax_map(&c.view(), &p, |_| {}).unwrap();
                 (dp.basis_u, dp.basis_v, dp.lambda2, dp.r_param, r1.positions, r2.positions)
             })
         };
@@ -1314,11 +1316,11 @@ mod tests {
         if constrained {
             let d = detect_to(&map, dir.path(), "d.phm");
             let c = dir.path().join("c.phm");
-            collapse(&d, crate::format::Output::Path(c.clone())).unwrap();
+            collapse(&d.view()).unwrap().write(crate::format::Output::Path(c.clone())).unwrap();
             map = crate::format::PhotonMap::open_path(&c).unwrap();
         }
         let p = RelaxParams { iterations, ..Default::default() };
-        let r = relax_map(&map, &p, |_| {})?;
+        let r = relax_map(&map.view(), &p, |_| {})?;
         assert_eq!(r.space, RelaxSpace::World);
         Ok(r.positions)
     }
@@ -1357,7 +1359,7 @@ mod tests {
         }
         let dir = tempfile::tempdir().unwrap();
         let three = map_in(dir.path(), "t.phm", &crate::synthetic::uniform_square(3, 9, 1.0));
-        let r = relax_map(&three, &RelaxParams { iterations: 1000, ..Default::default() }, |_| {})
+        let r = relax_map(&three.view(), &RelaxParams { iterations: 1000, ..Default::default() }, |_| {})
             .expect("relax_map failed");
         assert!(all_finite(&r.positions));
     }
@@ -1372,9 +1374,9 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let m = crate::synthetic::uniform_square(300, 12, 1.0);
         let p = RelaxParams::default();
-        let base = relax_map(&map_in(dir.path(), "s.phm", &m), &p, |_| {}).unwrap();
+        let base = relax_map(&map_in(dir.path(), "s.phm", &m).view(), &p, |_| {}).unwrap();
         for s in [1e-6f32, 1e6] {
-            let r = relax_map(&map_in(dir.path(), "x.phm", &scaled(&m, s)), &p, |_| {}).unwrap();
+            let r = relax_map(&map_in(dir.path(), "x.phm", &scaled(&m, s)).view(), &p, |_| {}).unwrap();
             assert!(all_finite(&r.positions));
             let err = r
                 .positions
@@ -1420,7 +1422,7 @@ mod tests {
         let p = RelaxParams::default();
         let a = detect_to(&map_in(dir.path(), "a.phm", &m), dir.path(), "ad.phm");
         let b = detect_to(&map_in(dir.path(), "b.phm", &r), dir.path(), "bd.phm");
-        let (ra, rb) = (relax_map(&a, &p, |_| {}).unwrap(), relax_map(&b, &p, |_| {}).unwrap());
+        let (ra, rb) = (relax_map(&a.view(), &p, |_| {}).unwrap(), relax_map(&b.view(), &p, |_| {}).unwrap());
         assert_eq!(ra.space, RelaxSpace::WorldParams);
         let (mut err, mut moved) = (0f32, 0f32);
         for i in 0..n {

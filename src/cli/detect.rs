@@ -86,7 +86,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         MethodArg::Gradient => Method::Gradient,
         MethodArg::None => Method::None,
     });
-    let (method, note) = detect::choose_method(&map, requested)?;
+    let (method, note) = detect::choose_method(&map.view(), requested)?;
     if let Some(note) = note {
         super::note!("note: {note}");
     }
@@ -108,16 +108,17 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         super::note!("note: --kc {} exceeds the map's {} photons: using Kc = {}", p.kc, map.len(), capped.kc);
     }
     let p = capped;
-    let units = detect::work_units(&detect::map_input(&map)?, p.method);
+    let units = detect::work_units(&detect::map_input(&map.view())?, p.method);
     let bar = ProgressBar::with_draw_target(Some(units), super::draw_target()).with_style(
         ProgressStyle::with_template("detect {bar:30} {percent}% {elapsed} (eta {eta})")
             .expect("valid template"),
     );
     let t = Instant::now();
-    let d = detect::detect_map(&map, &p, &|k| bar.inc(k))?;
+    let d = detect::detect_map(&map.view(), &p, &|k| bar.inc(k))?;
     bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
-    detect::write_detected(&map, &d, &p, seconds, Output::parse(&a.output))
+    detect::detected_map(&map.view(), &d, &p, seconds)?
+        .write(Output::parse(&a.output))
         .context("writing the detected map")?;
     let s = &d.summary;
     super::note!(

@@ -8,8 +8,9 @@ use anyhow::Context;
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::detect::{self, DetectParams};
-use photonkit::format::{Output, PhotonMap};
-use photonkit::relax::{self, RelaxParams};
+use photonkit::format::{Output, PhotonMap, PhotonTable};
+use photonkit::pipeline::{self, PipelineError, PipelineParams, Stage, StageDone};
+use photonkit::relax::RelaxParams;
 use photonkit::trace::{self, Budget, DEFAULT_SPOOL_MEMORY, Spool, TraceOptions};
 
 /// Run every stage on a scene: trace → detect → relax → collapse → relax → render.
@@ -154,62 +155,34 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         &format!("  ({} emitted)", traced.emitted),
     )?;
 
-    // Detect.
-    let map = PhotonMap::open_path(&file("traced.phm"))?;
-    let (method, note) = detect::choose_method(&map, None)?;
-    if let Some(note) = note {
-        super::note!("note: {note}");
-    }
-    let dp = DetectParams { method, ..dp };
+    // Detect, relax, collapse, relax: in memory, each stage's map written as it is made.
+    let traced_map = PhotonMap::open_path(&file("traced.phm"))?;
+    let params =
+        PipelineParams { detect: dp, method: None, relax: rp, iterations: [rp.iterations, rp.iterations] };
     let bar = spinner("detect");
-    let t = Instant::now();
-    let d = detect::detect_map(&map, &dp, &|_| {});
-    bar.finish_and_clear();
-    let d = d?;
-    let secs = t.elapsed().as_secs_f64();
-    detect::write_detected(&map, &d, &dp, secs, Output::Path(file("detected.phm")))?;
-    report(
-        "detect",
-        secs,
-        map.len(),
-        &file("detected.phm"),
-        &format!("  ({}, {:.1} % constrained)", method.name(), 100.0 * d.summary.constrained_fraction()),
-    )?;
-    drop(map);
-
-    // Relax in the high-dimensional space, collapse, relax in world space.
-    let relax_stage = |input: &str, output: &str, stage: &str| -> anyhow::Result<()> {
-        let map = PhotonMap::open_path(&file(input))?;
-        let bar = spinner(stage);
-        let t = Instant::now();
-        let r = relax::relax_map_on(&map, &rp, Some(&scene), |m| {
-            bar.set_message(format!("{stage}: iteration {}", m.iteration + 1))
-        });
-        bar.finish_and_clear();
-        let r = r?;
-        let secs = t.elapsed().as_secs_f64();
-        relax::write_relaxed(&map, &r, &rp, secs, Output::Path(file(output)))?;
-        let cv = |i: usize| r.measures.get(i).map_or(f64::NAN, |m| m.local_nn_cv);
-        report(
-            stage,
-            secs,
-            map.len(),
-            &file(output),
-            &format!(
-                "  (local nearest-neighbour spread {:.3} → {:.3})",
-                cv(0),
-                cv(r.measures.len().saturating_sub(1))
-            ),
-        )?;
-        Ok(())
+    let mut on_stage = |done: &StageDone, table: &PhotonTable| -> Result<(), PipelineError> {
+        let name = match done.stage {
+            Stage::Detect => "detected.phm",
+            Stage::RelaxParams => "relaxed-params.phm",
+            Stage::Collapse => "collapsed.phm",
+            Stage::RelaxWorld => "relaxed.phm",
+        };
+        table.write(Output::Path(file(name)))?;
+        let note = if done.summary.is_empty() { String::new() } else { format!("  ({})", done.summary) };
+        bar.suspend(|| report(done.stage.label(), done.seconds, done.photons, &file(name), &note))
+            .map_err(|e| PipelineError::Caller(format!("{e:#}")))
     };
-    relax_stage("detected.phm", "relaxed-params.phm", "relax (params)")?;
-    let t = Instant::now();
-    let map = PhotonMap::open_path(&file("relaxed-params.phm"))?;
-    relax::collapse(&map, Output::Path(file("collapsed.phm")))?;
-    report("collapse", t.elapsed().as_secs_f64(), map.len(), &file("collapsed.phm"), "")?;
-    drop(map);
-    relax_stage("collapsed.phm", "relaxed.phm", "relax (world)")?;
+    let progress = |p: pipeline::Progress| match p {
+        pipeline::Progress::Started(stage) => bar.set_message(stage.label()),
+        pipeline::Progress::Iteration(stage, m) => {
+            bar.set_message(format!("{}: iteration {}", stage.label(), m.iteration + 1))
+        }
+        pipeline::Progress::Note(note) => bar.suspend(|| super::note!("note: {note}")),
+    };
+    let relaxed = pipeline::run(&traced_map.view(), Some(&scene), &params, &mut on_stage, &progress);
+    bar.finish_and_clear();
+    relaxed?;
+    drop(traced_map);
 
     // Render, with the render subcommand's defaults (the scene's camera, 600×600, 4 samples
     // per pixel, K = 15 Epanechnikov): the relaxed map, or with too few photons the traced one.

@@ -93,7 +93,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     );
     let t = Instant::now();
     let scene = scene_for(&map, a.scene.as_deref())?;
-    let relaxed = relax::relax_map_on(&map, &p, scene.as_ref(), |m| {
+    let relaxed = relax::relax_map_on(&map.view(), &p, scene.as_ref(), |m| {
         bar.inc(1);
         // Printed whether or not the bar is drawn (stderr may not be a terminal).
         bar.suspend(|| {
@@ -126,7 +126,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         RelaxSpace::World if map.meta().state == State::Collapsed => "world space (collapsed)",
         RelaxSpace::World => "world space",
     };
-    relax::write_relaxed(&map, &relaxed, &p, seconds, Output::parse(&a.output))
+    relax::relaxed_map(&map.view(), &relaxed, &p, seconds)?
+        .write(Output::parse(&a.output))
         .context("writing the relaxed map")?;
     super::note!(
         "relaxed {} photons, {} iterations in {space}, {seconds:.2} s ({:.0} ns/photon/iteration)",
@@ -154,7 +155,7 @@ pub struct CollapseArgs {
 pub fn collapse(a: CollapseArgs) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
     super::refuse_input_as_output(&a.output)?;
-    relax::collapse(&map, Output::parse(&a.output))?;
+    relax::collapse(&map.view())?.write(Output::parse(&a.output))?;
     super::print_record(&a.output)?;
     Ok(ExitCode::SUCCESS)
 }

@@ -787,7 +787,7 @@ fn a_wavelength_parameter_frees_the_interior_of_a_dispersed_beam() {
     let map = PhotonMap::open_path(&path).unwrap();
     assert_eq!(map.version(), (1, 1), "a spectral dimension is a version 1.1 feature");
     let p = DetectParams { spectral_scale: 50.0, ..p };
-    let d = detect_map(&map, &p, &|_| {}).unwrap();
+    let d = detect_map(&map.view(), &p, &|_| {}).unwrap();
     let (f, _) = band_means(&d, &interior);
     assert!(
         (f - iso).abs() < 0.1,

@@ -20,9 +20,10 @@ use glam::Vec3;
 
 use super::metrics::{self, Errors, Region, RegionErrors};
 use super::truth::{self, FloorGrid, Quality};
-use crate::detect::{self, DetectParams, Method};
-use crate::format::{Output, PhotonMap};
-use crate::relax::{self, RelaxParams};
+use crate::detect::{DetectParams, Method};
+use crate::format::{Output, PhotonMap, PhotonTable};
+use crate::pipeline::{self, PipelineError, PipelineParams, Stage, StageDone};
+use crate::relax::RelaxParams;
 use crate::render::reference::{Progressive, ReferenceOptions, ReferenceState};
 use crate::render::{
     Estimator, EyeOptions, Image, Kernel, Mode, PhotonData, PhotonLookup, RenderOptions, Renderer, View,
@@ -42,6 +43,8 @@ pub enum CompareError {
     Detect(#[from] crate::detect::DetectError),
     #[error(transparent)]
     Relax(#[from] crate::relax::RelaxError),
+    #[error(transparent)]
+    Pipeline(#[from] crate::pipeline::PipelineError),
     #[error(transparent)]
     Render(#[from] crate::render::RenderError),
     #[error(transparent)]
@@ -524,37 +527,44 @@ fn run_seed(
         true => format!("K = {k}, variable kernel"),
     };
 
-    let detect_stage = |input: &str, output: &str, method: Method| -> Result<f64, CompareError> {
-        let map = PhotonMap::open_path(&file(input))?;
-        let dp = DetectParams {
-            kc: o.kc,
-            beta: o.beta,
-            k_density: o.k_density,
-            growths: o.growths,
-            spectral_scale: o.spectral_scale,
+    // Algorithm 1 on the traced map ([`pipeline::run`]), each stage's map written as
+    // `{prefix}-{stage}.phm`; the relaxed map and the detect and relax seconds (the collapse
+    // counted with relaxation).
+    let relax_photons = |prefix: &str, method: Option<Method>, iterations: [usize; 2]| {
+        let traced = PhotonMap::open_path(&file("traced.phm"))?;
+        let params = PipelineParams {
+            detect: DetectParams {
+                kc: o.kc,
+                beta: o.beta,
+                k_density: o.k_density,
+                growths: o.growths,
+                spectral_scale: o.spectral_scale,
+                ..DetectParams::default()
+            },
             method,
-            ..DetectParams::default()
+            relax: RelaxParams { kf: o.kf, ..RelaxParams::default() },
+            iterations,
         };
-        let t = Instant::now();
-        let d = detect::detect_map(&map, &dp, &|_| {})?;
-        let secs = t.elapsed().as_secs_f64();
-        detect::write_detected(&map, &d, &dp, secs, Output::Path(file(output)))?;
-        Ok(secs)
-    };
-    let relax_stage = |input: &str, output: &str, iterations: usize| -> Result<f64, CompareError> {
-        let map = PhotonMap::open_path(&file(input))?;
-        let rp = RelaxParams { iterations, kf: o.kf, ..RelaxParams::default() };
-        let t = Instant::now();
-        let r = relax::relax_map_on(&map, &rp, Some(scene), |_| {})?;
-        let secs = t.elapsed().as_secs_f64();
-        relax::write_relaxed(&map, &r, &rp, secs, Output::Path(file(output)))?;
-        Ok(secs)
-    };
-    let collapse_stage = |input: &str, output: &str| -> Result<f64, CompareError> {
-        let map = PhotonMap::open_path(&file(input))?;
-        let t = Instant::now();
-        relax::collapse(&map, Output::Path(file(output)))?;
-        Ok(t.elapsed().as_secs_f64())
+        let (mut detect_secs, mut relax_secs) = (0.0, 0.0);
+        let mut on_stage = |done: &StageDone, table: &PhotonTable| -> Result<(), PipelineError> {
+            let stage = match done.stage {
+                Stage::Detect => "detected",
+                Stage::RelaxParams => "relaxed-params",
+                Stage::Collapse => "collapsed",
+                Stage::RelaxWorld => "relaxed",
+            };
+            let t = Instant::now();
+            table.write(Output::Path(file(&format!("{prefix}-{stage}.phm"))))?;
+            match done.stage {
+                Stage::Detect => detect_secs = done.seconds,
+                Stage::Collapse => relax_secs += done.seconds + t.elapsed().as_secs_f64(),
+                _ => relax_secs += done.seconds,
+            }
+            Ok(())
+        };
+        let done = pipeline::run(&traced.view(), Some(scene), &params, &mut on_stage, &|_| {})?;
+        let map = PhotonMap::open_path(&file(&format!("{prefix}-relaxed.phm")))?;
+        Ok::<_, CompareError>((map, detect_secs, relax_secs, done.method))
     };
 
     let mut push = |method: MethodKind,
@@ -610,12 +620,9 @@ fn run_seed(
     }
     if wants(MethodKind::Relaxation2009) {
         log(Progress::Started(MethodKind::Relaxation2009.label()));
-        let det = detect_stage("traced.phm", "relax2009-detected.phm", Method::Gradient)?;
-        let col = collapse_stage("relax2009-detected.phm", "relax2009-collapsed.phm")?;
-        let rel = relax_stage("relax2009-collapsed.phm", "relax2009-relaxed.phm", o.iterations_2009)?;
-        let map = PhotonMap::open_path(&file("relax2009-relaxed.phm"))?;
+        let (map, det, rel, _) = relax_photons("relax2009", Some(Method::Gradient), [0, o.iterations_2009])?;
         let (img, secs) = render(&map, knn)?;
-        let times = StageTimes::of(trace_secs, Some(det), Some(col + rel), secs);
+        let times = StageTimes::of(trace_secs, Some(det), Some(rel), secs);
         push(
             MethodKind::Relaxation2009,
             format!("gradient, {} world iterations, {}", o.iterations_2009, k_label(o.k)),
@@ -627,16 +634,9 @@ fn run_seed(
     }
     if wants(MethodKind::Ours) {
         log(Progress::Started(MethodKind::Ours.label()));
-        let traced = PhotonMap::open_path(&file("traced.phm"))?;
-        let (method, _) = detect::choose_method(&traced, None)?;
-        drop(traced);
-        let det = detect_stage("traced.phm", "ours-detected.phm", method)?;
-        let r1 = relax_stage("ours-detected.phm", "ours-relaxed-params.phm", o.iterations)?;
-        let col = collapse_stage("ours-relaxed-params.phm", "ours-collapsed.phm")?;
-        let r2 = relax_stage("ours-collapsed.phm", "ours-relaxed.phm", o.iterations)?;
-        let map = PhotonMap::open_path(&file("ours-relaxed.phm"))?;
+        let (map, det, rel, method) = relax_photons("ours", None, [o.iterations, o.iterations])?;
         let (img, secs) = render(&map, knn)?;
-        let times = StageTimes::of(trace_secs, Some(det), Some(r1 + col + r2), secs);
+        let times = StageTimes::of(trace_secs, Some(det), Some(rel), secs);
         push(
             MethodKind::Ours,
             format!("{}, {} + {} iterations, {}", method.name(), o.iterations, o.iterations, k_label(o.k)),

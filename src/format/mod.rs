@@ -6,6 +6,8 @@
 //! byte-for-byte specification; this module implements it:
 //!
 //! - [`PhotonMap`] opens and validates a file (or standard input) and hands out column views;
+//! - [`MapView`] is the view every stage reads (a [`PhotonMap`]'s or a [`PhotonTable`]'s), and
+//!   [`PhotonTable`] the in-memory map every stage returns;
 //! - [`PhotonWriter`] streams photons into a temporary file beside the target and renames it
 //!   into place when, and only when, everything was written.
 
@@ -14,6 +16,7 @@ pub mod guard;
 pub mod meta;
 pub mod preamble;
 mod reader;
+mod table;
 mod writer;
 
 pub use columns::{ColumnSpec, DType, Element, name};
@@ -22,6 +25,7 @@ pub use meta::{
     Parameterisation, StageRecord, State, UNIT_TOLERANCE, Units,
 };
 pub use reader::PhotonMap;
+pub use table::{MapView, PhotonTable};
 pub use writer::{Output, PhotonWriter, folder_of, persist, temp_beside, write_map};
 
 #[cfg(target_endian = "big")]

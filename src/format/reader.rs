@@ -30,6 +30,8 @@ pub struct PhotonMap {
     storage: Storage,
     preamble: Preamble,
     meta: Metadata,
+    /// The part of `meta` a stage carries into its output ([`Metadata::info`]).
+    info: super::MapInfo,
     /// Keeps the file registered as an input while mapped ([`super::guard`]).
     hold: Option<super::guard::InputHold>,
 }
@@ -103,7 +105,8 @@ impl PhotonMap {
             Storage::Owned { words, len } => &bytemuck::cast_slice(words)[..*len],
         };
         let (preamble, meta) = parse(&file, bytes)?;
-        Ok(PhotonMap { file, storage, preamble, meta, hold: None })
+        let info = meta.info();
+        Ok(PhotonMap { file, storage, preamble, meta, info, hold: None })
     }
 
     /// The whole file.
@@ -126,6 +129,11 @@ impl PhotonMap {
 
     pub fn meta(&self) -> &Metadata {
         &self.meta
+    }
+
+    /// The header a stage carries into its output (emitters, units, state, history).
+    pub fn info(&self) -> &super::MapInfo {
+        &self.info
     }
 
     /// Number of photons.

@@ -56,25 +56,28 @@ fn pipeline(scene: &Scene, photons: u64, dir: &Path, mode: Mode) -> Run {
 
     let map = PhotonMap::open_path(&file("traced.phm")).unwrap();
     assert!(all_finite(map.positions()) && all_finite(map.flux()));
-    let (method, _) = detect::choose_method(&map, None).unwrap();
+    let (method, _) = detect::choose_method(&map.view(), None).unwrap();
     let dp = DetectParams { method, ..DetectParams::default() };
-    let d = detect::detect_map(&map, &dp, &|_| {}).expect("detect");
+    let d = detect::detect_map(&map.view(), &dp, &|_| {}).expect("detect");
     assert!(d.lambda2.iter().all(|x| x.is_finite()));
     assert!(all_finite(&d.basis_u) && all_finite(&d.basis_v));
-    detect::write_detected(&map, &d, &dp, 0.0, Output::Path(file("detected.phm"))).unwrap();
+    detect::detected_map(&map.view(), &d, &dp, 0.0)
+        .unwrap()
+        .write(Output::Path(file("detected.phm")))
+        .unwrap();
 
     let rp = RelaxParams::default();
     let relax_stage = |input: &str, output: &str| {
         let map = PhotonMap::open_path(&file(input)).unwrap();
-        let r = relax::relax_map_on(&map, &rp, Some(scene), |_| {}).expect("relax");
-        relax::write_relaxed(&map, &r, &rp, 0.0, Output::Path(file(output))).unwrap();
+        let r = relax::relax_map_on(&map.view(), &rp, Some(scene), |_| {}).expect("relax");
+        relax::relaxed_map(&map.view(), &r, &rp, 0.0).unwrap().write(Output::Path(file(output))).unwrap();
         let out = PhotonMap::open_path(&file(output)).unwrap();
         assert!(all_finite(out.positions()), "{output}: a position is not finite");
         assert!(r.measures.iter().all(|m| m.local_nn_cv.is_finite() || out.len() < 2), "{output}");
     };
     relax_stage("detected.phm", "relaxed-params.phm");
     let map = PhotonMap::open_path(&file("relaxed-params.phm")).unwrap();
-    relax::collapse(&map, Output::Path(file("collapsed.phm"))).expect("collapse");
+    relax::collapse(&map.view()).expect("collapse").write(Output::Path(file("collapsed.phm"))).unwrap();
     relax_stage("collapsed.phm", "relaxed.phm");
 
     let map = PhotonMap::open_path(&file("relaxed.phm")).unwrap();
@@ -353,13 +356,13 @@ fn kc_3_and_kc_1000_through_detect_and_relax() {
     let map = PhotonMap::open_path(&dir.path().join("map.phm")).unwrap();
     let run = |kc: usize| {
         let dp = DetectParams { kc, ..DetectParams::default() };
-        let d = detect::detect_map(&map, &dp, &|_| {}).unwrap();
+        let d = detect::detect_map(&map.view(), &dp, &|_| {}).unwrap();
         assert!(d.lambda2.iter().all(|x| x.is_finite()) && all_finite(&d.basis_u) && all_finite(&d.basis_v));
         assert_eq!(d.summary.measured, m.len(), "Kc {kc}: {:?}", d.summary);
         let out = dir.path().join(format!("d{kc}.phm"));
-        detect::write_detected(&map, &d, &dp, 0.0, Output::Path(out.clone())).unwrap();
+        detect::detected_map(&map.view(), &d, &dp, 0.0).unwrap().write(Output::Path(out.clone())).unwrap();
         let dm = PhotonMap::open_path(&out).unwrap();
-        let r = relax::relax_map(&dm, &RelaxParams::default(), |_| {}).unwrap();
+        let r = relax::relax_map(&dm.view(), &RelaxParams::default(), |_| {}).unwrap();
         assert!(all_finite(&r.positions) && r.positions.iter().all(|p| p[2] == 0.0), "Kc {kc}");
         (d, r)
     };

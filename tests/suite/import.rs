@@ -275,10 +275,10 @@ fn imported_maps_without_parameters_detect_in_world_space() {
     m.write(Output::Path(p.clone()), serde_json::json!({})).unwrap();
     let map = PhotonMap::open_path(&p).unwrap();
     use photonkit::detect::{Method, choose_method};
-    let (method, note) = choose_method(&map, None).unwrap();
+    let (method, note) = choose_method(&map.view(), None).unwrap();
     assert_eq!(method, Method::WorldPca);
     assert!(note.unwrap().contains("no trajectory parameters"));
-    let e = choose_method(&map, Some(Method::ParamPca)).unwrap_err().to_string();
+    let e = choose_method(&map.view(), Some(Method::ParamPca)).unwrap_err().to_string();
     assert!(e.contains("param-pca needs trajectory parameters"), "{e}");
     // The PD map's emission directions are trajectory parameters: the paper's method applies.
     let p = dir.path().join("pd.phm");
@@ -286,7 +286,7 @@ fn imported_maps_without_parameters_detect_in_world_space() {
         import::import(&fixture("radiance/kdt_PD/glass_sphere_contrib_10k.pm"), &Options::default()).unwrap();
     m.write(Output::Path(p.clone()), serde_json::json!({})).unwrap();
     let map = PhotonMap::open_path(&p).unwrap();
-    assert_eq!(choose_method(&map, None).unwrap().0, Method::ParamPca);
+    assert_eq!(choose_method(&map.view(), None).unwrap().0, Method::ParamPca);
 }
 
 #[test]

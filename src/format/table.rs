@@ -1,0 +1,310 @@
+//! Photon maps in memory: a borrowed view every stage reads, and a column table every stage
+//! returns.
+//!
+//! A stage reads photons through a [`MapView`], which a memory-mapped [`PhotonMap`] and an
+//! in-memory [`PhotonTable`] both provide, and returns its result as a [`PhotonTable`]: the
+//! header it would write and its columns, those it passes on unchanged borrowed from its input
+//! (no copy) and those it computed owned. Writing the table to a file is the caller's choice
+//! ([`PhotonTable::write`]), so stages chain in memory (the library's pipeline, Python) or
+//! through files (the command line) alike.
+
+use super::columns::{Element, name};
+use super::meta::MapInfo;
+use super::reader::PhotonMap;
+use super::writer::{Output, write_map};
+use super::{ColumnSpec, FormatError, Result};
+
+/// A read-only view of a photon map's header and columns, wherever they live.
+#[derive(Clone, Debug)]
+pub struct MapView<'a> {
+    file: &'a str,
+    info: &'a MapInfo,
+    columns: Vec<(ColumnSpec, &'a [u8])>,
+    len: usize,
+}
+
+impl<'a> MapView<'a> {
+    /// The name used in messages: the path, `<stdin>`, or what an in-memory table was named.
+    pub fn file_name(&self) -> &'a str {
+        self.file
+    }
+
+    /// The header a stage carries into its output (emitters, units, state, history).
+    pub fn info(&self) -> &'a MapInfo {
+        self.info
+    }
+
+    /// Number of photons.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The type and shape of a column, if the map has it.
+    pub fn spec(&self, column: &str) -> Option<&ColumnSpec> {
+        self.columns.iter().find(|(s, _)| s.name == column).map(|(s, _)| s)
+    }
+
+    /// The raw little-endian bytes of a column, if the map has it.
+    pub fn column_bytes(&self, column: &str) -> Option<&'a [u8]> {
+        self.columns.iter().find(|(s, _)| s.name == column).map(|(_, b)| *b)
+    }
+
+    /// Every column's spec and bytes, in order: what a stage passes on unchanged.
+    pub fn columns(&self) -> &[(ColumnSpec, &'a [u8])] {
+        &self.columns
+    }
+
+    /// A typed, zero-copy view of a column; `Ok(None)` if absent, an error if its type differs.
+    pub fn column<T: Element>(&self, column: &str) -> Result<Option<&'a [T]>> {
+        let Some((spec, bytes)) = self.columns.iter().find(|(s, _)| s.name == column) else {
+            return Ok(None);
+        };
+        typed(self.file, spec, bytes).map(Some)
+    }
+
+    /// Photon positions (present and f32×3 in every view: see [`MapView`]'s constructors).
+    pub fn positions(&self) -> &'a [[f32; 3]] {
+        self.column(name::POSITION).ok().flatten().expect("a view has positions")
+    }
+
+    /// Photon flux in watts per RGB channel (present and f32×3 in every view).
+    pub fn flux(&self) -> &'a [[f32; 3]] {
+        self.column(name::FLUX).ok().flatten().expect("a view has flux")
+    }
+}
+
+fn typed<'a, T: Element>(file: &str, spec: &ColumnSpec, bytes: &'a [u8]) -> Result<&'a [T]> {
+    let err =
+        |message: String| FormatError::Column { file: file.to_string(), column: spec.name.clone(), message };
+    if spec.dtype != T::DTYPE || spec.components != T::COMPONENTS {
+        return Err(err(format!(
+            "is {}×{}, expected {}×{}",
+            spec.dtype.name(),
+            spec.components,
+            T::DTYPE.name(),
+            T::COMPONENTS
+        )));
+    }
+    bytemuck::try_cast_slice(bytes).map_err(|e| err(format!("can not be viewed in place: {e}")))
+}
+
+impl PhotonMap {
+    /// The map as a [`MapView`] (its columns viewed in place).
+    pub fn view(&self) -> MapView<'_> {
+        MapView { file: self.file_name(), info: self.info(), columns: self.columns(), len: self.len() }
+    }
+}
+
+/// A column's bytes: borrowed from a stage's input, or computed and owned (in u64 words, so
+/// every column can be viewed as any element type).
+#[derive(Clone, Debug)]
+enum Bytes<'a> {
+    Borrowed(&'a [u8]),
+    Owned { words: Vec<u64>, len: usize },
+}
+
+impl Bytes<'_> {
+    fn of<T: bytemuck::Pod>(values: &[T]) -> Bytes<'static> {
+        let bytes: &[u8] = bytemuck::cast_slice(values);
+        let mut words = vec![0u64; bytes.len().div_ceil(8)];
+        bytemuck::cast_slice_mut::<u64, u8>(&mut words)[..bytes.len()].copy_from_slice(bytes);
+        Bytes::Owned { words, len: bytes.len() }
+    }
+
+    fn get(&self) -> &[u8] {
+        match self {
+            Bytes::Borrowed(b) => b,
+            Bytes::Owned { words, len } => &bytemuck::cast_slice(words)[..*len],
+        }
+    }
+}
+
+/// A photon map held in memory: the header a stage would write ([`MapInfo`]) and its columns,
+/// each either borrowed from the stage's input or owned. It always holds `position` and
+/// `flux` (f32×3), and every column holds one element per photon.
+#[derive(Clone, Debug)]
+pub struct PhotonTable<'a> {
+    file: String,
+    pub info: MapInfo,
+    columns: Vec<(ColumnSpec, Bytes<'a>)>,
+    len: usize,
+}
+
+impl<'a> PhotonTable<'a> {
+    /// A table of `positions` and `flux` (one per photon); `file` names it in messages.
+    pub fn new(file: &str, info: MapInfo, positions: &[[f32; 3]], flux: &[[f32; 3]]) -> Result<Self> {
+        if positions.len() != flux.len() {
+            return Err(FormatError::Invalid {
+                file: file.to_string(),
+                message: format!("{} positions but {} flux values", positions.len(), flux.len()),
+            });
+        }
+        let mut t = PhotonTable { file: file.to_string(), info, columns: Vec::new(), len: positions.len() };
+        t.set(name::POSITION, positions)?;
+        t.set(name::FLUX, flux)?;
+        Ok(t)
+    }
+
+    /// Every column of `view` (borrowed, not copied) under the header `info`.
+    pub fn carrying(view: &MapView<'a>, info: MapInfo) -> Self {
+        PhotonTable {
+            file: view.file_name().to_string(),
+            info,
+            columns: view.columns().iter().map(|(s, b)| (s.clone(), Bytes::Borrowed(b))).collect(),
+            len: view.len(),
+        }
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// Sets column `column` to `values` (one per photon): in its place if the table has it,
+    /// else after the others.
+    pub fn set<T: Element>(&mut self, column: &str, values: &[T]) -> Result<()> {
+        self.set_bytes(ColumnSpec::of::<T>(column), Bytes::of(values))
+    }
+
+    /// [`Self::set`] for a column of `components` elements per photon given flat.
+    pub fn set_flat<T: Element>(&mut self, column: &str, components: u32, values: &[T]) -> Result<()> {
+        if T::COMPONENTS != 1 {
+            return Err(self.invalid(format!("column '{column}': give flat values")));
+        }
+        self.set_bytes(ColumnSpec::new(column, T::DTYPE, components), Bytes::of(values))
+    }
+
+    fn set_bytes(&mut self, spec: ColumnSpec, bytes: Bytes<'a>) -> Result<()> {
+        let want = self.len as u64 * spec.stride();
+        if bytes.get().len() as u64 != want {
+            return Err(self.invalid(format!(
+                "column '{}' holds {} bytes, expected {want} ({} photons × {} bytes)",
+                spec.name,
+                bytes.get().len(),
+                self.len,
+                spec.stride()
+            )));
+        }
+        match self.columns.iter_mut().find(|(s, _)| s.name == spec.name) {
+            Some(slot) => {
+                // A column passed on keeps its table entry's unknown keys.
+                let extra = std::mem::take(&mut slot.0.extra);
+                *slot = (ColumnSpec { extra, ..spec }, bytes);
+            }
+            None => self.columns.push((spec, bytes)),
+        }
+        Ok(())
+    }
+
+    /// Drops column `column` if present (`position` and `flux` stay: every map has them).
+    pub fn remove(&mut self, column: &str) {
+        if column != name::POSITION && column != name::FLUX {
+            self.columns.retain(|(s, _)| s.name != column);
+        }
+    }
+
+    fn invalid(&self, message: String) -> FormatError {
+        FormatError::Invalid { file: self.file.clone(), message }
+    }
+
+    /// The table as a [`MapView`], for the next stage.
+    pub fn view(&self) -> MapView<'_> {
+        MapView {
+            file: &self.file,
+            info: &self.info,
+            columns: self.columns.iter().map(|(s, b)| (s.clone(), b.get())).collect(),
+            len: self.len,
+        }
+    }
+
+    /// The same table owning every column (so its input may be dropped).
+    pub fn into_owned(self) -> PhotonTable<'static> {
+        PhotonTable {
+            file: self.file,
+            info: self.info,
+            columns: self
+                .columns
+                .into_iter()
+                .map(|(s, b)| {
+                    let b = match b {
+                        Bytes::Borrowed(b) => Bytes::of(b),
+                        Bytes::Owned { words, len } => Bytes::Owned { words, len },
+                    };
+                    (s, b)
+                })
+                .collect(),
+            len: self.len,
+        }
+    }
+
+    /// Writes the table as a PHM file (or to standard output): see [`write_map`].
+    pub fn write(&self, target: Output) -> Result<()> {
+        let columns: Vec<(ColumnSpec, &[u8])> =
+            self.columns.iter().map(|(s, b)| (s.clone(), b.get())).collect();
+        write_map(target, self.info.clone(), &columns)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::format::State;
+
+    fn table() -> PhotonTable<'static> {
+        let info = MapInfo::new(vec![crate::synthetic::collimated_emitter(0, 1.0)], State::Traced);
+        let pos = [[0.0, 1.0, 2.0], [3.0, 4.0, 5.0]];
+        PhotonTable::new("t", info, &pos, &[[1.0; 3], [2.0; 3]]).unwrap()
+    }
+
+    /// A table written and read back is the same map, and a stage's table carried from the
+    /// read map borrows its columns, replaces one in place and appends another.
+    #[test]
+    fn a_table_round_trips_through_a_file_and_carries_columns() {
+        let mut t = table();
+        t.set(name::NORMAL, &[[0.0f32, 0.0, 1.0]; 2]).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.phm");
+        t.write(Output::Path(path.clone())).unwrap();
+        let map = PhotonMap::open_path(&path).unwrap();
+        let v = map.view();
+        assert_eq!(v.positions(), t.view().positions());
+        assert_eq!(v.flux(), [[1.0; 3], [2.0; 3]]);
+        assert_eq!(v.column::<[f32; 3]>(name::NORMAL).unwrap().unwrap(), [[0.0, 0.0, 1.0]; 2]);
+        assert!(v.column::<f32>(name::NORMAL).is_err());
+
+        let mut next = PhotonTable::carrying(&v, v.info().clone());
+        next.set(name::POSITION, &[[9.0f32; 3]; 2]).unwrap();
+        next.set(name::LAMBDA2, &[0.5f32; 2]).unwrap();
+        let nv = next.view();
+        let names: Vec<&str> = nv.columns().iter().map(|(s, _)| s.name.as_str()).collect();
+        assert_eq!(names, [name::POSITION, name::FLUX, name::NORMAL, name::LAMBDA2]);
+        assert_eq!(nv.positions(), [[9.0; 3]; 2]);
+        drop(nv);
+        // The normal column is the map's own bytes, not a copy.
+        assert_eq!(
+            next.view().column_bytes(name::NORMAL).unwrap().as_ptr(),
+            v.column_bytes(name::NORMAL).unwrap().as_ptr()
+        );
+        let owned = next.into_owned();
+        drop(map);
+        assert_eq!(owned.view().column::<f32>(name::LAMBDA2).unwrap().unwrap(), [0.5, 0.5]);
+    }
+
+    #[test]
+    fn a_column_of_the_wrong_length_is_refused() {
+        let mut t = table();
+        let e = t.set(name::LAMBDA2, &[0.5f32; 3]).unwrap_err().to_string();
+        assert!(e.contains("lambda2") && e.contains("expected 8"), "{e}");
+        t.remove(name::POSITION);
+        assert_eq!(t.view().positions().len(), 2);
+        let info = MapInfo::new(vec![], State::Traced);
+        assert!(PhotonTable::new("t", info, &[[0.0; 3]], &[]).is_err());
+    }
+}

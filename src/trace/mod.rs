@@ -519,8 +519,7 @@ struct Tracer<'a> {
     /// Per emitter: whether to test its emission rays against the box around the specular
     /// surfaces ([`Scene::may_meet_specular`]; see [`cull_worth_it`]).
     cull: Vec<bool>,
-    /// Whether the processor has AVX (and `PHOTONKIT_NO_AVX` is not set): the photon loop
-    /// then runs compiled for it ([`Tracer::chunk`]).
+    /// Whether the processor has AVX: the photon loop then runs compiled for it ([`Tracer::chunk`]).
     #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     avx: bool,
     /// The scene's power in watts (the emitters chosen in proportion to it).
@@ -647,8 +646,8 @@ impl Tracer<'_> {
     /// [`Self::chunk`] compiled for AVX: the photon loop, the intersections and the BVH's
     /// eight-triangle test (an AVX function, which a loop compiled without AVX can only call,
     /// not inline) become one body. The same operations in the same order (no fused
-    /// multiply-add), so the same photons: 12 % fewer instructions on the prism, about 3 %
-    /// less time (BENCHMARKS.md, "Tracer … eighth round").
+    /// multiply-add), so the same photons, faster (measured by benches/trace.rs; see
+    /// BENCHMARKS.md).
     ///
     /// # Safety
     /// The processor must have AVX.

@@ -358,15 +358,15 @@ impl Traced {
     }
 }
 
-/// The metadata of a traced map: the scene's emitters and the `trace` stage record.
-/// `scene_label` names the scene file; `scene_text` is hashed so shards of different scenes
-/// are not merged.
 /// The CRC-32 of a scene file's text as the trace record's `scene_crc32` holds it (8 hex
 /// digits): how later stages tell whether a scene file is the one the map was traced from.
 pub fn scene_crc32(scene_text: &str) -> String {
     format!("{:08x}", crc32fast::hash(scene_text.as_bytes()))
 }
 
+/// The metadata of a traced map: the scene's emitters and the `trace` stage record.
+/// `scene_label` names the scene file; `scene_text` is hashed ([`scene_crc32`]) so shards of
+/// different scenes are not merged.
 pub fn map_info(
     scene: &Scene,
     opts: &TraceOptions,

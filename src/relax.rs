@@ -431,8 +431,7 @@ impl NeighbourSearch for IndexSearch<'_> {
 /// Iterations between full rebuilds of relaxation's index; in between, the index is refitted
 /// to the moved photons ([`crate::spatial::SpatialIndex::refit`]), which is exact but lets
 /// boxes overlap as photons drift. With the default 7 iterations per stage, each stage builds
-/// once (BENCHMARKS.md, "Refitting instead of rebuilding": fewer instructions than rebuilding
-/// every 1, 2 or 3 iterations). `PHOTONKIT_REBUILD_EVERY=n` overrides it, for measurement.
+/// once; measured by benches/stages.rs; see BENCHMARKS.md.
 pub const REBUILD_EVERY: usize = 7;
 
 /// Makes `index` hold `points` for relaxation's iteration `it`: built on the first,
@@ -447,16 +446,8 @@ pub fn index_positions(
     it: usize,
     separated: bool,
 ) -> Result<(), crate::spatial::SpatialError> {
-    static EVERY: std::sync::OnceLock<usize> = std::sync::OnceLock::new();
-    let every = *EVERY.get_or_init(|| {
-        std::env::var("PHOTONKIT_REBUILD_EVERY")
-            .ok()
-            .and_then(|v| v.parse().ok())
-            .unwrap_or(REBUILD_EVERY)
-            .max(1)
-    });
     match index {
-        Some(ix) if !separated && !it.is_multiple_of(every) => ix.refit(points),
+        Some(ix) if !separated && !it.is_multiple_of(REBUILD_EVERY) => ix.refit(points),
         Some(ix) => ix.rebuild(points),
         None => crate::spatial::SpatialIndex::build(points, space).map(|ix| *index = Some(ix)),
     }

@@ -4,16 +4,12 @@
 //! four triangles at a time, or a leaf of five to eight all at once where the processor has
 //! AVX (such a leaf is then stored as one pair of packets).
 //!
-//! Our own rather than a crate's: on the triangle meshes of the sample scenes its closest-hit
-//! queries measured 1.6–4.7× faster per core than `obvhs` 0.4's compressed eight-wide BVH
-//! (e.g. the water height field, 115 k triangles: 2.94 against 1.82 M rays/s; the cognac
-//! glass: 5.00 against 1.88) and 5.3–7.7× faster than the best of the `bvh` crate's 0.13,
-//! 2.1× and 6.7× on a 1 M-triangle soup, with the same triangle and distance on every ray
-//! but for ties and the crates' own misses (`cargo bench --bench bvh`; BENCHMARKS.md,
-//! "Tracer"). The `bvh` crate builds faster (water: 41 against 52 ms), `obvhs`'s slow preset
-//! slower (80–100 ms). The traversal is ordered and prunes by the best hit so far, and
-//! the triangles are kept in leaf order next to the nodes, which is what makes photon tracing
-//! cache-friendly.
+//! Our own rather than a crate's: its closest-hit queries are faster per core than those of
+//! the `obvhs` and `bvh` crates on the sample scenes' meshes, with the same triangle and
+//! distance on every ray but for ties and the crates' own misses (measured by benches/bvh.rs;
+//! see BENCHMARKS.md). The traversal is
+//! ordered and prunes by the best hit so far, and the triangles are kept in leaf order next to
+//! the nodes, which is what makes photon tracing cache-friendly.
 
 use std::mem::MaybeUninit;
 
@@ -225,8 +221,15 @@ impl Aabb {
 }
 
 impl Bvh {
-    /// Builds the hierarchy over `triangles` (each three vertices).
+    /// Builds the hierarchy over `triangles` (each three vertices), with the leaves of two
+    /// packets stored as pairs where the processor has AVX.
     pub fn build(triangles: &[[Vec3; 3]]) -> Bvh {
+        Bvh::build_for(triangles, avx_available())
+    }
+
+    /// [`Bvh::build`], with pairs and their AVX test or not (`avx`, which the processor must
+    /// have if true): the portable layout is tested on processors with AVX too.
+    fn build_for(triangles: &[[Vec3; 3]], avx: bool) -> Bvh {
         let n = triangles.len();
         if n == 0 {
             return Bvh::default();
@@ -253,7 +256,6 @@ impl Bvh {
             .collect();
         // Each leaf's triangles, in the same order, go into packets of their own; with AVX, a
         // leaf of two packets is stored as one pair instead.
-        let avx = avx_available();
         let (mut packets, mut index, mut pairs, mut pair_index) =
             (Vec::new(), Vec::new(), Vec::new(), Vec::new());
         let order = &order;
@@ -299,8 +301,7 @@ impl Bvh {
         self.index.is_empty() && self.pair_index.is_empty()
     }
 
-    /// Whether the processor has AVX (and `PHOTONKIT_NO_AVX` is not set), which the scene's
-    /// other eight-lane tests use too.
+    /// Whether the processor has AVX, which the scene's other eight-lane tests use too.
     pub(crate) fn avx(&self) -> bool {
         self.avx
     }
@@ -339,8 +340,8 @@ impl Bvh {
     /// child is dropped when the best hit so far lies before its box.
     #[inline(never)]
     fn traverse(&self, ray: &Ray, t_min: f32, t_max: f32) -> Option<TriHit> {
-        // Left uninitialised (zeroing it cost 3 % of a mesh scene's time): only the entries
-        // below the stack pointer are read, and each was written first.
+        // Left uninitialised (zeroing it slowed mesh scenes; measured by benches/trace.rs):
+        // only the entries below the stack pointer are read, and each was written first.
         if self.stack_need <= INLINE_STACK {
             let mut stack = [MaybeUninit::<Pending>::uninit(); INLINE_STACK];
             self.traverse_with(&mut stack, ray, t_min, t_max)
@@ -746,11 +747,11 @@ fn packet_intersect(p: &Packet, r: &RayLanes, t_min: f32, t_max: f32) -> Option<
     best.map(|k| (k, t[k], b1[k], b2[k]))
 }
 
-/// Whether [`packet_pair_intersect`] may run (`PHOTONKIT_NO_AVX` set turns it off, to measure).
+/// Whether [`packet_pair_intersect`] may run: the processor has AVX.
 pub(crate) fn avx_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        std::arch::is_x86_feature_detected!("avx") && std::env::var_os("PHOTONKIT_NO_AVX").is_none()
+        std::arch::is_x86_feature_detected!("avx")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -956,7 +957,9 @@ mod tests {
                     [c + v(&mut rng, 0.6), c + v(&mut rng, 0.6), c + v(&mut rng, 0.6)]
                 })
                 .collect();
+            // With pairs where the processor has AVX, and the portable layout.
             let bvh = Bvh::build(&tris);
+            let portable = Bvh::build_for(&tris, false);
             if spread == 0.0 {
                 assert_eq!(bvh.root_leaf.map(|(_, c)| c as usize), Some(n), "one leaf");
             }
@@ -971,6 +974,7 @@ mod tests {
                     (bvh.intersect(&ray, 1e-4, f32::INFINITY), brute_force(&tris, &ray, 1e-4, f32::INFINITY));
                 // The packet tests equal the scalar test bit for bit: the same triangle, the same t.
                 assert_eq!(a, b, "n = {n}: {ray:?}");
+                assert_eq!(portable.intersect(&ray, 1e-4, f32::INFINITY), b, "n = {n}, portable: {ray:?}");
                 hits += a.is_some() as u32;
             }
             assert!(hits > 300, "n = {n}: {hits} hits are too few to test anything");

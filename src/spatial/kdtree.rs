@@ -42,8 +42,8 @@ use std::sync::atomic::Ordering;
 use glam::Vec4;
 use rayon::prelude::*;
 
-/// Records per leaf (every leaf but the last holds exactly this many); chosen by measurement
-/// (BENCHMARKS.md, "Sixth round": 16 against 12 and 20).
+/// Records per leaf (every leaf but the last holds exactly this many); measured by
+/// benches/stages.rs; see BENCHMARKS.md.
 pub(crate) const LEAF: usize = 16;
 
 /// Blocks of four records a leaf's scan reads (the last may be partly empty).
@@ -374,7 +374,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             out.clear();
             return;
         }
-        let grouped = tuning().groups && !self.nodes.is_empty();
+        let grouped = !self.nodes.is_empty();
         // Whether the group was gathered for this query, at an estimated reach, in vain.
         let mut estimated = false;
         if grouped {
@@ -382,7 +382,6 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             // A new leaf: gather its group at the reach of the previous result (a query
             // nearby, in leaf order), and answer this query from it too when it can.
             if !serves
-                && tuning().estimate
                 && out.tree == id
                 && out.len() == k
                 && let Some(kth) = out.max_dist2()
@@ -422,7 +421,6 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         let (mut bound, mut worst) = (f32::INFINITY, u64::MAX);
         if out.tree == id
             && !out.slots.is_empty()
-            && tuning().seed
             && let Some(d) = self.seed(qw, qp, r2v, ball, exclude, k, &out.slots, &mut out.cands)
         {
             // Every record ranked at most (d, any index) can still be among the k.
@@ -443,7 +441,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             bound,
             // Boxes pay for themselves on constrained trees, where they bound the parameter
             // ball; on unconstrained ones the split planes prune about as well for less work.
-            boxes: (tuning().boxes && (P > 0 || tuning().all_boxes)) || self.refitted,
+            boxes: P > 0 || self.refitted,
             scanned: 0,
         };
         let (mut ow, mut op) = ([0.0f32; W], [0.0f32; P]);
@@ -602,15 +600,12 @@ fn box_box_dist2<const N: usize>(lo: &[f32; N], hi: &[f32; N], glo: &[f32], ghi:
 
 impl<const W: usize, const P: usize> KdTree<W, P> {
     /// Gathers the candidates of the leaf that holds the query, whose k nearest `out` holds,
-    /// into `out`'s group: within the query's k-th distance plus 0.15 of the diagonal of the
-    /// leaf's box, and within 1.2 times the query's ball radius of the leaf's parameter box.
-    /// (On an unconstrained search another query of the leaf has its k-th within the first's
-    /// plus their distance, at most the diagonal. With leaves of at most 12 records (6 to 12,
-    /// by the photon count), a quarter was fastest against 0, 0.15, 0.35 and 0.5; with full
-    /// leaves of 16, 0.15 against 0.05, 0.1, 0.25 and 0.35, by 1 % over a quarter in relax
-    /// (BENCHMARKS.md, "Sixth round"). `PHOTONKIT_KD=slack=…,ballslack=…` sets both
-    /// factors.) A query outside the group's reach is searched as before: the reach changes
-    /// speed, never results.
+    /// into `out`'s group: within the query's k-th distance plus [`GROUP_SLACK`] of the
+    /// diagonal of the leaf's box, and within 1.2 times the query's ball radius
+    /// ([`BALL_SLACK`]) of the leaf's parameter box. (On an unconstrained search another query
+    /// of the leaf has its k-th within the first's plus their distance, at most the diagonal.)
+    /// A query outside the group's reach is searched as before: the reach changes speed, never
+    /// results.
     #[allow(clippy::too_many_arguments)]
     fn gather(
         &self,
@@ -628,8 +623,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         let mut path = [(0u32, 0u32, 0u32, 0u32); 64];
         let mut depth = 0;
         let (mut node, mut lo, mut hi, mut leaf) = (0usize, 0usize, self.recs.len(), 0u32);
-        let size = tuning().group_size.max(LEAF);
-        while hi - lo > size {
+        while hi - lo > LEAF {
             path[depth] = (node as u32, lo as u32, hi as u32, leaf);
             depth += 1;
             let n = &self.nodes[node];
@@ -643,12 +637,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             }
         }
         let g = &mut out.group;
-        let l = if hi - lo <= LEAF {
-            self.leaves[leaf as usize]
-        } else {
-            let n = &self.nodes[node];
-            Leaf { lo: 0, hi: 0, min_idx: 0, lo_w: n.lo_w, hi_w: n.hi_w, lo_p: n.lo_p, hi_p: n.hi_p }
-        };
+        let l = self.leaves[leaf as usize];
         g.lo_w = [0.0; GROUP_AXES];
         g.hi_w = [0.0; GROUP_AXES];
         g.lo_p = [0.0; GROUP_AXES];
@@ -660,9 +649,9 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
             (g.lo_p[a], g.hi_p[a]) = (l.lo_p[a].min(q), l.hi_p[a].max(q));
         }
         let diag2: f32 = (0..W).map(|a| (g.hi_w[a] - g.lo_w[a]).powi(2)).sum();
-        let reach = kth.sqrt() + tuning().slack * diag2.sqrt();
+        let reach = kth.sqrt() + GROUP_SLACK * diag2.sqrt();
         g.g2 = reach * reach * 1.000_01;
-        g.r2 = if ball { r2 * tuning().ball_slack } else { f32::INFINITY };
+        g.r2 = if ball { r2 * BALL_SLACK } else { f32::INFINITY };
         if !(g.g2.is_finite() && g.r2 >= r2) {
             g.build = 0;
             return;
@@ -694,7 +683,7 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         // A crowd (many records within the reach, as when photons coincide) would make every
         // query of the leaf scan all of it: the group is then left empty, so that the leaf's
         // queries search the tree instead, where a crowd costs a few leaves.
-        let cap = (tuning().group_cap * (k.div_ceil(LEAF) + 16) as f32) as usize;
+        let cap = GROUP_CAP * (k.div_ceil(LEAF) + 16);
         if !self.collect(node, lo, hi, leaf, g, cap) {
             g.leaves.clear();
         }
@@ -845,10 +834,10 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
 
     /// Answers a query its group serves from the group's candidates that its ball admits:
     /// the k nearest among those within a guessed reach (1 + 1.24/√k times the previous
-    /// result's k-th distance², `PHOTONKIT_KD=guess=…` for a fixed factor), or within
-    /// the group's reach when fewer than k lie in the guess. Either reach is at most the
-    /// group's, so every record within it is a candidate and the k found are exact. Returns
-    /// false when fewer than k lie within the group's reach (the caller then searches).
+    /// result's k-th distance²), or within the group's reach when fewer than k lie in the
+    /// guess. Either reach is at most the group's, so every record within it is a candidate
+    /// and the k found are exact. Returns false when fewer than k lie within the group's
+    /// reach (the caller then searches).
     fn answer_from_group(
         &self,
         qw: &[f32; W],
@@ -863,9 +852,8 @@ impl<const W: usize, const P: usize> KdTree<W, P> {
         // within it, again within the group's whole reach.
         let guess = if out.tree == self.build && out.len() == k {
             // Neighbouring queries' k-th distances differ by a relative amount that shrinks
-            // like 1/√k: 1.3 at Kf + 1 = 17 (6–8 % faster than no guess), 1.18 at Kc = 50
-            // (callgrind, detect: 2.4 % fewer instructions than 1.3; 1.12 gained no more).
-            let factor = if tuning().guess > 0.0 { tuning().guess } else { 1.0 + 1.24 / (k as f32).sqrt() };
+            // like 1/√k (measured by benches/stages.rs; see BENCHMARKS.md).
+            let factor = 1.0 + 1.24 / (k as f32).sqrt();
             out.max_dist2().map_or(f32::INFINITY, |d| d * factor)
         } else {
             f32::INFINITY
@@ -948,7 +936,7 @@ fn farthest(s: &[Cand]) -> f32 {
 /// (as when many photons lie at one distance).
 #[inline(always)]
 fn histogram(s: &[Cand], k: usize, reach: f32) -> Option<([u8; BUCKETED], usize, usize)> {
-    if s.len() > BUCKETED || !(reach > 0.0 && reach.is_finite()) || tuning().no_buckets {
+    if s.len() > BUCKETED || !(reach > 0.0 && reach.is_finite()) {
         return None;
     }
     let scale = BUCKETS as f32 / reach;
@@ -1020,51 +1008,15 @@ fn kth_rank(s: &mut [Cand], k: usize, reach: f32) -> u64 {
     s.select_nth_unstable_by_key(k - 1, |c| c.key).1.key
 }
 
-/// Switches for measuring each speed-up on its own (`PHOTONKIT_KD=noseed,nobox,allbox,
-/// nogroup,noestimate,nobucket,slack=…,ballslack=…,guess=…,group=…,groupcap=…`): seeding on, boxes on constrained
-/// trees only, groups of one leaf, by default. Results are the same either way.
-#[derive(Clone, Copy, Debug)]
-struct Tuning {
-    seed: bool,
-    boxes: bool,
-    all_boxes: bool,
-    groups: bool,
-    slack: f32,
-    ball_slack: f32,
-    estimate: bool,
-    /// A fixed guess factor (0: the default, which depends on k).
-    guess: f32,
-    group_size: usize,
-    no_buckets: bool,
-    /// Most leaves a group holds, per (k / LEAF + 16) ([`KdTree::gather`]).
-    group_cap: f32,
-}
+/// The margin of a leaf group's reach, as a fraction of the diagonal of the leaf's box
+/// ([`KdTree::gather`]); measured by benches/stages.rs; see BENCHMARKS.md.
+const GROUP_SLACK: f32 = 0.15;
 
-fn tuning() -> Tuning {
-    static T: std::sync::OnceLock<Tuning> = std::sync::OnceLock::new();
-    *T.get_or_init(|| {
-        let s = std::env::var("PHOTONKIT_KD").unwrap_or_default();
-        let num = |key: &str, default: f32| {
-            s.split(',')
-                .find_map(|kv| kv.strip_prefix(key).and_then(|v| v.strip_prefix('=')))
-                .and_then(|v| v.parse().ok())
-                .unwrap_or(default)
-        };
-        Tuning {
-            seed: !s.contains("noseed"),
-            boxes: !s.contains("nobox"),
-            all_boxes: s.contains("allbox"),
-            groups: !s.contains("nogroup"),
-            slack: num("slack", 0.15),
-            ball_slack: num("ballslack", 1.44),
-            estimate: !s.contains("noestimate"),
-            guess: num("guess", 0.0),
-            group_size: num("group", LEAF as f32) as usize,
-            no_buckets: s.contains("nobucket"),
-            group_cap: num("groupcap", 4.0),
-        }
-    })
-}
+/// A leaf group's ball radius², as a multiple of the query's (1.2²; [`KdTree::gather`]).
+const BALL_SLACK: f32 = 1.44;
+
+/// Most leaves a group holds, per (k / LEAF + 16) ([`KdTree::gather`]).
+const GROUP_CAP: usize = 4;
 
 /// Weights that normalise each group of axes by its largest extent, so world space and
 /// parameter space shrink at the same relative rate down the tree whatever the scene's scale.
@@ -1359,8 +1311,8 @@ impl<const W: usize, const P: usize> Search<'_, W, P> {
     /// Adds a candidate known to beat the current k-th best. Candidates are appended to a
     /// buffer of up to 2k and, when it fills, cut to the k best with one selection (linear
     /// time), which sets the bound: far fewer comparisons than keeping the list sorted on
-    /// every insert (the bound lags a little, which costs less than it saves; measured in
-    /// BENCHMARKS.md, "Spatial index").
+    /// every insert (the bound lags a little, which costs less than it saves; measured by
+    /// benches/spatial.rs; see BENCHMARKS.md).
     #[inline(always)]
     fn push(&mut self, c: Cand) {
         self.heap.push(c);

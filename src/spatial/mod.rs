@@ -24,8 +24,11 @@
 //! "Spatial index"). Results are exact and deterministic: the k smallest by (distance²,
 //! photon index), equal to [`brute_force_knn`] bit for bit.
 //!
-//! Relaxation rebuilds the index every iteration: [`SpatialIndex::rebuild`] reuses its
-//! allocations, and [`Neighbours`] is a reusable result buffer (one per worker thread).
+//! Relaxation builds the index on its first iteration and then refits it to the moved photons
+//! ([`SpatialIndex::refit`]), rebuilding it instead every 7 iterations
+//! ([`crate::relax::REBUILD_EVERY`]) and after one that moved coincident photons apart
+//! ([`crate::relax::index_positions`]). [`SpatialIndex::rebuild`] reuses its allocations, and
+//! [`Neighbours`] is a reusable result buffer (one per worker thread).
 //!
 //! ```
 //! use photonkit::spatial::{Neighbours, PointSet, SpatialIndex, Space};

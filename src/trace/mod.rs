@@ -358,15 +358,15 @@ impl Traced {
     }
 }
 
-/// The metadata of a traced map: the scene's emitters and the `trace` stage record.
-/// `scene_label` names the scene file; `scene_text` is hashed so shards of different scenes
-/// are not merged.
 /// The CRC-32 of a scene file's text as the trace record's `scene_crc32` holds it (8 hex
 /// digits): how later stages tell whether a scene file is the one the map was traced from.
 pub fn scene_crc32(scene_text: &str) -> String {
     format!("{:08x}", crc32fast::hash(scene_text.as_bytes()))
 }
 
+/// The metadata of a traced map: the scene's emitters and the `trace` stage record.
+/// `scene_label` names the scene file; `scene_text` is hashed ([`scene_crc32`]) so shards of
+/// different scenes are not merged.
 pub fn map_info(
     scene: &Scene,
     opts: &TraceOptions,
@@ -519,8 +519,7 @@ struct Tracer<'a> {
     /// Per emitter: whether to test its emission rays against the box around the specular
     /// surfaces ([`Scene::may_meet_specular`]; see [`cull_worth_it`]).
     cull: Vec<bool>,
-    /// Whether the processor has AVX (and `PHOTONKIT_NO_AVX` is not set): the photon loop
-    /// then runs compiled for it ([`Tracer::chunk`]).
+    /// Whether the processor has AVX: the photon loop then runs compiled for it ([`Tracer::chunk`]).
     #[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
     avx: bool,
     /// The scene's power in watts (the emitters chosen in proportion to it).
@@ -647,8 +646,8 @@ impl Tracer<'_> {
     /// [`Self::chunk`] compiled for AVX: the photon loop, the intersections and the BVH's
     /// eight-triangle test (an AVX function, which a loop compiled without AVX can only call,
     /// not inline) become one body. The same operations in the same order (no fused
-    /// multiply-add), so the same photons: 12 % fewer instructions on the prism, about 3 %
-    /// less time (BENCHMARKS.md, "Tracer … eighth round").
+    /// multiply-add), so the same photons, faster (measured by benches/trace.rs; see
+    /// BENCHMARKS.md).
     ///
     /// # Safety
     /// The processor must have AVX.

@@ -7,7 +7,7 @@ use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::format::{Output, PhotonMap, State};
 use photonkit::relax::{self, RelaxParams, RelaxSpace};
-use photonkit::scene::{DEFAULT_SCENE, Scene};
+use photonkit::scene::Scene;
 
 /// Relax photons toward a blue-noise distribution (Eq. 8–9).
 ///
@@ -37,9 +37,10 @@ pub struct Args {
     #[arg(value_parser = super::finite_f32, long, default_value_t = 0.5)]
     step_limit: f32,
     /// The scene the photons were traced in: photons that move are returned to their surface
-    /// (the `surface` column), so photons on curved receivers stay on them. Without it,
-    /// photons move in their tangent plane, which keeps them exactly on planar receivers; a
-    /// map traced from the embedded default scene uses that scene automatically.
+    /// (the `surface` column), so photons on curved receivers stay on them. Without it, the
+    /// scene the map's trace record names is used when it is found (as `render` finds it);
+    /// failing that, photons move in their tangent plane, which keeps them exactly on planar
+    /// receivers.
     #[arg(long, value_name = "SCENE")]
     scene: Option<std::path::PathBuf>,
     /// The 2009 method's flux diffusion: per iteration each photon's flux moves this fraction
@@ -49,14 +50,24 @@ pub struct Args {
     flux_diffusion: f32,
 }
 
-/// The scene given, or the embedded default when the map was traced from it.
+/// The scene given, or the one the map's trace record names when it is found
+/// ([`photonkit::scene::for_map`]); none when the map names none or its scene is not here
+/// (photons then move in their tangent planes).
 fn scene_for(map: &PhotonMap, path: Option<&std::path::Path>) -> anyhow::Result<Option<Scene>> {
-    if let Some(p) = path {
-        return Ok(Some(Scene::load(p)?));
+    match photonkit::scene::for_map(Some(&map.view()), path) {
+        Ok(r) if r.recorded => {
+            for note in &r.notes {
+                eprintln!("photonkit: note: {note}");
+            }
+            Ok(Some(r.scene))
+        }
+        Ok(_) => Ok(None),
+        Err(e) if path.is_some() => Err(e.into()),
+        Err(e) => {
+            super::note!("photonkit relax: note: {e}; photons move in their tangent planes");
+            Ok(None)
+        }
     }
-    let traced = map.meta().history.iter().find(|h| h.stage == "trace");
-    let crc = photonkit::trace::scene_crc32(DEFAULT_SCENE);
-    Ok(traced.filter(|h| h.parameters["scene_crc32"] == crc.as_str()).map(|_| Scene::default_scene()))
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {

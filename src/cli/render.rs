@@ -12,7 +12,7 @@ use photonkit::render::{
     self, Diagnostic, Diagnostics, Estimator, EyeOptions, Kernel, Mode, Outputs, PhotonData, PhotonLookup,
     PlaneView, RenderOptions, Renderer, Specular, View,
 };
-use photonkit::scene::{Camera, DEFAULT_SCENE_NAME, Projection, Scene};
+use photonkit::scene::{Camera, Projection, Scene};
 
 /// Render radiance or irradiance from a photon map to OpenEXR (linear float RGB, ZIP) and an
 /// sRGB PNG preview.
@@ -312,62 +312,21 @@ impl Common {
     }
 }
 
-/// The scene: `--scene`, else the file the map's trace record names (if it still exists and
-/// is unchanged), else the embedded default. Returns the scene and its name.
+/// The scene: `--scene`, else the file the map's trace record names (if it still exists),
+/// else the embedded default ([`photonkit::scene::for_map`]). Returns the scene and its name.
 fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Scene, String)> {
-    if let Some(p) = arg {
-        return Ok((Scene::load(p)?, p.display().to_string()));
-    }
-    let record = map.and_then(|m| m.meta().history.iter().rev().find(|r| r.stage == "trace"));
-    let named = record.and_then(|r| r.parameters.get("scene")).and_then(|v| v.as_str());
-    match named {
-        None => {
-            if let Some(m) = map {
-                super::note!(
-                    "photonkit render: note: {} does not name the scene it was traced from: using the embedded \
-                     default scene (pass --scene FILE, or --plane for a scene-less view)",
-                    m.file_name()
-                );
-            }
-            Ok((Scene::default_scene(), DEFAULT_SCENE_NAME.to_string()))
-        }
-        Some(DEFAULT_SCENE_NAME) => Ok((Scene::default_scene(), DEFAULT_SCENE_NAME.to_string())),
-        Some(path) => {
-            let map = map.expect("a record comes from a map");
-            // As given (relative to the working directory of the trace), where the trace
-            // recorded it relative to the map's folder, or beside the map.
-            let map_dir = photonkit::format::folder_of(Path::new(map.file_name()));
-            let from_map = record
-                .and_then(|r| r.report.get("scene_from_map"))
-                .and_then(|v| v.as_str())
-                .map(|rel| map_dir.join(rel));
-            let found = std::iter::once(PathBuf::from(path))
-                .chain(from_map)
-                .chain(std::iter::once(map_dir.join(path)))
-                .find(|p| p.is_file());
-            let Some(found) = found else {
-                bail!(
-                    "{}: traced from the scene '{path}', which is not found here: pass --scene FILE",
-                    map.file_name()
-                )
-            };
-            photonkit::format::guard::register_input(&found);
-            let text =
-                std::fs::read_to_string(&found).with_context(|| format!("reading {}", found.display()))?;
-            let crc = photonkit::trace::scene_crc32(&text);
-            if let Some(recorded) =
-                record.and_then(|r| r.parameters.get("scene_crc32")).and_then(|v| v.as_str())
-                && recorded != crc
-            {
-                eprintln!(
-                    "photonkit: note: {} has changed since the map was traced (CRC-32 {crc}, recorded {recorded})",
-                    found.display()
-                );
-            }
-            let dir = photonkit::format::folder_of(&found);
-            Ok((Scene::parse(&text, &found.display().to_string(), dir)?, found.display().to_string()))
+    let view = map.map(PhotonMap::view);
+    let r = photonkit::scene::for_map(view.as_ref(), arg)?;
+    for note in &r.notes {
+        if r.recorded {
+            eprintln!("photonkit: note: {note}");
+        } else {
+            super::note!(
+                "photonkit render: note: {note} (pass --scene FILE, or --plane for a scene-less view)"
+            );
         }
     }
+    Ok((r.scene, r.name))
 }
 
 fn progress_bar(len: u64, what: &str) -> ProgressBar {

@@ -16,6 +16,7 @@ pub mod guard;
 pub mod meta;
 pub mod preamble;
 mod reader;
+pub mod records;
 mod table;
 mod writer;
 
@@ -25,6 +26,7 @@ pub use meta::{
     Parameterisation, StageRecord, State, UNIT_TOLERANCE, Units,
 };
 pub use reader::PhotonMap;
+pub use records::{TraceParameters, TraceRecord, TraceReport};
 pub use table::{MapView, PhotonTable};
 pub use writer::{Output, PhotonWriter, folder_of, persist, temp_beside, write_map};
 

@@ -12,6 +12,7 @@ mod file;
 mod hull;
 pub mod material;
 pub mod mesh;
+mod resolve;
 pub mod shape;
 
 use std::path::Path;
@@ -22,6 +23,7 @@ pub use camera::{Camera, Projection};
 pub use emitter::{Emitter, EmitterShape};
 pub use material::{Dielectric, Dispersion, Material};
 pub use mesh::{Mesh, Transform};
+pub use resolve::{ResolvedScene, for_map, scene_crc32};
 pub use shape::{Hit, Ray, Shape};
 
 /// The scene `photonkit trace` uses when given none: a glass sphere above a floor under a
@@ -48,6 +50,9 @@ pub enum SceneError {
     /// A syntax, type or value error at a place in the file (line and column 1-based).
     #[error("{file}:{line}:{column}: {field}: {message}")]
     Invalid { file: String, line: usize, column: usize, field: String, message: String },
+    /// The scene file a map's trace record names is not where the record says.
+    #[error("{map}: traced from the scene '{scene}', which is not found here: pass --scene FILE")]
+    NotFound { map: String, scene: String },
 }
 
 /// The geometry of one surface, in world space.

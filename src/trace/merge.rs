@@ -5,10 +5,8 @@
 //! other in shard order, under the `trace` record the single run would have written (the shard
 //! parameter dropped, counts summed, the latest shard's time).
 
-use serde_json::{Value, json};
-
 use super::TraceError;
-use crate::format::{ColumnSpec, Output, PhotonMap, PhotonWriter, StageRecord};
+use crate::format::{ColumnSpec, Output, PhotonMap, PhotonWriter, StageRecord, TraceRecord, TraceReport};
 
 /// Photons per pushed chunk.
 const CHUNK: usize = 1 << 16;
@@ -18,7 +16,9 @@ struct ShardInfo<'a> {
     index: u64,
     count: u64,
     record: &'a StageRecord,
-    params: Value,
+    /// The shard's trace record, typed, its `shard` parameter taken out (what every shard of
+    /// one trace shares).
+    trace: TraceRecord,
 }
 
 fn fail(map: &PhotonMap, message: impl Into<String>) -> TraceError {
@@ -26,8 +26,7 @@ fn fail(map: &PhotonMap, message: impl Into<String>) -> TraceError {
 }
 
 fn shard_info(map: &PhotonMap) -> Result<ShardInfo<'_>, TraceError> {
-    let h = &map.meta().history;
-    let record = match h.as_slice() {
+    let record = match map.meta().history.as_slice() {
         [r] if r.stage == "trace" => r,
         _ => {
             return Err(fail(
@@ -36,18 +35,14 @@ fn shard_info(map: &PhotonMap) -> Result<ShardInfo<'_>, TraceError> {
             ));
         }
     };
-    let mut params = record.parameters.clone();
-    let shard = params
-        .as_object_mut()
-        .and_then(|o| o.remove("shard"))
-        .and_then(|s| s.as_str().map(str::to_string))
-        .ok_or_else(|| fail(map, "its trace record has no shard parameter"))?;
-    let (i, n) = shard
-        .split_once('/')
-        .and_then(|(i, n)| Some((i.parse::<u64>().ok()?, n.parse::<u64>().ok()?)))
-        .filter(|(i, n)| i < n)
-        .ok_or_else(|| fail(map, format!("bad shard parameter \"{shard}\"")))?;
-    Ok(ShardInfo { map, index: i, count: n, record, params })
+    let mut trace = TraceRecord::of(record).ok_or_else(|| fail(map, "its trace record can not be read"))?;
+    let (index, count) = trace
+        .parameters
+        .shard()
+        .ok_or_else(|| fail(map, "its trace record has no shard parameter"))?
+        .map_err(|e| fail(map, e))?;
+    trace.parameters.shard = None;
+    Ok(ShardInfo { map, index, count, record, trace })
 }
 
 fn specs(map: &PhotonMap) -> Vec<ColumnSpec> {
@@ -62,13 +57,13 @@ pub fn merge(inputs: &[PhotonMap], target: Output) -> Result<u64, TraceError> {
     }
     shards.sort_by_key(|s| s.index);
     let first = &shards[0];
-    let (n, params, version) = (first.count, first.params.clone(), first.record.version.clone());
+    let (n, params, version) = (first.count, &first.trace.parameters, first.record.version.clone());
     let (emitters, units, cols) = (&first.map.meta().emitters, &first.map.meta().units, specs(first.map));
     for s in &shards {
         if s.count != n {
             return Err(fail(s.map, format!("shard of {} but shard 0 is a shard of {n}", s.count)));
         }
-        if s.params != params || s.record.version != version {
+        if s.trace.parameters != *params || s.record.version != version {
             return Err(fail(s.map, "traced with other parameters, scene or photonkit version than shard 0"));
         }
         if &s.map.meta().emitters != emitters || &s.map.meta().units != units || specs(s.map) != cols {
@@ -89,19 +84,21 @@ pub fn merge(inputs: &[PhotonMap], target: Output) -> Result<u64, TraceError> {
         });
     }
 
-    let sum = |key: &str| -> u64 { shards.iter().map(|s| s.record.report[key].as_u64().unwrap_or(0)).sum() };
-    let emitted = first.record.report["emitted"].as_u64().unwrap_or(0);
     let total: u64 = shards.iter().map(|s| s.map.len() as u64).sum();
+    let report = TraceReport {
+        emitted: first.trace.report.emitted,
+        stored: total,
+        bounce_limited: shards.iter().map(|s| s.trace.report.bounce_limited).sum(),
+        ..TraceReport::default()
+    };
     let mut record = first.record.clone();
-    record.parameters = params;
+    record.parameters = serde_json::to_value(params).expect("a record serialises");
     record.time = shards.iter().map(|s| s.record.time.clone()).max().unwrap_or_default();
-    record.report = json!({ "emitted": emitted, "stored": total, "bounce_limited": sum("bounce_limited") });
+    record.report = serde_json::to_value(&report).expect("a record serialises");
     let mut info = first.map.meta().info();
     info.history = vec![record];
     // The scene's place relative to the merged map, from shard 0's (as a single run records it).
-    if let (Some(rel), Output::Path(out)) =
-        (first.record.report.get("scene_from_map").and_then(|v| v.as_str()), &target)
-    {
+    if let (Some(rel), Output::Path(out)) = (&first.trace.report.scene_from_map, &target) {
         let dir = crate::format::folder_of(std::path::Path::new(first.map.file_name()));
         super::record_scene_location(&mut info, &dir.join(rel), out);
     }

@@ -233,6 +233,16 @@ material = "white"
     };
     assert!(off(&free) > 1e-4, "tangent-plane steps should leave the sphere: {}", off(&free));
     assert!(off(&on) < 2e-6, "photons left the sphere by {}", off(&on));
+    // A map whose trace record names the scene file gets it without --scene (as render does).
+    let named = dir.path().join("named.phm");
+    let mut info = m.info("cap", 0, SAMPLE_TIME);
+    let parameters = photonkit::format::TraceParameters { scene: s(&scene), ..Default::default() };
+    let record = photonkit::format::TraceRecord { parameters, report: Default::default() };
+    info.history.push(record.to_stage_record());
+    photonkit::format::write_map(photonkit::format::Output::Path(named.clone()), info, &columns).unwrap();
+    let on_named = dir.path().join("on-named.phm");
+    run_ok(&["relax", &s(&named), "-o", &s(&on_named), "-R", "10"]);
+    assert!(off(&on_named) < 2e-6, "photons left the sphere by {}", off(&on_named));
     let map = PhotonMap::open_path(&on).unwrap();
     let before = PhotonMap::open_path(&input).unwrap();
     let moved = map.positions().iter().zip(before.positions()).filter(|(a, b)| a != b).count();

@@ -62,29 +62,10 @@ pub struct Args {
     /// `knn` reads about 1 % low; see docs/truth.md).
     #[arg(long, value_enum, default_value_t = FixedKEstimator::Knn)]
     estimator: FixedKEstimator,
-    /// Kc: neighbours in feature detection.
-    #[arg(long, default_value_t = 50)]
-    kc: usize,
-    /// β of Eq. 1.
-    #[arg(value_parser = super::finite_f32, long, default_value_t = 3.0)]
-    beta: f32,
-    /// Doublings of a constrained photon's parameter ball where it binds (`detect --growths`).
-    #[arg(long, value_name = "N", default_value_t = photonkit::detect::DEFAULT_GROWTHS)]
-    growths: u32,
-    /// The visible range's length in parameter space where photons carry their wavelength
-    /// (`detect --spectral-scale`).
-    #[arg(value_parser = super::finite_f32, long, value_name = "S",
-          default_value_t = photonkit::detect::DEFAULT_SPECTRAL_SCALE)]
-    spectral_scale: f32,
-    /// k of the parameter-space density estimate ρ = k/(π r_k²) of Eq. 1; default Kc.
-    #[arg(long, value_name = "K")]
-    k_density: Option<usize>,
-    /// Kf: neighbours in the repulsion force.
-    #[arg(long, default_value_t = 16)]
-    kf: usize,
-    /// R: our iterations before the collapse and again after it.
-    #[arg(short = 'R', long, default_value_t = 7)]
-    iterations: usize,
+    #[command(flatten)]
+    detect: super::params::DetectArgs,
+    #[command(flatten)]
+    relax: super::params::RelaxArgs,
     /// World-space iterations of the 2009 relaxation.
     #[arg(long, default_value_t = 14)]
     iterations_2009: usize,
@@ -206,13 +187,13 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         k: a.k,
         pm_ks: a.pm_k.clone(),
         variable_kernel: matches!(a.estimator, FixedKEstimator::Variable),
-        kc: a.kc,
-        beta: a.beta,
-        k_density: a.k_density,
-        growths: a.growths,
-        spectral_scale: a.spectral_scale,
-        kf: a.kf,
-        iterations: a.iterations,
+        kc: a.detect.kc,
+        beta: a.detect.beta,
+        k_density: a.detect.k_density,
+        growths: a.detect.growths,
+        spectral_scale: a.detect.spectral_scale,
+        kf: a.relax.kf,
+        iterations: a.relax.iterations,
         iterations_2009: a.iterations_2009,
         diffusion_k: a.diffusion_k,
         diffusion_q: a.diffusion_q,

@@ -29,26 +29,8 @@ pub struct Args {
     /// without trajectory parameters.
     #[arg(long, value_enum)]
     method: Option<MethodArg>,
-    /// Kc: neighbours in the PCA kernel (and the gradient kernel); at least 3.
-    #[arg(long, default_value_t = 50)]
-    kc: usize,
-    /// β of Eq. 1: the parameter-space radius in units of the mean photon spacing sqrt(Kc/(πρ)).
-    #[arg(value_parser = super::finite_f32, long, default_value_t = 3.0)]
-    beta: f32,
-    /// Times a constrained photon's parameter ball may be doubled when its neighbours reach the
-    /// ball's outer fifth (a stretched map from parameters to the surface, not an edge); 0 keeps
-    /// the paper's fixed ball (docs/parameter-ball.md).
-    #[arg(long, value_name = "N", default_value_t = photonkit::detect::DEFAULT_GROWTHS)]
-    growths: u32,
-    /// For maps whose photons carry their wavelength (a dispersive scene): the visible range's
-    /// length in parameter space, in units of the spread of the emitter's other parameters
-    /// (docs/spectral.md). Larger separates colours more.
-    #[arg(value_parser = super::finite_f32, long, value_name = "S",
-          default_value_t = photonkit::detect::DEFAULT_SPECTRAL_SCALE)]
-    spectral_scale: f32,
-    /// k of the parameter-space density estimate ρ = k/(π r_k²); default Kc.
-    #[arg(long, value_name = "K")]
-    k_density: Option<usize>,
+    #[command(flatten)]
+    detect: super::params::DetectArgs,
     /// Gain of `--method gradient`: the factor along the density gradient is 1 − gain·g, with
     /// g = |∇B̂|·r/B̂ (≈ 1.7 on a hard edge, ≈ 2.8/√Kc from noise alone).
     #[arg(value_parser = super::finite_f32, long, default_value_t = detect::DEFAULT_GAIN)]
@@ -90,19 +72,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(note) = note {
         super::note!("note: {note}");
     }
-    let p = DetectParams {
+    let p = a.detect.apply(DetectParams {
         method,
-        kc: a.kc,
-        beta: a.beta,
-        k_density: a.k_density,
         gain: a.gain,
-        growths: a.growths,
-        spectral_scale: a.spectral_scale,
         noise: match a.mu_sigma {
             NoiseArg::Simulated => NoiseModel::Simulated,
             NoiseArg::Paper => NoiseModel::Paper,
         },
-    };
+        ..DetectParams::default()
+    });
     let capped = p.capped(map.len());
     if capped.kc < p.kc {
         super::note!("note: --kc {} exceeds the map's {} photons: using Kc = {}", p.kc, map.len(), capped.kc);

@@ -62,6 +62,7 @@ pub mod export;
 pub mod import;
 pub mod inspect;
 pub mod merge;
+pub mod params;
 pub mod pipeline;
 pub mod relax;
 pub mod render;

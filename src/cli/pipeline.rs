@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::Context;
 use clap::Parser;
 use indicatif::{ProgressBar, ProgressStyle};
-use photonkit::detect::{self, DetectParams};
+use photonkit::detect::DetectParams;
 use photonkit::format::{Output, PhotonMap, PhotonTable};
 use photonkit::pipeline::{self, PipelineError, PipelineParams, Stage, StageDone};
 use photonkit::relax::RelaxParams;
@@ -42,26 +42,10 @@ pub struct Args {
     /// Seed of the emission sequence.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Kc: neighbours in feature detection.
-    #[arg(long, default_value_t = 50)]
-    kc: usize,
-    /// β of Eq. 1 (parameter-space radius in units of the mean photon spacing).
-    #[arg(value_parser = super::finite_f32, long, default_value_t = 3.0)]
-    beta: f32,
-    /// Times a constrained photon's parameter ball may be doubled where it binds (`detect
-    /// --growths`; docs/parameter-ball.md); 0 keeps the paper's fixed ball.
-    #[arg(long, value_name = "N", default_value_t = detect::DEFAULT_GROWTHS)]
-    growths: u32,
-    /// The visible range's length in parameter space for photons that carry their wavelength
-    /// (`detect --spectral-scale`; docs/spectral.md).
-    #[arg(value_parser = super::finite_f32, long, value_name = "S", default_value_t = detect::DEFAULT_SPECTRAL_SCALE)]
-    spectral_scale: f32,
-    /// R: relaxation iterations before the collapse and again after it.
-    #[arg(short = 'R', long, default_value_t = 7)]
-    iterations: usize,
-    /// Kf: neighbours in the repulsion force.
-    #[arg(long, default_value_t = 16)]
-    kf: usize,
+    #[command(flatten)]
+    detect: super::params::DetectArgs,
+    #[command(flatten)]
+    relax: super::params::RelaxArgs,
     /// Render the relaxed map even when fewer photons than `--min-relax-photons` were stored.
     #[arg(long)]
     relax_anyway: bool,
@@ -112,14 +96,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let (scene, label, text) = super::trace::load_scene(a.scene.as_deref())?;
     anyhow::ensure!(a.photons >= 1 && a.stored != Some(0), "--photons and --stored need at least 1");
     let budget = a.stored.map_or(Budget::Emitted(a.photons), Budget::Stored);
-    let dp = DetectParams {
-        kc: a.kc,
-        beta: a.beta,
-        growths: a.growths,
-        spectral_scale: a.spectral_scale,
-        ..DetectParams::default()
-    };
-    let rp = RelaxParams { iterations: a.iterations, kf: a.kf, ..RelaxParams::default() };
+    let dp = a.detect.apply(DetectParams::default());
+    let rp = a.relax.apply(RelaxParams::default());
     std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;
     let file = |name: &str| a.out_dir.join(name);
     let total = Instant::now();

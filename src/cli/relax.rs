@@ -24,12 +24,8 @@ pub struct Args {
     /// Output photon map (`-` for standard output).
     #[arg(short, long, value_name = "FILE")]
     output: String,
-    /// R: number of iterations (the paper: 7 before collapse and 7 after).
-    #[arg(short = 'R', long, default_value_t = 7)]
-    iterations: usize,
-    /// Kf: neighbours in the repulsion force of Eq. 8.
-    #[arg(long, default_value_t = 16)]
-    kf: usize,
+    #[command(flatten)]
+    relax: super::params::RelaxArgs,
     /// ε of Eq. 8 as a fraction of the Kf-th neighbour distance (keeps the force finite).
     #[arg(value_parser = super::finite_f32, long, default_value_t = 1e-3)]
     epsilon: f32,
@@ -73,13 +69,12 @@ fn scene_for(map: &PhotonMap, path: Option<&std::path::Path>) -> anyhow::Result<
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
     super::refuse_input_as_output(&a.output)?;
-    let p = RelaxParams {
-        iterations: a.iterations,
-        kf: a.kf,
+    let p = a.relax.apply(RelaxParams {
         epsilon: a.epsilon,
         step_limit: a.step_limit,
         flux_diffusion: a.flux_diffusion,
-    };
+        ..RelaxParams::default()
+    });
     anyhow::ensure!(
         p.epsilon.is_finite()
             && p.epsilon >= 0.0

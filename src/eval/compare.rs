@@ -159,20 +159,21 @@ pub struct CompareOptions {
 
 impl Default for CompareOptions {
     fn default() -> Self {
+        let (d, r) = (DetectParams::default(), RelaxParams::default());
         CompareOptions {
             photons: 1_000_000,
             seed: 1,
             k: 15,
             pm_ks: vec![15, 50, 200],
             variable_kernel: false,
-            kc: 50,
-            beta: 3.0,
-            k_density: None,
-            growths: crate::detect::DEFAULT_GROWTHS,
-            spectral_scale: crate::detect::DEFAULT_SPECTRAL_SCALE,
-            kf: 16,
-            iterations: 7,
-            iterations_2009: 14,
+            kc: d.kc,
+            beta: d.beta,
+            k_density: d.k_density,
+            growths: d.growths,
+            spectral_scale: d.spectral_scale,
+            kf: r.kf,
+            iterations: r.iterations,
+            iterations_2009: 2 * r.iterations,
             diffusion_k: 500,
             diffusion_q: 0.02,
             ppm_passes: vec![1, 4, 16],

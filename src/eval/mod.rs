@@ -3,5 +3,7 @@
 
 pub mod compare;
 pub mod metrics;
+#[cfg(feature = "plots")]
+pub mod plots;
 pub mod report;
 pub mod truth;

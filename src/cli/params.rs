@@ -1,0 +1,63 @@
+//! The paper's settings as command-line arguments, shared by every command that takes them;
+//! their defaults come from the library's ([`DetectParams::default`], [`RelaxParams::default`]).
+
+use photonkit::detect::DetectParams;
+use photonkit::relax::RelaxParams;
+
+/// Feature detection's settings (Eq. 1–7).
+#[derive(clap::Args, Clone, Debug)]
+pub struct DetectArgs {
+    /// Kc: neighbours in the PCA kernel (and the gradient kernel); at least 3.
+    #[arg(long, default_value_t = DetectParams::default().kc)]
+    pub kc: usize,
+    /// β of Eq. 1: the parameter-space radius in units of the mean photon spacing sqrt(Kc/(πρ)).
+    #[arg(value_parser = super::finite_f32, long, default_value_t = DetectParams::default().beta)]
+    pub beta: f32,
+    /// Times a constrained photon's parameter ball may be doubled when its neighbours reach the
+    /// ball's outer fifth (a stretched map from parameters to the surface, not an edge); 0 keeps
+    /// the paper's fixed ball (docs/parameter-ball.md).
+    #[arg(long, value_name = "N", default_value_t = DetectParams::default().growths)]
+    pub growths: u32,
+    /// For maps whose photons carry their wavelength (a dispersive scene): the visible range's
+    /// length in parameter space, in units of the spread of the emitter's other parameters
+    /// (docs/spectral.md). Larger separates colours more.
+    #[arg(value_parser = super::finite_f32, long, value_name = "S",
+          default_value_t = DetectParams::default().spectral_scale)]
+    pub spectral_scale: f32,
+    /// k of the parameter-space density estimate ρ = k/(π r_k²) of Eq. 1; default Kc.
+    #[arg(long, value_name = "K")]
+    pub k_density: Option<usize>,
+}
+
+impl DetectArgs {
+    /// `p` with these settings.
+    pub fn apply(&self, p: DetectParams) -> DetectParams {
+        DetectParams {
+            kc: self.kc,
+            beta: self.beta,
+            growths: self.growths,
+            spectral_scale: self.spectral_scale,
+            k_density: self.k_density,
+            ..p
+        }
+    }
+}
+
+/// Relaxation's settings (Eq. 8–9).
+#[derive(clap::Args, Clone, Debug)]
+pub struct RelaxArgs {
+    /// R: relaxation iterations (the paper: 7 before the collapse and 7 after; `pipeline` and
+    /// `compare` run R in each phase).
+    #[arg(short = 'R', long, default_value_t = RelaxParams::default().iterations)]
+    pub iterations: usize,
+    /// Kf: neighbours in the repulsion force of Eq. 8.
+    #[arg(long, default_value_t = RelaxParams::default().kf)]
+    pub kf: usize,
+}
+
+impl RelaxArgs {
+    /// `p` with these settings.
+    pub fn apply(&self, p: RelaxParams) -> RelaxParams {
+        RelaxParams { iterations: self.iterations, kf: self.kf, ..p }
+    }
+}

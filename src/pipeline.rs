@@ -111,6 +111,29 @@ pub enum PipelineError {
 /// Runs detect → relax → collapse → relax on `traced` (a traced or imported map); with a
 /// scene, relaxed photons are returned to their surfaces ([`relax::relax_map_on`]).
 /// `on_stage` receives each stage's map as soon as it is made.
+///
+/// ```
+/// use photonkit::format::{Output, PhotonMap, PhotonTable};
+/// use photonkit::pipeline::{self, PipelineParams, StageDone};
+///
+/// // 2 000 photons of a cusp caustic, with their (u, v) on a collimated emitter.
+/// let cusp = photonkit::synthetic::collimated_cusp(2_000, 7);
+/// let info = cusp.info("collimated_cusp", 7, "2026-01-01T00:00:00Z");
+/// let traced = PhotonTable::from_columns("cusp", info, &cusp.columns())?;
+/// let dir = tempfile::tempdir()?;
+/// // Keep the detected map as a file; let the others pass.
+/// let mut on_stage = |done: &StageDone, map: &PhotonTable| {
+///     if done.stage == pipeline::Stage::Detect {
+///         map.write(Output::Path(dir.path().join("detected.phm")))?;
+///     }
+///     Ok(())
+/// };
+/// let out = pipeline::run(&traced.view(), None, &PipelineParams::default(), &mut on_stage, &|_| {})?;
+/// assert_eq!(out.map.len(), 2_000);
+/// assert_eq!(out.method.name(), "param-pca");
+/// assert_eq!(PhotonMap::open_path(&dir.path().join("detected.phm"))?.len(), 2_000);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 pub fn run(
     traced: &MapView,
     scene: Option<&Scene>,

@@ -15,6 +15,20 @@ use super::writer::{Output, write_map};
 use super::{ColumnSpec, FormatError, Result};
 
 /// A read-only view of a photon map's header and columns, wherever they live.
+///
+/// ```
+/// use photonkit::format::{PhotonMap, name};
+///
+/// let map = PhotonMap::open("samples/dispersed-beam.phm")?;
+/// let view = map.view();
+/// // Columns are viewed in place, typed; an absent column is `None`.
+/// let params = view.column_bytes(name::PARAMS).map(|b| b.len() / 4);
+/// assert_eq!(params, Some(3 * view.len()));
+/// assert!(view.column::<f32>(name::LAMBDA2)?.is_none());
+/// let watts: f32 = view.flux().iter().map(|f| f[0] + f[1] + f[2]).sum();
+/// assert!((watts - 10.08).abs() < 0.01);
+/// # Ok::<(), Box<dyn std::error::Error>>(())
+/// ```
 #[derive(Clone, Debug)]
 pub struct MapView<'a> {
     file: &'a str,
@@ -146,6 +160,29 @@ impl<'a> PhotonTable<'a> {
         let mut t = PhotonTable { file: file.to_string(), info, columns: Vec::new(), len: positions.len() };
         t.set(name::POSITION, positions)?;
         t.set(name::FLUX, flux)?;
+        Ok(t)
+    }
+
+    /// A table borrowing `columns` (one element per photon each; `position` and `flux` among
+    /// them as f32×3), as a tracer outside photonkit or a test hands photons in.
+    pub fn from_columns(file: &str, info: MapInfo, columns: &[(ColumnSpec, &'a [u8])]) -> Result<Self> {
+        let invalid = |message: String| FormatError::Invalid { file: file.to_string(), message };
+        let len = columns
+            .iter()
+            .find(|(s, _)| s.name == name::POSITION)
+            .map(|(s, b)| b.len() / s.stride().max(1) as usize)
+            .ok_or_else(|| invalid("no position column".into()))?;
+        let mut t = PhotonTable { file: file.to_string(), info, columns: Vec::new(), len };
+        for (spec, bytes) in columns {
+            t.set_bytes(spec.clone(), Bytes::Borrowed(bytes))?;
+        }
+        for required in [name::POSITION, name::FLUX] {
+            match t.columns.iter().find(|(s, _)| s.name == required) {
+                Some((s, _)) if *s == ColumnSpec::of::<[f32; 3]>(required) => {}
+                Some(_) => return Err(invalid(format!("column '{required}' must be f32×3"))),
+                None => return Err(invalid(format!("no {required} column"))),
+            }
+        }
         Ok(t)
     }
 
@@ -295,6 +332,27 @@ mod tests {
         let owned = next.into_owned();
         drop(map);
         assert_eq!(owned.view().column::<f32>(name::LAMBDA2).unwrap().unwrap(), [0.5, 0.5]);
+    }
+
+    #[test]
+    fn a_table_from_columns_needs_positions_and_flux_of_one_length() {
+        let info = || MapInfo::new(vec![], State::Traced);
+        let pos = [[0.0f32; 3]; 4];
+        let flux = [[1.0f32; 3]; 4];
+        let short = [[1.0f32; 3]; 3];
+        let col = |n: &str, v: &'static [[f32; 3]]| {
+            (ColumnSpec::of::<[f32; 3]>(n), bytemuck::cast_slice::<_, u8>(v))
+        };
+        let pos: &'static [[f32; 3]] = Box::leak(Box::new(pos));
+        let flux: &'static [[f32; 3]] = Box::leak(Box::new(flux));
+        let short: &'static [[f32; 3]] = Box::leak(Box::new(short));
+        let t = PhotonTable::from_columns("t", info(), &[col(name::POSITION, pos), col(name::FLUX, flux)])
+            .unwrap();
+        assert_eq!(t.len(), 4);
+        assert!(PhotonTable::from_columns("t", info(), &[col(name::POSITION, pos)]).is_err());
+        assert!(PhotonTable::from_columns("t", info(), &[col(name::FLUX, flux)]).is_err());
+        let e = PhotonTable::from_columns("t", info(), &[col(name::POSITION, pos), col(name::FLUX, short)]);
+        assert!(e.unwrap_err().to_string().contains("flux"));
     }
 
     #[test]

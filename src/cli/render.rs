@@ -439,26 +439,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let scene_store;
     let (view, opts, scene_name) = match a.plane {
         Some((axis, offset)) => {
-            let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
-            let rect = a.rect.unwrap_or_else(|| {
-                let p = &near_plane.as_ref().expect("plane").0;
-                let lo = p.iter().fold([f32::INFINITY; 2], |m, q| [m[0].min(q[u]), m[1].min(q[v])]);
-                let hi = p.iter().fold([f32::NEG_INFINITY; 2], |m, q| [m[0].max(q[u]), m[1].max(q[v])]);
-                // A thousandth of the photons' span (of their distance from the origin when they
-                // all coincide): no absolute length, so tiny and huge scenes frame alike.
-                let span = (hi[0] - lo[0]).max(hi[1] - lo[1]);
-                let far = lo.iter().chain(&hi).fold(0f32, |m, x| m.max(x.abs()));
-                let pad = 1e-3 * if span > 0.0 { span } else { far.max(f32::MIN_POSITIVE.sqrt()) };
-                [lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad]
-            });
-            let aspect = (rect[3] - rect[1]) / (rect[2] - rect[0]);
-            let (w, h) = match (a.common.width, a.common.height) {
-                (Some(w), Some(h)) => (w, h),
-                (Some(w), None) => (w, ((w as f32 * aspect).round() as u32).max(1)),
-                (None, Some(h)) => (((h as f32 / aspect).round() as u32).max(1), h),
-                (None, None) if aspect <= 1.0 => (600, ((600.0 * aspect).round() as u32).max(1)),
-                (None, None) => (((600.0 / aspect).round() as u32).max(1), 600),
-            };
+            let rect =
+                a.rect.unwrap_or_else(|| PlaneView::frame(axis, &near_plane.as_ref().expect("plane").0));
+            let (w, h) = PlaneView::image_size(rect, a.common.width, a.common.height, 600);
             let opts = RenderOptions {
                 width: w,
                 height: h,

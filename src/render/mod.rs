@@ -151,6 +151,34 @@ impl PlaneView {
         normal[axis] = 1.0;
         PlaneView { origin, right, down, normal }
     }
+
+    /// The rectangle [u0, v0, u1, v1] of the plane `axis` = const that frames `points` (the
+    /// photons on it), padded by a thousandth of their span (of their distance from the
+    /// origin when they all coincide): no absolute length, so tiny and huge scenes frame alike.
+    pub fn frame(axis: usize, points: &[[f32; 3]]) -> [f32; 4] {
+        let (u, v) = ((axis + 1) % 3, (axis + 2) % 3);
+        let lo = points.iter().fold([f32::INFINITY; 2], |m, q| [m[0].min(q[u]), m[1].min(q[v])]);
+        let hi = points.iter().fold([f32::NEG_INFINITY; 2], |m, q| [m[0].max(q[u]), m[1].max(q[v])]);
+        let span = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+        let far = lo.iter().chain(&hi).fold(0f32, |m, x| m.max(x.abs()));
+        let pad = 1e-3 * if span > 0.0 { span } else { far.max(f32::MIN_POSITIVE.sqrt()) };
+        [lo[0] - pad, lo[1] - pad, hi[0] + pad, hi[1] + pad]
+    }
+
+    /// Image size for the rectangle `rect` with the pixels square: the width or height given
+    /// (the other follows the aspect), both, or neither (the longer side `longest` pixels).
+    pub fn image_size(rect: [f32; 4], width: Option<u32>, height: Option<u32>, longest: u32) -> (u32, u32) {
+        let aspect = (rect[3] - rect[1]) / (rect[2] - rect[0]);
+        let times = |n: u32| ((n as f32 * aspect).round() as u32).max(1);
+        let over = |n: u32| ((n as f32 / aspect).round() as u32).max(1);
+        match (width, height) {
+            (Some(w), Some(h)) => (w, h),
+            (Some(w), None) => (w, times(w)),
+            (None, Some(h)) => (over(h), h),
+            (None, None) if aspect <= 1.0 => (longest, times(longest)),
+            (None, None) => (over(longest), longest),
+        }
+    }
 }
 
 /// What the camera looks at.
@@ -429,6 +457,23 @@ struct TileScratch {
 
 #[cfg(test)]
 mod tests {
+    use super::PlaneView;
+
+    /// A plane view frames its photons with a thousandth of their span to spare, and keeps
+    /// pixels square: 2 m × 1 m (padded) gives 600 × 301 by default, or follows a given side.
+    #[test]
+    fn a_plane_view_frames_its_photons_with_square_pixels() {
+        let points = [[0.0, 0.0, 0.0], [2.0, 1.0, 0.0], [1.0, 0.5, 0.0]];
+        let rect = PlaneView::frame(2, &points);
+        assert_eq!(rect, [-0.002, -0.002, 2.002, 1.002]);
+        assert_eq!(PlaneView::image_size(rect, None, None, 600), (600, 301));
+        assert_eq!(PlaneView::image_size(rect, None, Some(100), 600), (200, 100));
+        assert_eq!(PlaneView::image_size(rect, Some(50), Some(7), 600), (50, 7));
+        // Coincident photons frame a tiny square around them, not a point.
+        let r = PlaneView::frame(2, &[[1e-6, 1e-6, 0.0]; 3]);
+        assert!(r[2] > r[0] && r[3] > r[1] && r[0] < 1e-6 && r[2] > 1e-6, "{r:?}");
+    }
+
     use std::f32::consts::PI;
     use std::path::Path;
 

@@ -15,7 +15,9 @@
 //! [`pipeline`] runs stages 2–3 in memory, one map handed to the next.
 //!
 //! Around it: [`import`] and [`export`] (PLY, CSV, Radiance), [`inspect`], and [`eval`]
-//! (ground truth, error metrics and the comparison of every method).
+//! (ground truth, error metrics and the comparison of every method); beneath the scene,
+//! [`accel`] (the BVH and convex hulls that rays are cast against).
+pub mod accel;
 pub mod detect;
 pub mod eval;
 pub mod export;

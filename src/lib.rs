@@ -16,7 +16,8 @@
 //!
 //! Around it: [`import`] and [`export`] (PLY, CSV, Radiance), [`inspect`], and [`eval`]
 //! (ground truth, error metrics and the comparison of every method); beneath the scene,
-//! [`accel`] (the BVH and convex hulls that rays are cast against).
+//! [`accel`] (the BVH and convex hulls that rays are cast against); and [`sampling`] (the
+//! Halton emission sequence and per-photon random streams).
 pub mod accel;
 pub mod detect;
 pub mod eval;
@@ -27,6 +28,7 @@ pub mod inspect;
 pub mod pipeline;
 pub mod relax;
 pub mod render;
+pub mod sampling;
 pub mod scene;
 pub mod spatial;
 pub mod synthetic;

@@ -15,7 +15,10 @@
 //! [`pipeline`] runs stages 2–3 in memory, one map handed to the next.
 //!
 //! Around it: [`import`] and [`export`] (PLY, CSV, Radiance), [`inspect`], and [`eval`]
-//! (ground truth, error metrics and the comparison of every method).
+//! (ground truth, error metrics and the comparison of every method); beneath the scene,
+//! [`accel`] (the BVH and convex hulls that rays are cast against); and [`sampling`] (the
+//! Halton emission sequence and per-photon random streams).
+pub mod accel;
 pub mod detect;
 pub mod eval;
 pub mod export;
@@ -25,6 +28,7 @@ pub mod inspect;
 pub mod pipeline;
 pub mod relax;
 pub mod render;
+pub mod sampling;
 pub mod scene;
 pub mod spatial;
 pub mod synthetic;

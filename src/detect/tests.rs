@@ -1,5 +1,8 @@
 //! Feature detection's kernels against closed forms and brute force.
 
+use std::f64::consts::PI;
+
+use glam::DVec2;
 use rand::{RngExt, SeedableRng};
 use rand_pcg::Pcg64Mcg;
 

@@ -5,11 +5,13 @@
 //! `surface` id stored with each photon. Analytic shapes are intersected directly; every
 //! triangle of every mesh goes into one [bounding volume hierarchy](bvh).
 
-pub mod bvh;
+pub use crate::accel::bvh;
 pub mod camera;
 pub mod emitter;
 mod file;
-mod hull;
+use crate::accel::hull;
+#[cfg(test)]
+mod hull_tests;
 pub mod material;
 pub mod mesh;
 mod resolve;

@@ -19,7 +19,7 @@
 //! two directions (within 1 % of θ for θ < 0.5 rad, and seam-free).
 //!
 //! Each emitter's photons go into their own compact kd-tree over {x, y, z, params}
-//! (`kdtree.rs`), which does the parameter-space range test inside the traversal; the
+//! (`kdtree/`), which does the parameter-space range test inside the traversal; the
 //! choice against kiddo with over-fetch and filter was made by measurement (BENCHMARKS.md,
 //! "Spatial index"). Results are exact and deterministic: the k smallest by (distance²,
 //! photon index), equal to [`brute_force_knn`] bit for bit.

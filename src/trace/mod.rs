@@ -14,7 +14,7 @@
 //! the thread count. A shard traces one slice of the range; [`merge`] joins shards into the
 //! file a single run writes.
 
-pub mod halton;
+pub use crate::sampling::halton;
 mod merge;
 mod store;
 

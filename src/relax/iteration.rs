@@ -1,0 +1,405 @@
+//! One Jacobi iteration of relaxation over a neighbour index: every photon's step from one
+//! snapshot of positions, the index kept up to date between iterations, and what each
+//! iteration measured.
+
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::Serialize;
+
+use super::RelaxParams;
+use super::force::{clamp_step, nudge, project_on_basis, project_on_tangent, repulsion};
+
+/// What one iteration did, for the per-iteration report.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct IterationMeasure {
+    pub iteration: usize,
+    /// Coefficient of variation (sd/mean) of nearest-neighbour distances before the move; it
+    /// falls from ≈ 0.52 (uniform random points in 2-D) toward ≈ 0.1–0.2 for blue noise.
+    pub nn_cv: f64,
+    /// Coefficient of variation of each photon's nearest-neighbour distance divided by its
+    /// distance to the Kf-th (photons with r_K > 0): the same measure made local, so density
+    /// variation (a caustic's bright core beside its sparse tail) does not swamp it.
+    pub local_nn_cv: f64,
+    pub mean_displacement: f64,
+    pub max_displacement: f64,
+    /// Photons that sat on another photon and were moved apart ([`iterate`]): an index built
+    /// over them no longer fits the moved photons, and is rebuilt ([`index_positions`]).
+    #[serde(skip)]
+    pub separated: usize,
+}
+
+/// Coefficient of variation of a set of distances (0 for fewer than two).
+pub fn coefficient_of_variation(d: &[f32]) -> f64 {
+    if d.len() < 2 {
+        return 0.0;
+    }
+    let n = d.len() as f64;
+    let mean = d.iter().map(|&x| x as f64).sum::<f64>() / n;
+    let var = d.iter().map(|&x| (x as f64 - mean).powi(2)).sum::<f64>() / n;
+    if mean > 0.0 { var.sqrt() / mean } else { 0.0 }
+}
+
+/// A neighbour index over one snapshot of photon positions.
+pub trait NeighbourSearch: Sync {
+    /// Replaces `out` with the indices of up to `k` nearest neighbours of photon `i`, not
+    /// counting `i` itself, nearest first, as the current space defines them.
+    fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>);
+
+    /// The positions of the same neighbours as [`Self::neighbours`], in `xs` (by default read
+    /// from `positions`, the snapshot the index was built over), in an order that may differ
+    /// from nearest first but depends only on the queries made with `scratch` since it was
+    /// made (so results never depend on the thread count). `scratch` is the search's reusable
+    /// buffer: one per run of queries.
+    fn neighbours_at(
+        &self,
+        i: usize,
+        k: usize,
+        positions: &[[f32; 3]],
+        scratch: &mut crate::spatial::Neighbours,
+        xs: &mut Vec<Vec3>,
+    ) {
+        let _ = scratch;
+        let mut ids = Vec::with_capacity(k);
+        self.neighbours(i, k, &mut ids);
+        xs.clear();
+        xs.extend(ids.iter().map(|&j| Vec3::from(positions[j as usize])));
+    }
+
+    /// Starts loading what a search for photon `i` will read (a hint; no effect by default).
+    fn prefetch(&self, _i: usize) {}
+
+    /// An order to visit photons in that keeps successive queries in nearby memory (every
+    /// photon once); `None` for index order.
+    fn order(&self) -> Option<Vec<u32>> {
+        None
+    }
+}
+
+/// The per-photon constraint: a basis (after `detect`) or just the surface normal.
+#[derive(Clone, Copy, Debug)]
+pub enum Constraint<'a> {
+    /// Eq. 9 with the `basis_u` and `basis_v` columns.
+    Basis { u: &'a [[f32; 3]], v: &'a [[f32; 3]] },
+    /// Unconstrained motion in the tangent plane of the `normal` column.
+    Tangent { normal: &'a [[f32; 3]] },
+}
+
+pub(super) const CHUNK: usize = 4096;
+
+/// Buffers [`iterate`] reuses from one iteration to the next, and the one thing it remembers:
+/// each photon's first positive local spacing, which caps its step for the rest of the run.
+/// Without that cap a photon on the edge of a set, whose neighbours all lie on one side, is
+/// pushed outward every iteration by a step proportional to its growing r_K, and the set
+/// grows geometrically (1000 iterations overflow f32); with it, an edge can still widen (plain
+/// relaxation's known flaw) but by at most a fixed distance per iteration.
+#[derive(Clone, Debug, Default)]
+pub struct Scratch {
+    step: Vec<[f32; 3]>,
+    nn: Vec<f32>,
+    /// Local spacing per slot of the last iteration.
+    spacing: Vec<f32>,
+    /// Per photon: the first positive spacing seen (∞ until then).
+    limit: Vec<f32>,
+}
+
+impl Scratch {
+    /// Each photon's step cap (metres) as remembered so far: `step_limit` times this.
+    pub fn first_spacing(&self) -> &[f32] {
+        &self.limit
+    }
+}
+
+/// One Jacobi iteration: computes every photon's step from `pos` with neighbours from `index`,
+/// then moves all photons. Returns the measures of the iteration.
+// Long because the per-photon step is computed inside one parallel loop over chunks whose
+// buffers, prefetches and constraint a separate function would take a dozen arguments for.
+pub fn iterate(
+    pos: &mut [[f32; 3]],
+    index: &dyn NeighbourSearch,
+    constraint: Constraint<'_>,
+    p: &RelaxParams,
+    iteration: usize,
+    scratch: &mut Scratch,
+) -> IterationMeasure {
+    let n = pos.len();
+    let p = &p.capped(n);
+    let Scratch { step, nn, spacing: spacing_slot, limit } = scratch;
+    step.resize(n, [0.0; 3]);
+    nn.resize(n, 0.0);
+    spacing_slot.resize(n, 0.0);
+    if limit.len() != n {
+        limit.clear();
+        limit.resize(n, f32::INFINITY);
+    }
+    let limit_of: &[f32] = limit;
+    let mut ratio = vec![f32::NAN; n];
+    // Photons that all sit on one point have no length to be separated by: nothing moves.
+    if pos.iter().all(|x| *x == pos[0]) {
+        return IterationMeasure { iteration, ..Default::default() };
+    }
+    let snapshot: &[[f32; 3]] = pos;
+    let mean_spacing = std::sync::OnceLock::new();
+    // Steps are computed in the index's order (slot k is photon order[k]), then applied.
+    let order = index.order().filter(|o| o.len() == n).unwrap_or_else(|| (0..n as u32).collect());
+    step.par_chunks_mut(CHUNK)
+        .zip(nn.par_chunks_mut(CHUNK))
+        .zip(ratio.par_chunks_mut(CHUNK))
+        .zip(spacing_slot.par_chunks_mut(CHUNK))
+        .enumerate()
+        .for_each(|(c, (((steps, nns), ratios), spacings))| {
+            let mut xs = Vec::with_capacity(p.kf + 1);
+            // A fresh buffer per chunk: the order neighbours come in depends only on the chunk.
+            let mut found = crate::spatial::Neighbours::unordered(0);
+            for (o, (((s, d1), q), sp)) in steps
+                .iter_mut()
+                .zip(nns.iter_mut())
+                .zip(ratios.iter_mut())
+                .zip(spacings.iter_mut())
+                .enumerate()
+            {
+                let i = order[c * CHUNK + o] as usize;
+                // The photon arrays are in Z-order, not the index's: start loading a photon a
+                // few places ahead, whose data could otherwise be a cache miss when its turn comes.
+                if let Some(&a) = order.get(c * CHUNK + o + crate::spatial::PREFETCH_AHEAD) {
+                    let a = a as usize;
+                    index.prefetch(a);
+                    crate::spatial::prefetch(&snapshot[a]);
+                    crate::spatial::prefetch(&limit_of[a]);
+                    match constraint {
+                        Constraint::Basis { u, v } => {
+                            crate::spatial::prefetch(&u[a]);
+                            crate::spatial::prefetch(&v[a]);
+                        }
+                        Constraint::Tangent { normal } => crate::spatial::prefetch(&normal[a]),
+                    }
+                }
+                index.neighbours_at(i, p.kf, snapshot, &mut found, &mut xs);
+                let xi = Vec3::from(snapshot[i]);
+                // The farthest and nearest neighbour (the search need not sort them).
+                let (near, far) = xs.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &x| {
+                    let d = xi.distance_squared(x);
+                    (lo.min(d), hi.max(d))
+                });
+                let r_k = far.sqrt();
+                *d1 = if xs.is_empty() { 0.0 } else { near.sqrt() };
+                if r_k > 0.0 {
+                    *q = *d1 / r_k;
+                }
+                let mut f = repulsion(xi, &xs, r_k, p.epsilon);
+                if *d1 == 0.0 {
+                    // Photons stacked on one point feel identical forces and would stay stacked:
+                    // give each its own direction (fixed by its index, so runs are reproducible),
+                    // scaled by the nearest distinct photon (looking a little further if all Kf
+                    // coincide, then taking the map's mean spacing: a crowd of any size costs
+                    // a bounded search per photon).
+                    let scale = if r_k > 0.0 {
+                        r_k
+                    } else {
+                        distinct_distance(index, i, xi, snapshot, p.kf)
+                            .unwrap_or_else(|| *mean_spacing.get_or_init(|| map_spacing(snapshot)))
+                    };
+                    f += nudge(i) * (0.25 * scale);
+                }
+                let fb = match constraint {
+                    Constraint::Basis { u, v } => project_on_basis(f, u[i].into(), v[i].into()),
+                    Constraint::Tangent { normal } => project_on_tangent(f, normal[i].into()),
+                };
+                // The step limit: a fraction of the local photon spacing, never more than of
+                // the first spacing this photon had (see [`Scratch`]).
+                let spacing = r_k * (std::f32::consts::PI / xs.len().max(1) as f32).sqrt();
+                *sp = spacing;
+                let reach = if r_k > 0.0 { spacing.min(limit_of[i]) } else { limit_of[i] };
+                *s = if reach.is_finite() { clamp_step(fb, p.step_limit * reach).into() } else { fb.into() };
+            }
+        });
+    for (&i, &sp) in order.iter().zip(spacing_slot.iter()) {
+        let l = &mut limit[i as usize];
+        if *l == f32::INFINITY && sp > 0.0 {
+            *l = sp;
+        }
+    }
+    ratio.retain(|q| !q.is_nan());
+    let (mut sum, mut max) = (0.0f64, 0.0f64);
+    for (&i, s) in order.iter().zip(step.iter()) {
+        let l = Vec3::from(*s).length() as f64;
+        sum += l;
+        max = max.max(l);
+        let x = &mut pos[i as usize];
+        *x = (Vec3::from(*x) + Vec3::from(*s)).into();
+    }
+    IterationMeasure {
+        iteration,
+        nn_cv: coefficient_of_variation(nn),
+        local_nn_cv: coefficient_of_variation(&ratio),
+        mean_displacement: if n > 0 { sum / n as f64 } else { 0.0 },
+        max_displacement: max,
+        separated: if n > 1 { nn.iter().filter(|&&d| d == 0.0).count() } else { 0 },
+    }
+}
+
+/// [`NeighbourSearch`] over a [`crate::spatial::SpatialIndex`] built over `points`, excluding
+/// the query photon; `radius` holds each photon's parameter-space radius (r_param) when the
+/// index searches world + parameter space. Neighbour positions come from the index, so
+/// `points.positions` must be the snapshot [`iterate`] is given.
+pub struct IndexSearch<'a> {
+    pub index: &'a crate::spatial::SpatialIndex,
+    pub points: &'a crate::spatial::PointSet<'a>,
+    pub radius: Option<&'a [f32]>,
+}
+
+thread_local! {
+    static FOUND: std::cell::RefCell<crate::spatial::Neighbours> = Default::default();
+}
+
+impl IndexSearch<'_> {
+    /// Searches the k nearest photons other than `i` through the buffer `found`, which then
+    /// holds k + 1 (in its order: nearest first if it is ordered); returns the place of the
+    /// one that is not among the k. The search asks for k + 1 *including* `i`, and the one
+    /// left out is `i` if present, else the last of the k + 1 by (distance², index): the same
+    /// k photons (i is either among the k + 1, or ranks after all of them), and the previous
+    /// query's result then holds k + 1 candidates of this one, which gives the search its
+    /// starting bound ([`crate::spatial::SpatialIndex::knn`]).
+    fn search(&self, found: &mut crate::spatial::Neighbours, i: usize, k: usize) -> Option<usize> {
+        let q = self.points.query(i, self.radius.map(|r| r[i]));
+        self.index.knn(&q, k + 1, found);
+        let items = found.as_slice();
+        items.iter().position(|n| n.index as usize == i).or_else(|| {
+            (items.len() > k)
+                .then(|| (0..items.len()).reduce(|a, b| if items[a].before(&items[b]) { b } else { a }))
+                .flatten()
+        })
+    }
+}
+
+impl NeighbourSearch for IndexSearch<'_> {
+    fn prefetch(&self, i: usize) {
+        self.points.prefetch(i);
+        if let Some(r) = self.radius.and_then(|r| r.get(i)) {
+            crate::spatial::prefetch(r);
+        }
+    }
+
+    fn neighbours(&self, i: usize, k: usize, out: &mut Vec<u32>) {
+        out.clear();
+        FOUND.with_borrow_mut(|found| {
+            let left_out = self.search(found, i, k);
+            out.extend(found.indices());
+            if let Some(at) = left_out {
+                out.remove(at);
+            }
+        });
+    }
+
+    fn neighbours_at(
+        &self,
+        i: usize,
+        k: usize,
+        _: &[[f32; 3]],
+        found: &mut crate::spatial::Neighbours,
+        xs: &mut Vec<Vec3>,
+    ) {
+        let left_out = self.search(found, i, k);
+        // All k + 1 in one pass of known length, then the one left out (order kept).
+        xs.clear();
+        xs.extend(found.coords().iter().map(|&x| Vec3::from(x)));
+        if let Some(at) = left_out {
+            xs.remove(at);
+        }
+    }
+
+    fn order(&self) -> Option<Vec<u32>> {
+        Some(self.index.order())
+    }
+}
+
+/// Iterations between full rebuilds of relaxation's index; in between, the index is refitted
+/// to the moved photons ([`crate::spatial::SpatialIndex::refit`]), which is exact but lets
+/// boxes overlap as photons drift. With the default 7 iterations per stage, each stage builds
+/// once; measured by benches/stages.rs; see BENCHMARKS.md.
+pub const REBUILD_EVERY: usize = 7;
+
+/// Makes `index` hold `points` for relaxation's iteration `it`: built on the first,
+/// rebuilt every [`REBUILD_EVERY`] iterations and after an iteration that moved photons
+/// apart from a shared point (`separated`, [`IterationMeasure::separated`]: a tree built over
+/// a crowd on one point has leaves that all overlap once it spreads, and a query would scan
+/// the crowd), refitted otherwise (photons only move, by a fraction of their spacing).
+pub fn index_positions(
+    index: &mut Option<crate::spatial::SpatialIndex>,
+    points: &crate::spatial::PointSet,
+    space: crate::spatial::Space,
+    it: usize,
+    separated: bool,
+) -> Result<(), crate::spatial::SpatialError> {
+    match index {
+        Some(ix) if !separated && !it.is_multiple_of(REBUILD_EVERY) => ix.refit(points),
+        Some(ix) => ix.rebuild(points),
+        None => crate::spatial::SpatialIndex::build(points, space).map(|ix| *index = Some(ix)),
+    }
+}
+
+/// Flux diffusion (photon relaxation, 2009): every photon's flux moves the fraction `rate` of
+/// the way toward the mean flux of its `kf` nearest neighbours, all from the same snapshot;
+/// then each channel is rescaled (in f64) so its total is what it was, because k-nearest
+/// neighbourhoods are not symmetric and the exchange alone would not conserve flux.
+pub fn diffuse_flux(flux: &mut [[f32; 3]], search: &dyn NeighbourSearch, kf: usize, rate: f32) {
+    let total = |f: &[[f32; 3]]| {
+        f.iter().fold([0f64; 3], |t, x| [t[0] + x[0] as f64, t[1] + x[1] as f64, t[2] + x[2] as f64])
+    };
+    let before = total(flux);
+    let snapshot = flux.to_vec();
+    flux.par_iter_mut().enumerate().for_each_init(Vec::new, |ids, (i, f)| {
+        search.neighbours(i, kf, ids);
+        if ids.is_empty() {
+            return;
+        }
+        let mut mean = [0f32; 3];
+        for &j in ids.iter() {
+            for c in 0..3 {
+                mean[c] += snapshot[j as usize][c];
+            }
+        }
+        for c in 0..3 {
+            f[c] += rate * (mean[c] / ids.len() as f32 - f[c]);
+        }
+    });
+    let after = total(flux);
+    for c in 0..3 {
+        if after[c] > 0.0 {
+            let k = before[c] / after[c];
+            flux.par_iter_mut().for_each(|f| f[c] = (f[c] as f64 * k) as f32);
+        }
+    }
+}
+
+/// Distance from photon `i` to the nearest photon not on top of it among its 4 Kf nearest;
+/// `None` when all of those sit on it (a crowd, which would otherwise cost a search as large
+/// as itself per photon: issue 31).
+fn distinct_distance(
+    index: &dyn NeighbourSearch,
+    i: usize,
+    xi: Vec3,
+    pos: &[[f32; 3]],
+    kf: usize,
+) -> Option<f32> {
+    let mut ids = Vec::new();
+    index.neighbours(i, kf.max(1) * 4, &mut ids);
+    ids.iter().map(|&j| xi.distance(pos[j as usize].into())).find(|&d| d > 0.0)
+}
+
+/// The mean photon spacing of a map, √(A / n), with A the area of the bounding box's two
+/// largest extents (photons lie on surfaces); the largest extent / n when the photons lie on
+/// a line, and 0 when they all sit on one point (which leaves nothing to separate them by).
+pub(super) fn map_spacing(pos: &[[f32; 3]]) -> f32 {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in pos {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let mut e: Vec<f64> = (0..3).map(|a| (hi[a] as f64 - lo[a] as f64).max(0.0)).collect();
+    e.sort_by(|a, b| b.total_cmp(a));
+    let n = pos.len().max(1) as f64;
+    let s = if e[1] > 0.0 { (e[0] * e[1] / n).sqrt() } else { e[0] / n };
+    if s.is_finite() { s as f32 } else { 0.0 }
+}

@@ -1,0 +1,346 @@
+//! Relaxation (Eq. 8–9) and collapse: photons repel their nearest neighbours until they form
+//! a blue-noise set, each moving only within its constraint basis.
+//!
+//! One iteration is Jacobi style: every photon's force is computed from the same snapshot of
+//! positions, then all photons move, then the neighbour index is brought up to date (refitted
+//! to the moved photons, rebuilt every [`REBUILD_EVERY`] iterations). Motion lies in the
+//! photon's tangent plane, so photons on planar receivers stay on them; flux never changes, so
+//! the total flux is preserved exactly.
+
+mod force;
+mod iteration;
+mod surface;
+#[cfg(test)]
+mod tests;
+
+use serde::Serialize;
+
+pub use force::{clamp_step, project_on_basis, project_on_tangent, repulsion};
+pub use iteration::{
+    Constraint, IndexSearch, IterationMeasure, NeighbourSearch, REBUILD_EVERY, Scratch,
+    coefficient_of_variation, diffuse_flux, index_positions, iterate,
+};
+use surface::back_to_surfaces;
+pub use surface::return_to_surface;
+
+/// Relaxation parameters; defaults are the paper's.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct RelaxParams {
+    /// R: number of iterations.
+    pub iterations: usize,
+    /// Kf: neighbours in the repulsion force.
+    pub kf: usize,
+    /// ε of Eq. 8, as a fraction of r_K so the force does not depend on the scene's scale.
+    pub epsilon: f32,
+    /// Largest step, as a fraction of the mean photon spacing r_K·sqrt(π/Kf) around the photon,
+    /// so no photon jumps past its neighbours.
+    pub step_limit: f32,
+    /// The 2009 method's flux diffusion, per iteration: each photon's flux moves this fraction
+    /// of the way toward the mean of its Kf neighbours' ([`diffuse_flux`]); 0 (the default)
+    /// leaves every photon's flux untouched.
+    pub flux_diffusion: f32,
+}
+
+impl Default for RelaxParams {
+    fn default() -> Self {
+        RelaxParams { iterations: 7, kf: 16, epsilon: 1e-3, step_limit: 0.5, flux_diffusion: 0.0 }
+    }
+}
+
+/// What can stop the relax or collapse stage.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RelaxError {
+    #[error(transparent)]
+    Format(#[from] crate::format::FormatError),
+    #[error(transparent)]
+    Spatial(#[from] crate::spatial::SpatialError),
+    #[error("{file}: {message}")]
+    Input { file: String, message: String },
+    #[error("{file}: {source}")]
+    Photons { file: String, source: crate::spatial::SpatialError },
+}
+
+/// The most iterations one `relax` runs. Relaxation settles within tens of iterations (the
+/// paper runs 7 + 7), so more than this is a mistyped count: `-R 1000000000` is refused here
+/// instead of aborting on its allocation (issue 31, item 4).
+pub const MAX_ITERATIONS: usize = 10_000;
+
+impl RelaxParams {
+    /// These parameters with Kf capped at `photons` − 1 (at least 1): a photon has no more
+    /// neighbours than that, so the result is the same without buffers sized for the request
+    /// (issue 31, item 6).
+    pub fn capped(&self, photons: usize) -> RelaxParams {
+        RelaxParams { kf: self.kf.min(photons.saturating_sub(1).max(1)), ..*self }
+    }
+}
+
+/// Which neighbours relaxation uses, from the map's state.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum RelaxSpace {
+    /// Before collapse: world-space neighbours within each photon's r_param in parameter
+    /// space, exactly as `detect` restricted them.
+    WorldParams,
+    /// After collapse, or without trajectory parameters: plain world-space neighbours.
+    World,
+}
+
+/// The outcome of relaxing a map: new positions and what each iteration did.
+pub struct Relaxed {
+    pub positions: Vec<[f32; 3]>,
+    pub space: RelaxSpace,
+    /// False when the map has no constraint basis and photons moved freely in their tangent plane.
+    pub constrained: bool,
+    pub measures: Vec<IterationMeasure>,
+    /// New surface normals when photons were returned to curved surfaces ([`relax_map_on`]).
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// Moves refused because the photon's surface was not found near the moved point.
+    pub refused_moves: u64,
+    /// Diffused flux, when `flux_diffusion` > 0.
+    pub flux: Option<Vec<[f32; 3]>>,
+}
+
+/// Relaxes every photon of `map` for `p.iterations` iterations (Eq. 8–9), calling
+/// `on_iteration` after each. The map's state picks the space ([`RelaxSpace`]); its
+/// `basis_u`/`basis_v` columns constrain the motion, or, without them, its `normal` column
+/// keeps photons in their tangent plane.
+pub fn relax_map(
+    map: &crate::format::MapView,
+    p: &RelaxParams,
+    on_iteration: impl FnMut(&IterationMeasure),
+) -> Result<Relaxed, RelaxError> {
+    relax_map_on(map, p, None, on_iteration)
+}
+
+/// [`relax_map`], and with a scene, photons that moved are returned to their surface (the
+/// `surface` column names it) by [`return_to_surface`], and their normals follow: photons on
+/// curved receivers stay on them. A move whose surface is not found is refused.
+// Long because it is Algorithm 1's relax stage read top to bottom: the columns relabelled
+// into spatial order, the iterations, and the results put back in the map's order.
+pub fn relax_map_on(
+    map: &crate::format::MapView,
+    p: &RelaxParams,
+    scene: Option<&crate::scene::Scene>,
+    mut on_iteration: impl FnMut(&IterationMeasure),
+) -> Result<Relaxed, RelaxError> {
+    use crate::format::{State, name};
+    use crate::spatial::order::{locality_order, permuted, unpermuted};
+    use crate::spatial::{ParamColumn, PointSet, Space, SpatialIndex};
+    let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
+    if p.kf == 0 {
+        return Err(input("Kf must be at least 1".into()));
+    }
+    if p.iterations > MAX_ITERATIONS {
+        return Err(input(format!(
+            "{} iterations requested; at most {MAX_ITERATIONS} are allowed (relaxation settles within tens)",
+            p.iterations
+        )));
+    }
+    let p = &p.capped(map.len());
+    let meta = map.info();
+    // Photons are worked on in spatial order (see [`crate::spatial::order`]): every column
+    // the iterations read is relabelled here, and what they change is put back at the end.
+    let order = locality_order(map.positions());
+    let sorted = |column: Option<&[[f32; 3]]>| column.map(|c| permuted(c, &order, 1));
+    let basis_u = sorted(map.column::<[f32; 3]>(name::BASIS_U)?);
+    let basis_v = sorted(map.column::<[f32; 3]>(name::BASIS_V)?);
+    let normal = sorted(map.column::<[f32; 3]>(name::NORMAL)?);
+    let (basis_u, basis_v, normal) = (basis_u.as_deref(), basis_v.as_deref(), normal.as_deref());
+    let constraint = match (basis_u, basis_v, normal) {
+        (Some(u), Some(v), _) => Constraint::Basis { u, v },
+        (_, _, Some(normal)) => Constraint::Tangent { normal },
+        _ => {
+            return Err(input(
+                "relax needs a constraint basis (run `photonkit detect`) or a 'normal' column to keep \
+                 photons on their surfaces"
+                    .into(),
+            ));
+        }
+    };
+    let r_param = map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, &order, 1));
+    let r_param = r_param.as_deref();
+    let params = match map.spec(name::PARAMS) {
+        Some(c) => {
+            let values = bytemuck::try_cast_slice::<u8, f32>(map.column_bytes(name::PARAMS).unwrap_or(&[]))
+                .map_err(|e| input(format!("params column: {e}")))?;
+            let stride = c.components as usize;
+            if values.len() != stride * order.len() {
+                return Err(input(format!(
+                    "params column holds {} values, expected {}",
+                    values.len(),
+                    stride * order.len()
+                )));
+            }
+            Some((permuted(values, &order, stride), stride))
+        }
+        None => None,
+    };
+    let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
+    let emitters = map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, &order, 1));
+    let emitters = emitters.as_deref();
+    // A wavelength component enters distances with the scale detect gave it (the one its
+    // r_param was measured in; docs/spectral.md).
+    let params = match params {
+        Some((values, stride)) if meta.emitters.iter().any(|e| e.is_spectral()) => {
+            let factors: Vec<Vec<f32>> = meta.emitters.iter().map(|e| e.param_scales()).collect();
+            let column = ParamColumn { values: &values, stride, dims: &dims };
+            Some((column.scaled(emitters, &factors), stride))
+        }
+        p => p,
+    };
+    let params = params.as_ref().map(|(v, s)| (v.as_slice(), *s));
+    let space = match (meta.state, r_param, params) {
+        (State::Detected, Some(_), Some(_)) => RelaxSpace::WorldParams,
+        _ => RelaxSpace::World,
+    };
+    let mut positions = permuted(map.positions(), &order, 1);
+    // Coordinates far from 1 (near 1e30, or 1e-30) overflow or underflow squared distances in
+    // f32; without a scene to return to, the photons are worked on scaled by a power of two
+    // (exact) and scaled back at the end (issue 31, item 7).
+    let scale = if scene.is_none() { working_scale(&positions) } else { 1.0 };
+    if scale != 1.0 {
+        positions.iter_mut().flatten().for_each(|x| *x *= scale);
+    }
+    let mut next = positions.clone();
+    let surfaces = map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, &order, 1));
+    let surfaces = surfaces.as_deref();
+    let mut normals: Option<Vec<[f32; 3]>> = match (scene, surfaces, normal) {
+        (Some(_), Some(_), Some(n)) => Some(n.to_vec()),
+        _ => None,
+    };
+    let mut refused_moves = 0u64;
+    let mut flux: Option<Vec<[f32; 3]>> = (p.flux_diffusion > 0.0).then(|| permuted(map.flux(), &order, 1));
+    let mut scratch = Scratch::default();
+    let mut measures = Vec::with_capacity(p.iterations);
+    let mut index: Option<SpatialIndex> = None;
+    for it in 0..p.iterations {
+        let points = PointSet {
+            positions: &positions,
+            params: match space {
+                RelaxSpace::WorldParams => {
+                    params.map(|(values, stride)| ParamColumn { values, stride, dims: &dims })
+                }
+                RelaxSpace::World => None,
+            },
+            emitters: if space == RelaxSpace::WorldParams { emitters } else { None },
+        };
+        let sp = if space == RelaxSpace::WorldParams { Space::WorldParams } else { Space::World };
+        let separated = measures.last().is_some_and(|m: &IterationMeasure| m.separated > 0);
+        index_positions(&mut index, &points, sp, it, separated).map_err(|e| RelaxError::Photons {
+            file: map.file_name().to_string(),
+            source: e.in_file_order(&order),
+        })?;
+        let search = IndexSearch {
+            index: index.as_ref().expect("built above"),
+            points: &points,
+            radius: if space == RelaxSpace::WorldParams { r_param } else { None },
+        };
+        // The index borrows `positions`; `iterate` moves a copy, then the two swap.
+        next.copy_from_slice(&positions);
+        let m = iterate(&mut next, &search, constraint, p, it, &mut scratch);
+        if let Some(f) = flux.as_mut() {
+            diffuse_flux(f, &search, p.kf, p.flux_diffusion);
+        }
+        if let (Some(scene), Some(surf), Some(ns)) = (scene, surfaces, normals.as_mut()) {
+            refused_moves += back_to_surfaces(scene, surf, &positions, &mut next, ns);
+        }
+        std::mem::swap(&mut positions, &mut next);
+        let m = IterationMeasure {
+            mean_displacement: m.mean_displacement / scale as f64,
+            max_displacement: m.max_displacement / scale as f64,
+            ..m
+        };
+        on_iteration(&m);
+        measures.push(m);
+    }
+    if scale != 1.0 {
+        positions.iter_mut().flatten().for_each(|x| *x /= scale);
+    }
+    Ok(Relaxed {
+        positions: unpermuted(&positions, &order),
+        space,
+        constrained: matches!(constraint, Constraint::Basis { .. }),
+        measures,
+        normals: normals.map(|n| unpermuted(&n, &order)),
+        refused_moves,
+        flux: flux.map(|f| unpermuted(&f, &order)),
+    })
+}
+
+/// The power of two relax scales `positions` by so that their largest coordinate lies within
+/// 2^±40 of 1, where squared distances between them neither overflow nor underflow in f32
+/// (1 when it already does, or when every coordinate is 0 or non-finite).
+fn working_scale(positions: &[[f32; 3]]) -> f32 {
+    let far = positions.iter().flatten().filter(|x| x.is_finite()).fold(0f32, |m, x| m.max(x.abs()));
+    if far == 0.0 || (2f32.powi(-40)..=2f32.powi(40)).contains(&far) {
+        return 1.0;
+    }
+    2f32.powi(-(far.log2().floor() as i32).clamp(-126, 126))
+}
+
+/// The most per-iteration measures a relax record keeps (about 200 bytes each).
+pub const MAX_ITERATION_RECORDS: usize = 1000;
+
+/// `map` with its positions replaced by `relaxed` (and its normals and flux, where relaxation
+/// changed them), every other column carried through (borrowed), and a stage record holding
+/// the parameters and the per-iteration measures.
+pub fn relaxed_map<'a>(
+    map: &crate::format::MapView<'a>,
+    relaxed: &Relaxed,
+    p: &RelaxParams,
+    seconds: f64,
+) -> Result<crate::format::PhotonTable<'a>, RelaxError> {
+    use crate::format::{PhotonTable, StageRecord, name};
+    let mut info = map.info().clone();
+    let mut rec = StageRecord::now("relax", serde_json::to_value(p).unwrap_or_default());
+    // At most MAX_ITERATION_RECORDS per-iteration measures (every k-th and the last), so a
+    // long run's history stays far below the metadata limit.
+    let every = relaxed.measures.len().div_ceil(MAX_ITERATION_RECORDS).max(1);
+    let kept: Vec<_> = relaxed
+        .measures
+        .iter()
+        .enumerate()
+        .filter(|(i, _)| i % every == 0 || i + 1 == relaxed.measures.len())
+        .map(|(_, m)| m)
+        .collect();
+    rec.report = serde_json::json!({
+        "space": relaxed.space,
+        "constrained": relaxed.constrained,
+        "seconds": crate::format::meta::reported_seconds(seconds),
+        "iterations_recorded_every": every,
+        "iterations": kept,
+    });
+    info.history.push(rec);
+    let mut table = PhotonTable::carrying(map, info);
+    table.set(name::POSITION, &relaxed.positions)?;
+    if let Some(n) = &relaxed.normals
+        && map.spec(name::NORMAL).is_some()
+    {
+        table.set(name::NORMAL, n)?;
+    }
+    if let Some(f) = &relaxed.flux {
+        table.set(name::FLUX, f)?;
+    }
+    Ok(table)
+}
+
+/// Collapse: drops the parameter dimensions from the neighbour search by moving the map to the
+/// `collapsed` state. Every column stays (the parameters remain for diagnostics).
+pub fn collapse<'a>(map: &crate::format::MapView<'a>) -> Result<crate::format::PhotonTable<'a>, RelaxError> {
+    use crate::format::{PhotonTable, StageRecord, State};
+    let from = map.info().state;
+    if from != State::Detected {
+        return Err(RelaxError::Input {
+            file: map.file_name().to_string(),
+            message: format!(
+                "collapse applies to a detected map (state 'detected'); this one is '{}'",
+                from.name()
+            ),
+        });
+    }
+    let mut info = map.info().clone();
+    info.state = State::Collapsed;
+    info.history.push(StageRecord::now("collapse", serde_json::json!({ "from_state": from.name() })));
+    Ok(PhotonTable::carrying(map, info))
+}

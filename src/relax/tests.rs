@@ -244,7 +244,7 @@ fn relax_in_basis(pos: &mut [[f32; 3]], u: [f32; 3], v: [f32; 3], iterations: us
 /// v_b = 0 all 300 moved in x and none in y (to the bit); with v_b = ŷ all 300 moved in both
 /// (mean |Δy| 0.29).
 #[test]
-fn issue5_basis_factor_zero_never_moves_along_p2_and_factor_one_moves_along_both() {
+fn basis_factor_zero_never_moves_along_p2_and_factor_one_moves_along_both() {
     let start = uniform(300, 5);
     let mut locked = start.clone();
     let steps = relax_in_basis(&mut locked, [1.0, 0.0, 0.0], [0.0; 3], 20);
@@ -344,7 +344,7 @@ fn overlap_cv(pos: &[[f32; 3]]) -> f64 {
 /// params stage (a collapse that kept the parameter restriction leaves ≈ the params-stage
 /// value), params stage < 0.75 × input, input > 0.45 (uniform random points give ≈ 0.52).
 #[test]
-fn issue5_fig3_collapse_and_world_relax_even_out_the_overlap_of_two_sets() {
+fn fig3_collapse_and_world_relax_even_out_the_overlap_of_two_sets() {
     let dir = tempfile::tempdir().unwrap();
     let p = RelaxParams::default();
     let input = map_in(dir.path(), "in.phm", &fig3(4000, 50));
@@ -425,7 +425,7 @@ fn cluster_and_strays() -> crate::synthetic::SyntheticMap {
 /// their r_K being the distance to the cluster; the 3-photon map grows from the unit square
 /// to a 5.9 × 3.1 box. Finite, but see the ignored test below for longer runs.
 #[test]
-fn issue5_isolated_photons_stay_finite() {
+fn isolated_photons_stay_finite() {
     let dir = tempfile::tempdir().unwrap();
     let p = RelaxParams::default();
     let m = cluster_and_strays();
@@ -467,7 +467,7 @@ fn long_run(constrained: bool, iterations: usize) -> Result<Vec<[f32; 3]>, Relax
 /// moved out geometrically (≈ ×1.1 per iteration: box 1.5e18 after 400 iterations, then
 /// non-finite positions).
 #[test]
-fn issue5_a_thousand_iterations_stay_finite_on_the_plane_and_bounded() {
+fn a_thousand_iterations_stay_finite_on_the_plane_and_bounded() {
     let m = crate::synthetic::uniform_square(300, 12, 1.0);
     let p = RelaxParams::default();
     let first_spacing = |pos: &[[f32; 3]]| -> Vec<f32> {
@@ -505,7 +505,7 @@ fn issue5_a_thousand_iterations_stay_finite_on_the_plane_and_bounded() {
 /// scaled input is itself rounded). Tolerance 1e-5; an absolute ε or step limit would be
 /// off by a photon spacing (≈ 0.06).
 #[test]
-fn issue5_relaxing_is_scale_invariant() {
+fn relaxing_is_scale_invariant() {
     let dir = tempfile::tempdir().unwrap();
     let m = crate::synthetic::uniform_square(300, 12, 1.0);
     let p = RelaxParams::default();

@@ -9,7 +9,7 @@
 //! | extreme | trace | detect | relax / collapse | render |
 //! | --- | --- | --- | --- | --- |
 //! | scale 1e-6, 1e6 (scenes) | here | here | here | here |
-//! | scale 1e-6, 1e6 (kernels) | — | `detect::tests::pca_ignores_the_normals_length_and_the_scenes_scale`, `results_do_not_change_with_the_scenes_scale` | `relax::tests::repulsion_is_finite_for_coincident_photons_and_scales_with_the_scene`, `issue5_relaxing_is_scale_invariant`, `return_to_surface_holds_at_micrometre_scale` | here |
+//! | scale 1e-6, 1e6 (kernels) | — | `detect::tests::pca_ignores_the_normals_length_and_the_scenes_scale`, `results_do_not_change_with_the_scenes_scale` | `relax::tests::repulsion_is_finite_for_coincident_photons_and_scales_with_the_scene`, `relaxing_is_scale_invariant`, `return_to_surface_holds_at_micrometre_scale` | here |
 //! | 0, 1, 2, 3, 10 photons | here | here | here | here |
 //! | 10 M photons | bench | bench | bench | bench |
 //! | Kc = 3, 1000 | — | here; `detect::tests::kc_at_its_limits_…` (3 000 photons) | here | — |

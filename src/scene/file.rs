@@ -681,115 +681,11 @@ fn emitter(cx: &Ctx, i: usize, e: &Sp<RawEmitter>) -> Result<Emitter, SceneError
         Some(c) => vec3(c.get_ref()),
         None => Vec3::ONE,
     };
-    let common = ["kind", "name", "power_w", "colour"];
+    let input = EmitterIn { cx, what: what.clone(), kind, span: span.clone(), r };
     let shape = match kind {
-        "point" => {
-            only(cx, &what, kind, r.present(), &[&common[..], &["position"]].concat())?;
-            let p = finite(cx, &what, "position", &r.position)?;
-            EmitterShape::Point {
-                position: p.ok_or_else(|| cx.err(span.clone(), format!("{what}.position"), "missing"))?,
-            }
-        }
-        "spot" => {
-            only(
-                cx,
-                &what,
-                kind,
-                r.present(),
-                &[&common[..], &["position", "direction", "half_angle_deg"]].concat(),
-            )?;
-            let p = finite(cx, &what, "position", &r.position)?;
-            let d = unit(cx, &what, "direction", &r.direction)?;
-            let half = positive(cx, &what, "half_angle_deg", &r.half_angle_deg)?.unwrap_or(90.0);
-            if half > 90.0 {
-                let s = r.half_angle_deg.as_ref().map_or(span, |s| s.span());
-                return Err(cx.err(s, format!("{what}.half_angle_deg"), "must be at most 90 (a hemisphere)"));
-            }
-            EmitterShape::Spot {
-                position: p.ok_or_else(|| cx.err(span.clone(), format!("{what}.position"), "missing"))?,
-                axis: d.ok_or_else(|| cx.err(span.clone(), format!("{what}.direction"), "missing"))?,
-                half_angle_rad: half.to_radians(),
-            }
-        }
-        "collimated" => {
-            only(
-                cx,
-                &what,
-                kind,
-                r.present(),
-                &[&common[..], &["direction", "center", "size", "up", "origin", "edge_u", "edge_v"]].concat(),
-            )?;
-            let dir = unit(cx, &what, "direction", &r.direction)?;
-            let (origin, eu, ev) = if r.center.is_some() || r.size.is_some() {
-                if let Some((k, s)) =
-                    r.present().into_iter().find(|(k, _)| ["origin", "edge_u", "edge_v"].contains(k))
-                {
-                    return Err(cx.err(
-                        s,
-                        format!("{what}.{k}"),
-                        "give center + size + direction, or origin + edge_u + edge_v, not both",
-                    ));
-                }
-                let c = finite(cx, &what, "center", &r.center)?
-                    .ok_or_else(|| cx.err(span.clone(), format!("{what}.center"), "missing"))?;
-                let size =
-                    r.size.as_ref().ok_or_else(|| cx.err(span.clone(), format!("{what}.size"), "missing"))?;
-                let [w, h] = *size.get_ref();
-                if !(w > 0.0 && h > 0.0 && w.is_finite() && h.is_finite()) {
-                    return Err(cx.err(
-                        size.span(),
-                        format!("{what}.size"),
-                        "needs two positive lengths in metres",
-                    ));
-                }
-                let d = dir.ok_or_else(|| cx.err(span.clone(), format!("{what}.direction"), "missing"))?;
-                let up =
-                    unit(cx, &what, "up", &r.up)?.unwrap_or(if d.z.abs() > 0.9 { Vec3::Y } else { Vec3::Z });
-                // edge_v along `up` (projected), edge_u to its right seen along the beam.
-                let eu = d.cross(up).try_normalize().ok_or_else(|| {
-                    cx.err(
-                        r.up.as_ref().map_or(span.clone(), |s| s.span()),
-                        format!("{what}.up"),
-                        "must not be parallel to direction",
-                    )
-                })?;
-                let ev = eu.cross(d);
-                let (eu, ev) = (eu * w, ev * h);
-                (c - 0.5 * eu - 0.5 * ev, eu, ev)
-            } else {
-                if r.up.is_some() {
-                    return Err(cx.err(
-                        r.up.as_ref().map_or(span.clone(), |s| s.span()),
-                        format!("{what}.up"),
-                        "applies only with center + size",
-                    ));
-                }
-                let o = finite(cx, &what, "origin", &r.origin)?;
-                let eu = finite(cx, &what, "edge_u", &r.edge_u)?;
-                let ev = finite(cx, &what, "edge_v", &r.edge_v)?;
-                match (o, eu, ev) {
-                    (Some(o), Some(u), Some(v)) => (o, u, v),
-                    _ => return Err(cx.err(
-                        span,
-                        format!("{what}.center"),
-                        "a collimated emitter needs center + size + direction, or origin + edge_u + edge_v",
-                    )),
-                }
-            };
-            let n = eu.cross(ev).try_normalize().ok_or_else(|| {
-                cx.err(
-                    r.edge_v.as_ref().map_or(span.clone(), |s| s.span()),
-                    format!("{what}.edge_v"),
-                    "the edges are parallel or zero",
-                )
-            })?;
-            let direction = dir.unwrap_or(n);
-            if direction.dot(n).abs() < 1e-3 {
-                let s = r.direction.as_ref().map_or(span, |s| s.span());
-                return Err(cx.err(s, format!("{what}.direction"), "lies in the emitter's plane"));
-            }
-            EmitterShape::Collimated { origin, edge_u: eu, edge_v: ev, direction }
-        }
+        "point" => point_emitter(&input)?,
+        "spot" => spot_emitter(&input)?,
+        "collimated" => collimated_emitter(&input)?,
         _ => {
             let s = r.kind.as_ref().map_or(span, |s| s.span());
             return Err(cx.err(
@@ -800,6 +696,134 @@ fn emitter(cx: &Ctx, i: usize, e: &Sp<RawEmitter>) -> Result<Emitter, SceneError
         }
     };
     Ok(Emitter { kind: shape, power_w: *power.get_ref(), colour })
+}
+
+/// An emitter's table as its kind reads it: where errors point (`emitters[i]`, the table's
+/// span) and its keys.
+struct EmitterIn<'a> {
+    cx: &'a Ctx<'a>,
+    what: String,
+    kind: &'a str,
+    span: Range<usize>,
+    r: &'a RawEmitter,
+}
+
+impl EmitterIn<'_> {
+    /// Refuses keys other than every emitter's and `extra`.
+    fn allow(&self, extra: &[&str]) -> Result<(), SceneError> {
+        let common = ["kind", "name", "power_w", "colour"];
+        only(self.cx, &self.what, self.kind, self.r.present(), &[&common[..], extra].concat())
+    }
+
+    /// The error for a required key that is absent.
+    fn missing(&self, key: &str) -> SceneError {
+        self.cx.err(self.span.clone(), format!("{}.{key}", self.what), "missing")
+    }
+}
+
+/// `kind = "point"`: a position.
+fn point_emitter(e: &EmitterIn) -> Result<EmitterShape, SceneError> {
+    let EmitterIn { cx, what, r, .. } = e;
+    e.allow(&["position"])?;
+    let p = finite(cx, what, "position", &r.position)?;
+    Ok(EmitterShape::Point { position: p.ok_or_else(|| e.missing("position"))? })
+}
+
+/// `kind = "spot"`: a position, the cone's axis and its half angle (at most a hemisphere).
+fn spot_emitter(e: &EmitterIn) -> Result<EmitterShape, SceneError> {
+    let EmitterIn { cx, what, span, r, .. } = e;
+    e.allow(&["position", "direction", "half_angle_deg"])?;
+    let p = finite(cx, what, "position", &r.position)?;
+    let d = unit(cx, what, "direction", &r.direction)?;
+    let half = positive(cx, what, "half_angle_deg", &r.half_angle_deg)?.unwrap_or(90.0);
+    if half > 90.0 {
+        let s = r.half_angle_deg.as_ref().map_or(span.clone(), |s| s.span());
+        return Err(cx.err(s, format!("{what}.half_angle_deg"), "must be at most 90 (a hemisphere)"));
+    }
+    Ok(EmitterShape::Spot {
+        position: p.ok_or_else(|| e.missing("position"))?,
+        axis: d.ok_or_else(|| e.missing("direction"))?,
+        half_angle_rad: half.to_radians(),
+    })
+}
+
+/// `kind = "collimated"`: a rectangle given by center + size + direction or by origin +
+/// edge_u + edge_v, and the beam's direction (by default the rectangle's normal), which must
+/// not lie in the rectangle's plane.
+fn collimated_emitter(e: &EmitterIn) -> Result<EmitterShape, SceneError> {
+    let EmitterIn { cx, what, span, r, .. } = e;
+    e.allow(&["direction", "center", "size", "up", "origin", "edge_u", "edge_v"])?;
+    let dir = unit(cx, what, "direction", &r.direction)?;
+    let (origin, eu, ev) =
+        if r.center.is_some() || r.size.is_some() { centred_rectangle(e, dir)? } else { edge_rectangle(e)? };
+    let n = eu.cross(ev).try_normalize().ok_or_else(|| {
+        cx.err(
+            r.edge_v.as_ref().map_or(span.clone(), |s| s.span()),
+            format!("{what}.edge_v"),
+            "the edges are parallel or zero",
+        )
+    })?;
+    let direction = dir.unwrap_or(n);
+    if direction.dot(n).abs() < 1e-3 {
+        let s = r.direction.as_ref().map_or(span.clone(), |s| s.span());
+        return Err(cx.err(s, format!("{what}.direction"), "lies in the emitter's plane"));
+    }
+    Ok(EmitterShape::Collimated { origin, edge_u: eu, edge_v: ev, direction })
+}
+
+/// A collimated emitter's rectangle from center + size + direction `dir` (and `up`), as
+/// (origin, edge_u, edge_v).
+fn centred_rectangle(e: &EmitterIn, dir: Option<Vec3>) -> Result<(Vec3, Vec3, Vec3), SceneError> {
+    let EmitterIn { cx, what, span, r, .. } = e;
+    if let Some((k, s)) = r.present().into_iter().find(|(k, _)| ["origin", "edge_u", "edge_v"].contains(k)) {
+        return Err(cx.err(
+            s,
+            format!("{what}.{k}"),
+            "give center + size + direction, or origin + edge_u + edge_v, not both",
+        ));
+    }
+    let c = finite(cx, what, "center", &r.center)?.ok_or_else(|| e.missing("center"))?;
+    let size = r.size.as_ref().ok_or_else(|| e.missing("size"))?;
+    let [w, h] = *size.get_ref();
+    if !(w > 0.0 && h > 0.0 && w.is_finite() && h.is_finite()) {
+        return Err(cx.err(size.span(), format!("{what}.size"), "needs two positive lengths in metres"));
+    }
+    let d = dir.ok_or_else(|| e.missing("direction"))?;
+    let up = unit(cx, what, "up", &r.up)?.unwrap_or(if d.z.abs() > 0.9 { Vec3::Y } else { Vec3::Z });
+    // edge_v along `up` (projected), edge_u to its right seen along the beam.
+    let eu = d.cross(up).try_normalize().ok_or_else(|| {
+        cx.err(
+            r.up.as_ref().map_or(span.clone(), |s| s.span()),
+            format!("{what}.up"),
+            "must not be parallel to direction",
+        )
+    })?;
+    let ev = eu.cross(d);
+    let (eu, ev) = (eu * w, ev * h);
+    Ok((c - 0.5 * eu - 0.5 * ev, eu, ev))
+}
+
+/// A collimated emitter's rectangle from origin + edge_u + edge_v, as (origin, edge_u, edge_v).
+fn edge_rectangle(e: &EmitterIn) -> Result<(Vec3, Vec3, Vec3), SceneError> {
+    let EmitterIn { cx, what, span, r, .. } = e;
+    if r.up.is_some() {
+        return Err(cx.err(
+            r.up.as_ref().map_or(span.clone(), |s| s.span()),
+            format!("{what}.up"),
+            "applies only with center + size",
+        ));
+    }
+    let o = finite(cx, what, "origin", &r.origin)?;
+    let eu = finite(cx, what, "edge_u", &r.edge_u)?;
+    let ev = finite(cx, what, "edge_v", &r.edge_v)?;
+    match (o, eu, ev) {
+        (Some(o), Some(u), Some(v)) => Ok((o, u, v)),
+        _ => Err(cx.err(
+            span.clone(),
+            format!("{what}.center"),
+            "a collimated emitter needs center + size + direction, or origin + edge_u + edge_v",
+        )),
+    }
 }
 
 fn shape(
@@ -844,193 +868,18 @@ fn shape(
         }
         None => Transform::default(),
     };
-    let common = ["kind", "name", "material", "transform"];
-    let allow = |extra: &[&str]| only(cx, &what, &kind, r.present(), &[&common[..], extra].concat());
-    let missing = |k: &str| cx.err(span.clone(), format!("{what}.{k}"), "missing");
-    let uniform = || {
-        t.uniform_scale().ok_or_else(|| {
-            cx.err(
-                r.transform.as_ref().map_or(span.clone(), |s| s.span()),
-                format!("{what}.transform"),
-                format!("a {kind} needs a uniform scale"),
-            )
-        })
-    };
-    let radius = |key: &str, v: &Option<Sp<f32>>| positive(cx, &what, key, v)?.ok_or_else(|| missing(key));
+    let input = ShapeIn { cx, what: what.clone(), kind: kind.clone(), span: span.clone(), r, t, dir };
     let geometry = match kind.as_str() {
-        "sphere" => {
-            allow(&["center", "radius"])?;
-            let c = finite(cx, &what, "center", &r.center)?.unwrap_or(Vec3::ZERO);
-            let rad = radius("radius", &r.radius)?;
-            SurfaceGeometry::Analytic(Shape::Sphere { center: t.point(c), radius: rad * uniform()? })
-        }
-        "plane" => {
-            allow(&["point", "normal"])?;
-            let p = finite(cx, &what, "point", &r.point)?.unwrap_or(Vec3::ZERO);
-            let n = unit(cx, &what, "normal", &r.normal)?.ok_or_else(|| missing("normal"))?;
-            SurfaceGeometry::Analytic(Shape::Plane { point: t.point(p), normal: t.normal(n) })
-        }
-        "rectangle" => {
-            allow(&["origin", "edge_u", "edge_v"])?;
-            let o = finite(cx, &what, "origin", &r.origin)?.ok_or_else(|| missing("origin"))?;
-            let u = finite(cx, &what, "edge_u", &r.edge_u)?.ok_or_else(|| missing("edge_u"))?;
-            let v = finite(cx, &what, "edge_v", &r.edge_v)?.ok_or_else(|| missing("edge_v"))?;
-            let sh = Shape::rectangle(t.point(o), t.vector(u), t.vector(v)).ok_or_else(|| {
-                cx.err(
-                    r.edge_v.as_ref().map_or(span.clone(), |s| s.span()),
-                    format!("{what}.edge_v"),
-                    "the edges are parallel or zero",
-                )
-            })?;
-            SurfaceGeometry::Analytic(sh)
-        }
-        "disc" => {
-            allow(&["center", "normal", "radius"])?;
-            let c = finite(cx, &what, "center", &r.center)?.unwrap_or(Vec3::ZERO);
-            let n = unit(cx, &what, "normal", &r.normal)?.unwrap_or(Vec3::Z);
-            let rad = radius("radius", &r.radius)?;
-            SurfaceGeometry::Analytic(Shape::Disc {
-                center: t.point(c),
-                normal: t.normal(n),
-                radius: rad * uniform()?,
-            })
-        }
-        "cylinder" => {
-            allow(&["base", "axis", "radius", "height"])?;
-            let b = finite(cx, &what, "base", &r.base)?.unwrap_or(Vec3::ZERO);
-            let a = unit(cx, &what, "axis", &r.axis)?.unwrap_or(Vec3::Z);
-            let rad = radius("radius", &r.radius)?;
-            let h = radius("height", &r.height)?;
-            let k = uniform()?;
-            let axis = t.vector(a).normalize();
-            SurfaceGeometry::Analytic(Shape::Cylinder {
-                base: t.point(b),
-                axis,
-                radius: rad * k,
-                height: h * k,
-            })
-        }
-        "obj" => {
-            allow(&["file", "smooth"])?;
-            let f = r.file.as_ref().ok_or_else(|| missing("file"))?;
-            let path = dir.join(f.get_ref());
-            let mut m = mesh::load_obj(&path).map_err(|e| {
-                cx.err(f.span(), format!("{what}.file"), format!("cannot load {}: {e}", path.display()))
-            })?;
-            if r.smooth.as_ref().is_some_and(|s| !*s.get_ref()) {
-                m.normals = None;
-            }
-            mesh_geometry(m, &t)
-        }
-        "revolution" => {
-            allow(&["profile", "segments", "crease_deg", "smooth"])?;
-            let p = r.profile.as_ref().ok_or_else(|| missing("profile"))?;
-            let pts: Vec<Vec2> = p.get_ref().iter().map(|a| Vec2::from_array(*a)).collect();
-            if pts.len() < 2 || pts.iter().any(|q| !q.is_finite() || q.x < 0.0) {
-                return Err(cx.err(
-                    p.span(),
-                    format!("{what}.profile"),
-                    "needs at least two [r, z] points with r ≥ 0",
-                ));
-            }
-            let segs = count(cx, &what, "segments", &r.segments, 64, 3)?;
-            let crease = r.crease_deg.as_ref().map_or(30.0, |c| *c.get_ref());
-            let mut m = mesh::revolution(&pts, segs, crease);
-            if r.smooth.as_ref().is_some_and(|s| !*s.get_ref()) {
-                m.normals = None;
-            }
-            if m.indices.is_empty() {
-                return Err(cx.err(p.span(), format!("{what}.profile"), "sweeps no area"));
-            }
-            mesh_geometry(m, &t)
-        }
-        "height_field" => {
-            allow(&["size", "cells", "height", "waves", "smooth"])?;
-            let size = r.size.as_ref().ok_or_else(|| missing("size"))?;
-            let sz = Vec2::from_array(*size.get_ref());
-            if !(sz.x > 0.0 && sz.y > 0.0 && sz.is_finite()) {
-                return Err(cx.err(
-                    size.span(),
-                    format!("{what}.size"),
-                    "needs two positive lengths in metres",
-                ));
-            }
-            let cells = r.cells.as_ref().map_or([64, 64], |c| *c.get_ref());
-            if cells.contains(&0) || cells[0] as u64 * cells[1] as u64 > 1 << 24 {
-                let s = r.cells.as_ref().map_or(span.clone(), |s| s.span());
-                return Err(cx.err(s, format!("{what}.cells"), "needs 1 to 2^24 cells in all"));
-            }
-            let base = r.height.as_ref().map_or(0.0, |h| *h.get_ref());
-            let waves: Vec<(f32, Vec2, f32)> = match &r.waves {
-                Some(w) => {
-                    let mut v = Vec::new();
-                    for wave in w.get_ref() {
-                        if !(wave.wavelength > 0.0
-                            && wave.amplitude.is_finite()
-                            && wave.wavelength.is_finite())
-                        {
-                            return Err(cx.err(
-                                w.span(),
-                                format!("{what}.waves"),
-                                "each wave needs a finite amplitude and a positive wavelength",
-                            ));
-                        }
-                        let k = std::f32::consts::TAU / wave.wavelength;
-                        let (s, c) = wave.direction_deg.to_radians().sin_cos();
-                        v.push((wave.amplitude, Vec2::new(c, s) * k, wave.phase_deg.to_radians()));
-                    }
-                    v
-                }
-                None => Vec::new(),
-            };
-            let mut m = mesh::height_field(sz, cells, |x, y| {
-                let p = Vec2::new(x, y);
-                waves.iter().fold((base, Vec2::ZERO), |(z, g), &(a, k, ph)| {
-                    let arg = k.dot(p) + ph;
-                    (z + a * arg.sin(), g + k * (a * arg.cos()))
-                })
-            });
-            if r.smooth.as_ref().is_some_and(|s| !*s.get_ref()) {
-                m.normals = None;
-            }
-            mesh_geometry(m, &t)
-        }
-        "extrusion" => {
-            allow(&["outline", "z_range"])?;
-            let o = r.outline.as_ref().ok_or_else(|| missing("outline"))?;
-            let pts: Vec<Vec2> = o.get_ref().iter().map(|a| Vec2::from_array(*a)).collect();
-            let z = r.z_range.as_ref().map_or([0.0, 1.0], |z| *z.get_ref());
-            if z[0] == z[1] || !z[0].is_finite() || !z[1].is_finite() {
-                let s = r.z_range.as_ref().map_or(span.clone(), |s| s.span());
-                return Err(cx.err(s, format!("{what}.z_range"), "needs two different finite heights"));
-            }
-            let m = pts
-                .iter()
-                .all(|p| p.is_finite())
-                .then(|| mesh::extrusion(&pts, z[0], z[1]))
-                .flatten()
-                .ok_or_else(|| {
-                    cx.err(
-                        o.span(),
-                        format!("{what}.outline"),
-                        "needs a simple polygon of at least 3 [x, y] points with non-zero area",
-                    )
-                })?;
-            mesh_geometry(m, &t)
-        }
-        "paraboloid" => {
-            allow(&["focal_length", "radius", "inner_radius", "rings", "segments"])?;
-            let f = radius("focal_length", &r.focal_length)?;
-            let rmax = radius("radius", &r.radius)?;
-            let rmin = r.inner_radius.as_ref().map_or(0.0, |x| *x.get_ref());
-            if !(0.0..rmax).contains(&rmin) {
-                let s = r.inner_radius.as_ref().map_or(span.clone(), |s| s.span());
-                return Err(cx.err(s, format!("{what}.inner_radius"), "must lie in [0, radius)"));
-            }
-            let rings = count(cx, &what, "rings", &r.rings, 8, 1)?;
-            let segs = count(cx, &what, "segments", &r.segments, 32, 3)?;
-            mesh_geometry(mesh::paraboloid(f, rmin, rmax, rings, segs), &t)
-        }
+        "sphere" => sphere(&input)?,
+        "plane" => plane(&input)?,
+        "rectangle" => rectangle(&input)?,
+        "disc" => disc(&input)?,
+        "cylinder" => cylinder(&input)?,
+        "obj" => obj(&input)?,
+        "revolution" => revolution(&input)?,
+        "height_field" => height_field(&input)?,
+        "extrusion" => extrusion(&input)?,
+        "paraboloid" => paraboloid(&input)?,
         _ => {
             let s = r.kind.as_ref().map_or(span, |s| s.span());
             return Err(cx.err(
@@ -1044,6 +893,244 @@ fn shape(
         }
     };
     Ok((name, material, geometry))
+}
+
+/// A shape's table as its kind reads it: where errors point (`shapes[i]`, the table's span),
+/// its keys, its transform and the folder of the scene file (which `obj` paths are relative to).
+struct ShapeIn<'a> {
+    cx: &'a Ctx<'a>,
+    what: String,
+    kind: String,
+    span: Range<usize>,
+    r: &'a RawShape,
+    t: Transform,
+    dir: &'a Path,
+}
+
+impl ShapeIn<'_> {
+    /// Refuses keys other than every shape's and `extra`.
+    fn allow(&self, extra: &[&str]) -> Result<(), SceneError> {
+        let common = ["kind", "name", "material", "transform"];
+        only(self.cx, &self.what, &self.kind, self.r.present(), &[&common[..], extra].concat())
+    }
+
+    /// The error for a required key that is absent.
+    fn missing(&self, key: &str) -> SceneError {
+        self.cx.err(self.span.clone(), format!("{}.{key}", self.what), "missing")
+    }
+
+    /// The transform's scale, which must be uniform for a shape with a radius.
+    fn uniform(&self) -> Result<f32, SceneError> {
+        self.t.uniform_scale().ok_or_else(|| {
+            self.cx.err(
+                self.r.transform.as_ref().map_or(self.span.clone(), |s| s.span()),
+                format!("{}.transform", self.what),
+                format!("a {} needs a uniform scale", self.kind),
+            )
+        })
+    }
+
+    /// A required positive length.
+    fn radius(&self, key: &str, v: &Option<Sp<f32>>) -> Result<f32, SceneError> {
+        positive(self.cx, &self.what, key, v)?.ok_or_else(|| self.missing(key))
+    }
+
+    /// Whether `smooth = false` asks for flat facets.
+    fn flat(&self) -> bool {
+        self.r.smooth.as_ref().is_some_and(|s| !*s.get_ref())
+    }
+}
+
+/// `kind = "sphere"`: a center (the origin by default) and a radius.
+fn sphere(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, r, t, .. } = s;
+    s.allow(&["center", "radius"])?;
+    let c = finite(cx, what, "center", &r.center)?.unwrap_or(Vec3::ZERO);
+    let rad = s.radius("radius", &r.radius)?;
+    Ok(SurfaceGeometry::Analytic(Shape::Sphere { center: t.point(c), radius: rad * s.uniform()? }))
+}
+
+/// `kind = "plane"`: a point (the origin by default) and a normal.
+fn plane(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, r, t, .. } = s;
+    s.allow(&["point", "normal"])?;
+    let p = finite(cx, what, "point", &r.point)?.unwrap_or(Vec3::ZERO);
+    let n = unit(cx, what, "normal", &r.normal)?.ok_or_else(|| s.missing("normal"))?;
+    Ok(SurfaceGeometry::Analytic(Shape::Plane { point: t.point(p), normal: t.normal(n) }))
+}
+
+/// `kind = "rectangle"`: a corner and two edges.
+fn rectangle(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, span, r, t, .. } = s;
+    s.allow(&["origin", "edge_u", "edge_v"])?;
+    let o = finite(cx, what, "origin", &r.origin)?.ok_or_else(|| s.missing("origin"))?;
+    let u = finite(cx, what, "edge_u", &r.edge_u)?.ok_or_else(|| s.missing("edge_u"))?;
+    let v = finite(cx, what, "edge_v", &r.edge_v)?.ok_or_else(|| s.missing("edge_v"))?;
+    let sh = Shape::rectangle(t.point(o), t.vector(u), t.vector(v)).ok_or_else(|| {
+        cx.err(
+            r.edge_v.as_ref().map_or(span.clone(), |s| s.span()),
+            format!("{what}.edge_v"),
+            "the edges are parallel or zero",
+        )
+    })?;
+    Ok(SurfaceGeometry::Analytic(sh))
+}
+
+/// `kind = "disc"`: a center (the origin by default), a normal (+z by default) and a radius.
+fn disc(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, r, t, .. } = s;
+    s.allow(&["center", "normal", "radius"])?;
+    let c = finite(cx, what, "center", &r.center)?.unwrap_or(Vec3::ZERO);
+    let n = unit(cx, what, "normal", &r.normal)?.unwrap_or(Vec3::Z);
+    let rad = s.radius("radius", &r.radius)?;
+    Ok(SurfaceGeometry::Analytic(Shape::Disc {
+        center: t.point(c),
+        normal: t.normal(n),
+        radius: rad * s.uniform()?,
+    }))
+}
+
+/// `kind = "cylinder"`: the base's center (the origin by default), the axis (+z by default),
+/// a radius and a height.
+fn cylinder(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, r, t, .. } = s;
+    s.allow(&["base", "axis", "radius", "height"])?;
+    let b = finite(cx, what, "base", &r.base)?.unwrap_or(Vec3::ZERO);
+    let a = unit(cx, what, "axis", &r.axis)?.unwrap_or(Vec3::Z);
+    let rad = s.radius("radius", &r.radius)?;
+    let h = s.radius("height", &r.height)?;
+    let k = s.uniform()?;
+    let axis = t.vector(a).normalize();
+    Ok(SurfaceGeometry::Analytic(Shape::Cylinder { base: t.point(b), axis, radius: rad * k, height: h * k }))
+}
+
+/// `kind = "obj"`: a Wavefront OBJ mesh, its path relative to the scene file.
+fn obj(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, r, t, dir, .. } = s;
+    s.allow(&["file", "smooth"])?;
+    let f = r.file.as_ref().ok_or_else(|| s.missing("file"))?;
+    let path = dir.join(f.get_ref());
+    let mut m = mesh::load_obj(&path).map_err(|e| {
+        cx.err(f.span(), format!("{what}.file"), format!("cannot load {}: {e}", path.display()))
+    })?;
+    if s.flat() {
+        m.normals = None;
+    }
+    Ok(mesh_geometry(m, t))
+}
+
+/// `kind = "revolution"`: a [r, z] profile swept around the z axis.
+fn revolution(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, r, t, .. } = s;
+    s.allow(&["profile", "segments", "crease_deg", "smooth"])?;
+    let p = r.profile.as_ref().ok_or_else(|| s.missing("profile"))?;
+    let pts: Vec<Vec2> = p.get_ref().iter().map(|a| Vec2::from_array(*a)).collect();
+    if pts.len() < 2 || pts.iter().any(|q| !q.is_finite() || q.x < 0.0) {
+        return Err(cx.err(
+            p.span(),
+            format!("{what}.profile"),
+            "needs at least two [r, z] points with r ≥ 0",
+        ));
+    }
+    let segs = count(cx, what, "segments", &r.segments, 64, 3)?;
+    let crease = r.crease_deg.as_ref().map_or(30.0, |c| *c.get_ref());
+    let mut m = mesh::revolution(&pts, segs, crease);
+    if s.flat() {
+        m.normals = None;
+    }
+    if m.indices.is_empty() {
+        return Err(cx.err(p.span(), format!("{what}.profile"), "sweeps no area"));
+    }
+    Ok(mesh_geometry(m, t))
+}
+
+/// `kind = "height_field"`: a grid over a rectangle at a base height plus a sum of waves.
+fn height_field(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, span, r, t, .. } = s;
+    s.allow(&["size", "cells", "height", "waves", "smooth"])?;
+    let size = r.size.as_ref().ok_or_else(|| s.missing("size"))?;
+    let sz = Vec2::from_array(*size.get_ref());
+    if !(sz.x > 0.0 && sz.y > 0.0 && sz.is_finite()) {
+        return Err(cx.err(size.span(), format!("{what}.size"), "needs two positive lengths in metres"));
+    }
+    let cells = r.cells.as_ref().map_or([64, 64], |c| *c.get_ref());
+    if cells.contains(&0) || cells[0] as u64 * cells[1] as u64 > 1 << 24 {
+        let s = r.cells.as_ref().map_or(span.clone(), |s| s.span());
+        return Err(cx.err(s, format!("{what}.cells"), "needs 1 to 2^24 cells in all"));
+    }
+    let base = r.height.as_ref().map_or(0.0, |h| *h.get_ref());
+    let waves = waves(s)?;
+    let mut m = mesh::height_field(sz, cells, |x, y| {
+        let p = Vec2::new(x, y);
+        waves.iter().fold((base, Vec2::ZERO), |(z, g), &(a, k, ph)| {
+            let arg = k.dot(p) + ph;
+            (z + a * arg.sin(), g + k * (a * arg.cos()))
+        })
+    });
+    if s.flat() {
+        m.normals = None;
+    }
+    Ok(mesh_geometry(m, t))
+}
+
+/// A height field's waves as (amplitude, wave vector, phase in radians).
+fn waves(s: &ShapeIn) -> Result<Vec<(f32, Vec2, f32)>, SceneError> {
+    let ShapeIn { cx, what, r, .. } = s;
+    let Some(w) = &r.waves else { return Ok(Vec::new()) };
+    let mut v = Vec::new();
+    for wave in w.get_ref() {
+        if !(wave.wavelength > 0.0 && wave.amplitude.is_finite() && wave.wavelength.is_finite()) {
+            return Err(cx.err(
+                w.span(),
+                format!("{what}.waves"),
+                "each wave needs a finite amplitude and a positive wavelength",
+            ));
+        }
+        let k = std::f32::consts::TAU / wave.wavelength;
+        let (s, c) = wave.direction_deg.to_radians().sin_cos();
+        v.push((wave.amplitude, Vec2::new(c, s) * k, wave.phase_deg.to_radians()));
+    }
+    Ok(v)
+}
+
+/// `kind = "extrusion"`: a simple polygon in the xy plane extruded between two heights.
+fn extrusion(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, span, r, t, .. } = s;
+    s.allow(&["outline", "z_range"])?;
+    let o = r.outline.as_ref().ok_or_else(|| s.missing("outline"))?;
+    let pts: Vec<Vec2> = o.get_ref().iter().map(|a| Vec2::from_array(*a)).collect();
+    let z = r.z_range.as_ref().map_or([0.0, 1.0], |z| *z.get_ref());
+    if z[0] == z[1] || !z[0].is_finite() || !z[1].is_finite() {
+        let s = r.z_range.as_ref().map_or(span.clone(), |s| s.span());
+        return Err(cx.err(s, format!("{what}.z_range"), "needs two different finite heights"));
+    }
+    let m =
+        pts.iter().all(|p| p.is_finite()).then(|| mesh::extrusion(&pts, z[0], z[1])).flatten().ok_or_else(
+            || {
+                cx.err(
+                    o.span(),
+                    format!("{what}.outline"),
+                    "needs a simple polygon of at least 3 [x, y] points with non-zero area",
+                )
+            },
+        )?;
+    Ok(mesh_geometry(m, t))
+}
+
+/// `kind = "paraboloid"`: a mirror of a focal length, between an inner and an outer radius.
+fn paraboloid(s: &ShapeIn) -> Result<SurfaceGeometry, SceneError> {
+    let ShapeIn { cx, what, span, r, t, .. } = s;
+    s.allow(&["focal_length", "radius", "inner_radius", "rings", "segments"])?;
+    let f = s.radius("focal_length", &r.focal_length)?;
+    let rmax = s.radius("radius", &r.radius)?;
+    let rmin = r.inner_radius.as_ref().map_or(0.0, |x| *x.get_ref());
+    if !(0.0..rmax).contains(&rmin) {
+        let s = r.inner_radius.as_ref().map_or(span.clone(), |s| s.span());
+        return Err(cx.err(s, format!("{what}.inner_radius"), "must lie in [0, radius)"));
+    }
+    let rings = count(cx, what, "rings", &r.rings, 8, 1)?;
+    let segs = count(cx, what, "segments", &r.segments, 32, 3)?;
+    Ok(mesh_geometry(mesh::paraboloid(f, rmin, rmax, rings, segs), t))
 }
 
 fn count(

@@ -7,7 +7,9 @@ use serde_json::json;
 
 use super::store::{ChunkStore, Layout};
 use super::{Budget, Photons, StorePolicy, TraceError, TraceOptions};
-use crate::format::{ColumnSpec, MapInfo, Output, PhotonWriter, StageRecord, State};
+use crate::format::{
+    ColumnSpec, MapInfo, Output, PhotonWriter, State, TraceParameters, TraceRecord, TraceReport,
+};
 use crate::scene::Scene;
 
 /// The outcome of a run: the stored photons (in emission order) and counts.
@@ -70,7 +72,7 @@ impl Traced {
 /// The CRC-32 of a scene file's text as the trace record's `scene_crc32` holds it (8 hex
 /// digits): how later stages tell whether a scene file is the one the map was traced from.
 pub fn scene_crc32(scene_text: &str) -> String {
-    format!("{:08x}", crc32fast::hash(scene_text.as_bytes()))
+    crate::scene::scene_crc32(scene_text)
 }
 
 /// The metadata of a traced map: the scene's emitters and the `trace` stage record.
@@ -83,30 +85,37 @@ pub fn map_info(
     scene_label: &str,
     scene_text: &str,
 ) -> MapInfo {
-    let emitters = scene.emitter_records();
-    let mut info = MapInfo::new(emitters, State::Traced);
-    let mut params = json!({
-        "scene": scene_label,
-        "scene_crc32": scene_crc32(scene_text),
-        "seed": opts.seed,
-        "store": match opts.store { StorePolicy::Caustic => "caustic", StorePolicy::Direct => "direct" },
-        "max_bounces": opts.max_bounces,
-    });
-    match opts.budget {
-        Budget::Emitted(n) => params["photons"] = json!(n),
-        Budget::Stored(n) => params["stored"] = json!(n),
-    }
-    let mut report = json!({ "emitted": traced.emitted, "stored": traced.stored,
-                             "bounce_limited": traced.bounce_limited });
-    if let Some(s) = opts.shard {
-        params["shard"] = json!(format!("{}/{}", s.index, s.count));
-        report["emission_range"] = json!([traced.range.start, traced.range.end]);
-    }
-    let mut rec = StageRecord::now("trace", params);
+    let mut info = MapInfo::new(scene.emitter_records(), State::Traced);
+    let (photons, stored) = match opts.budget {
+        Budget::Emitted(n) => (Some(n), None),
+        Budget::Stored(n) => (None, Some(n)),
+    };
+    let parameters = TraceParameters {
+        scene: scene_label.to_string(),
+        scene_crc32: scene_crc32(scene_text),
+        seed: opts.seed,
+        store: match opts.store {
+            StorePolicy::Caustic => "caustic",
+            StorePolicy::Direct => "direct",
+        }
+        .to_string(),
+        max_bounces: opts.max_bounces,
+        photons,
+        stored,
+        shard: opts.shard.map(|s| format!("{}/{}", s.index, s.count)),
+        ..TraceParameters::default()
+    };
+    let report = TraceReport {
+        emitted: traced.emitted,
+        stored: traced.stored,
+        bounce_limited: traced.bounce_limited,
+        emission_range: opts.shard.map(|_| [traced.range.start, traced.range.end]),
+        ..TraceReport::default()
+    };
+    let mut rec = TraceRecord { parameters, report }.to_stage_record();
     if let Some(t) = source_date() {
         rec.time = t;
     }
-    rec.report = report;
     info.history.push(rec);
     info
 }

@@ -624,7 +624,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         local_k: a.local_k.map(|k| k as usize),
     };
     let settings = serde_json::json!({
-        "scene_crc32": photonkit::trace::scene_crc32(&text),
+        "scene_crc32": photonkit::scene::scene_crc32(&text),
         "camera": format!("{:?}", camera),
         "width": render.width, "height": render.height, "spp": render.spp,
         "mode": mode.name(), "kernel": kernel.name(), "specular": format!("{:?}", render.eye.specular),

@@ -16,7 +16,7 @@ use super::meta::{MapInfo, StageRecord};
 pub struct TraceParameters {
     /// The scene as the user named it (a path, or the embedded default's name).
     pub scene: String,
-    /// CRC-32 of the scene file's text, 8 hex digits ([`crate::trace::scene_crc32`]).
+    /// CRC-32 of the scene file's text, 8 hex digits ([`crate::scene::scene_crc32`]).
     pub scene_crc32: String,
     pub seed: u64,
     /// Which photons were stored: "caustic" (L S+ D) or "direct".

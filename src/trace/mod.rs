@@ -31,7 +31,7 @@ pub use crate::sampling::halton;
 use crate::scene::{Dielectric, Material, Scene};
 use halton::Halton;
 pub use merge::merge;
-pub use output::{Traced, map_info, record_scene_location, scene_crc32, source_date};
+pub use output::{Traced, map_info, record_scene_location, source_date};
 use store::{ChunkStore, Layout};
 pub use store::{DEFAULT_SPOOL_MEMORY, Spool};
 

@@ -10,7 +10,7 @@ use super::{Budget, Photons, StorePolicy, TraceError, TraceOptions};
 use crate::format::{
     ColumnSpec, MapInfo, Output, PhotonWriter, State, TraceParameters, TraceRecord, TraceReport,
 };
-use crate::scene::Scene;
+use crate::scene::{Scene, scene_crc32};
 
 /// The outcome of a run: the stored photons (in emission order) and counts.
 #[derive(Debug)]
@@ -67,12 +67,6 @@ impl Traced {
         self.store.for_each_block(self.flux_scale(), |cols| Ok(w.push(cols)?))?;
         Ok(w.finish()?)
     }
-}
-
-/// The CRC-32 of a scene file's text as the trace record's `scene_crc32` holds it (8 hex
-/// digits): how later stages tell whether a scene file is the one the map was traced from.
-pub fn scene_crc32(scene_text: &str) -> String {
-    crate::scene::scene_crc32(scene_text)
 }
 
 /// The metadata of a traced map: the scene's emitters and the `trace` stage record.

@@ -70,22 +70,28 @@ fn plane_view_measures_the_irradiance_of_a_uniform_map() {
     let map = dir.path().join("u.phm");
     write_synthetic(&photonkit::synthetic::uniform_square(40_000, 3, 3.0), "uniform", &map);
     let out = dir.path().join("e.exr");
-    let o = photonkit(&[
-        "render",
-        map.to_str().unwrap(),
-        "--plane",
-        "z=0",
-        "--rect",
-        "0.2,0.2,0.8,0.8",
-        "-o",
-        out.to_str().unwrap(),
-        "--width",
-        "20",
-        "--spp",
-        "4",
-        "-k",
-        "50",
-    ]);
+    // The plane view of the square's middle, 20 pixels wide, K = 50, and `extra` options.
+    let render = |extra: &[&str]| {
+        let mut argv = vec![
+            "render",
+            map.to_str().unwrap(),
+            "--plane",
+            "z=0",
+            "--rect",
+            "0.2,0.2,0.8,0.8",
+            "-o",
+            out.to_str().unwrap(),
+            "--width",
+            "20",
+            "--spp",
+            "4",
+            "-k",
+            "50",
+        ];
+        argv.extend_from_slice(extra);
+        photonkit(&argv)
+    };
+    let o = render(&[]);
     assert!(o.status.success(), "{}", stderr(&o));
     let (img, notes) = read_exr(&out);
     assert_eq!((img.width, img.height), (20, 20));
@@ -94,24 +100,7 @@ fn plane_view_measures_the_irradiance_of_a_uniform_map() {
     assert!((m.x - 1.0).abs() < 0.05 && (m.y - 1.0).abs() < 0.05, "{m}");
     assert!(notes.iter().any(|(k, v)| k == "photonkit:units" && v.starts_with("W/m^2")), "{notes:?}");
     // The variable kernel measures the same irradiance, and the header says which estimate.
-    let o = photonkit(&[
-        "render",
-        map.to_str().unwrap(),
-        "--plane",
-        "z=0",
-        "--rect",
-        "0.2,0.2,0.8,0.8",
-        "-o",
-        out.to_str().unwrap(),
-        "--width",
-        "20",
-        "--spp",
-        "4",
-        "-k",
-        "50",
-        "--estimator",
-        "variable",
-    ]);
+    let o = render(&["--estimator", "variable"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let (img, notes) = read_exr(&out);
     let m = img.mean();

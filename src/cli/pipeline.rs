@@ -11,6 +11,7 @@ use photonkit::detect::DetectParams;
 use photonkit::format::{Output, PhotonMap, PhotonTable};
 use photonkit::pipeline::{self, PipelineError, PipelineParams, Stage, StageDone};
 use photonkit::relax::RelaxParams;
+use photonkit::scene::DEFAULT_SCENE_NAME;
 use photonkit::trace::{self, Budget, DEFAULT_SPOOL_MEMORY, Spool, TraceOptions};
 
 /// Run every stage on a scene: trace → detect → relax → collapse → relax → render.
@@ -176,15 +177,21 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     } else {
         "relaxed.phm"
     };
+    // The options after `--` are parsed as `photonkit render`'s; the map is the one in memory.
     let mut argv: Vec<std::ffi::OsString> =
         vec!["render".into(), file(rendered).into(), "-o".into(), file("render.exr").into()];
-    if let Some(p) = &a.scene {
-        argv.extend(["--scene".into(), p.into()]);
-    }
     argv.extend(a.render.iter().map(Into::into));
-    let t = Instant::now();
-    super::render::run(RenderCommand::try_parse_from(argv)?.args)?;
+    let args = RenderCommand::try_parse_from(argv)?.args;
+    // The map as written (its header names the file), memory-mapped.
     let map = PhotonMap::open_path(&file(rendered))?;
+    let t = Instant::now();
+    let other_scene = match &args.scene {
+        Some(p) => Some(super::render::load_scene(None, Some(p))?),
+        None => None,
+    };
+    let scene_name = a.scene.as_ref().map_or(DEFAULT_SCENE_NAME.to_string(), |p| p.display().to_string());
+    let scene = other_scene.as_ref().map_or((&scene, scene_name.as_str()), |(s, n)| (s, n.as_str()));
+    super::render::render_view(&args, &map.view(), Some(scene))?;
     report(
         "render",
         t.elapsed().as_secs_f64(),

@@ -7,12 +7,12 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use glam::Vec3;
 use indicatif::{ProgressBar, ProgressStyle};
-use photonkit::format::{PhotonMap, name};
+use photonkit::format::{MapView, PhotonMap};
+use photonkit::render::from_map::{CameraChanges, DiagnosticView, Framing, MapRender, Progress, render_map};
 use photonkit::render::{
-    self, Diagnostic, Diagnostics, Estimator, EyeOptions, Kernel, Mode, Outputs, PhotonData, PhotonLookup,
-    PlaneView, RenderOptions, Renderer, Specular, View,
+    self, Diagnostic, Estimator, EyeOptions, Kernel, Mode, Outputs, RenderOptions, Specular,
 };
-use photonkit::scene::{Camera, Projection, Scene};
+use photonkit::scene::{Camera, Scene};
 
 /// Render radiance or irradiance from a photon map to OpenEXR (linear float RGB, ZIP) and an
 /// sRGB PNG preview.
@@ -50,7 +50,7 @@ pub struct Args {
     output: PathBuf,
     /// Scene file (TOML) for geometry, materials, lights and camera.
     #[arg(long, value_name = "FILE")]
-    scene: Option<PathBuf>,
+    pub(super) scene: Option<PathBuf>,
     #[command(flatten)]
     common: Common,
     /// What to render (default: full, or irradiance with --plane).
@@ -262,32 +262,22 @@ impl Common {
         }
     }
 
+    /// The camera changes the command line asks for.
+    fn camera_changes(&self) -> CameraChanges {
+        CameraChanges {
+            eye: self.eye,
+            look_at: self.look_at,
+            up: self.up,
+            fov_deg: self.fov,
+            ortho_height_m: self.ortho,
+            width: self.width,
+            height: self.height,
+        }
+    }
+
     /// The scene's camera with the command line's changes; its resolution is the image's.
     fn camera(&self, scene: &Scene) -> anyhow::Result<Camera> {
-        let base = scene.camera.clone();
-        let eye = self.eye.or(base.as_ref().map(|c| c.eye));
-        let look = self.look_at.or(base.as_ref().map(|c| c.eye + c.forward));
-        let up = self.up.or(base.as_ref().map(|c| c.up)).unwrap_or(Vec3::Z);
-        let projection = match (self.fov, self.ortho, base.as_ref()) {
-            (Some(f), _, _) if f > 0.0 && f < 180.0 => Projection::Pinhole { fov_y_rad: f.to_radians() },
-            (Some(f), _, _) => bail!("--fov {f}: needs a field of view between 0 and 180 degrees"),
-            (_, Some(h), _) if h > 0.0 && h.is_finite() => Projection::Orthographic { height_m: h },
-            (_, Some(h), _) => bail!("--ortho {h}: needs a positive height in metres"),
-            (None, None, Some(c)) => c.projection,
-            (None, None, None) => Projection::Pinhole { fov_y_rad: 40f32.to_radians() },
-        };
-        let (Some(eye), Some(look)) = (eye, look) else {
-            bail!("the scene has no [camera]: give --eye and --look-at (and --fov or --ortho)")
-        };
-        let res = base.as_ref().map_or([600, 600], |c| c.resolution);
-        let (w, h) = match (self.width, self.height) {
-            (Some(w), Some(h)) => (w, h),
-            (Some(w), None) => (w, ((w as f64 * res[1] as f64 / res[0] as f64).round() as u32).max(1)),
-            (None, Some(h)) => (((h as f64 * res[0] as f64 / res[1] as f64).round() as u32).max(1), h),
-            (None, None) => (res[0], res[1]),
-        };
-        Camera::look_at(projection, eye, look, up, [w, h])
-            .context("the camera's eye and look-at coincide, or the view is parallel to up")
+        Ok(self.camera_changes().camera(scene.camera.as_ref())?)
     }
 
     fn options(&self, camera: &Camera, mode: Mode, estimator: Estimator) -> RenderOptions {
@@ -314,7 +304,7 @@ impl Common {
 
 /// The scene: `--scene`, else the file the map's trace record names (if it still exists),
 /// else the embedded default ([`photonkit::scene::for_map`]). Returns the scene and its name.
-fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Scene, String)> {
+pub(super) fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Scene, String)> {
     let view = map.map(PhotonMap::view);
     let r = photonkit::scene::for_map(view.as_ref(), arg)?;
     for note in &r.notes {
@@ -339,188 +329,99 @@ fn progress_bar(len: u64, what: &str) -> ProgressBar {
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let map = PhotonMap::open(&a.input)?;
-    let file = map.file_name().to_string();
+    let scene = match a.plane {
+        Some(_) => None,
+        None => Some(load_scene(Some(&map), a.scene.as_deref())?),
+    };
+    render_view(&a, &map.view(), scene.as_ref().map(|(s, name)| (s, name.as_str())))?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// Renders `map` as the arguments ask, through `scene` (its name for the header) unless they
+/// ask for a plane, and writes the EXR and its preview.
+pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>) -> anyhow::Result<()> {
     for p in [Some(a.output.clone()), a.common.outputs(&a.output).png].into_iter().flatten() {
         super::refuse_input_as_output(&p.to_string_lossy())?;
     }
-    let mut mode = match a.mode {
-        None if a.plane.is_some() => Mode::Irradiance,
-        None | Some(ModeArg::Full) => Mode::Full,
-        Some(ModeArg::Caustic) => Mode::Caustic,
-        Some(ModeArg::Direct) => Mode::Direct,
-        Some(ModeArg::Irradiance) => Mode::Irradiance,
-    };
-    if a.plane.is_some() && mode != Mode::Irradiance {
-        bail!("--plane shows irradiance only (no scene, no materials): leave out --mode or use irradiance");
-    }
-    let kernel = |k: KernelArg| match k {
+    let kernel = match a.kernel {
         KernelArg::Epanechnikov => Kernel::Epanechnikov,
         KernelArg::Disc => Kernel::Disc,
         KernelArg::Cone => Kernel::Cone,
     };
     let estimator = match a.estimator {
-        EstimatorArg::Knn => Estimator::Knn { k: a.k, kernel: kernel(a.kernel), max_radius: a.max_radius },
+        EstimatorArg::Knn => Estimator::Knn { k: a.k, kernel, max_radius: a.max_radius },
         EstimatorArg::Diffusion => Estimator::Diffusion { k: a.diffusion_k, q: a.diffusion_q },
-        EstimatorArg::Variable => Estimator::Variable { k: a.k, kernel: kernel(a.kernel) },
+        EstimatorArg::Variable => Estimator::Variable { k: a.k, kernel },
     };
-    if a.k == 0 || a.diffusion_k == 0 {
-        bail!("-k and --diffusion-k need at least 1 neighbour");
-    }
-    let positive = |x: f32| x > 0.0 && x.is_finite();
-    if !positive(a.diffusion_q)
-        || a.max_radius.is_some_and(|r| !positive(r))
-        || a.dot_radius.is_some_and(|r| !positive(r))
-    {
-        bail!("--diffusion-q, --max-radius and --dot-radius must be positive");
-    }
-    if map.is_empty() {
-        bail!("{file}: the photon map holds no photons: nothing to render");
-    }
-    let traced_direct = map
-        .meta()
-        .history
-        .iter()
-        .rev()
-        .find(|r| r.stage == "trace")
-        .and_then(|r| r.parameters.get("store"))
-        .is_some_and(|s| s == "direct");
-    if traced_direct && mode == Mode::Full {
-        super::note!(
-            "photonkit render: note: the map stores direct photons too, so direct light is not added again"
-        );
-        mode = Mode::Caustic;
-    }
-    let diagnostic = a
-        .diagnostic
-        .map(|d| {
-            let which = match d {
+    let framing = match (a.plane, scene) {
+        (Some((axis, offset)), _) => Framing::Plane {
+            axis,
+            offset,
+            tolerance_m: a.plane_tolerance,
+            rect: a.rect,
+            width: a.common.width,
+            height: a.common.height,
+        },
+        (None, Some((scene, name))) => {
+            Framing::Scene { scene, camera: a.common.camera(scene)?, name: name.to_string() }
+        }
+        (None, None) => bail!("no scene to render through (give --scene, or --plane for a scene-less view)"),
+    };
+    let request = MapRender {
+        mode: a.mode.map(|m| match m {
+            ModeArg::Full => Mode::Full,
+            ModeArg::Caustic => Mode::Caustic,
+            ModeArg::Direct => Mode::Direct,
+            ModeArg::Irradiance => Mode::Irradiance,
+        }),
+        estimator,
+        diagnostic: a.diagnostic.map(|d| DiagnosticView {
+            which: match d {
                 DiagnosticArg::Params => Diagnostic::Params,
                 DiagnosticArg::PathLength => Diagnostic::PathLength,
                 DiagnosticArg::Constrained => Diagnostic::Constrained,
                 DiagnosticArg::Splat => Diagnostic::Splat,
-            };
-            Diagnostics::from_map(&map, which, a.threshold, a.dot_radius)
-        })
-        .transpose()?;
-
-    // Photon columns: the plane view keeps the photons near its plane (and ignores normals).
-    let normals = map.column::<[f32; 3]>(name::NORMAL)?;
-    let (positions, flux) = (map.positions(), map.flux());
-    // (positions, flux, index in the map) of the photons kept.
-    type Kept = (Vec<[f32; 3]>, Vec<[f32; 3]>, Vec<u32>);
-    let near_plane: Option<Kept> = a.plane.map(|(axis, offset)| {
-        let keep: Vec<u32> = (0..positions.len() as u32)
-            .filter(|&i| (positions[i as usize][axis] - offset).abs() <= a.plane_tolerance)
-            .collect();
-        (
-            keep.iter().map(|&i| positions[i as usize]).collect(),
-            keep.iter().map(|&i| flux[i as usize]).collect(),
-            keep,
-        )
-    });
-    let data = match &near_plane {
-        Some((p, f, _)) => PhotonData { positions: p, flux: f, normals: None },
-        None => PhotonData { positions, flux, normals },
+            },
+            threshold: a.threshold,
+            dot_radius: a.dot_radius,
+        }),
+        spp: a.common.spp,
+        eye: a.common.eye_options(),
+        seed: a.common.seed,
+        ..MapRender::new(framing)
     };
-    if let Some((p, _, _)) = &near_plane
-        && p.is_empty()
-    {
-        bail!("{file}: no photon lies within {} m of the plane", a.plane_tolerance);
-    }
-    let photons = PhotonLookup::new(&file, data)?.prepared_for(&estimator);
-    let diagnostic = match (diagnostic, &near_plane) {
-        (Some(d), Some((_, _, keep))) => {
-            Some(Diagnostics { colours: keep.iter().map(|&i| d.colours[i as usize]).collect(), ..d })
-        }
-        (d, _) => d,
-    }
-    .map(|d| d.bounded(&photons));
-
-    let scene_store;
-    let (view, opts, scene_name) = match a.plane {
-        Some((axis, offset)) => {
-            let rect =
-                a.rect.unwrap_or_else(|| PlaneView::frame(axis, &near_plane.as_ref().expect("plane").0));
-            let (w, h) = PlaneView::image_size(rect, a.common.width, a.common.height, 600);
-            let opts = RenderOptions {
-                width: w,
-                height: h,
-                spp: a.common.spp,
-                mode,
-                estimator,
-                eye: a.common.eye_options(),
-                seed: a.common.seed,
-                keep_samples: true,
-            };
-            let name = format!(
-                "plane {}={offset} [{}, {}] × [{}, {}]",
-                ["x", "y", "z"][axis],
-                rect[0],
-                rect[2],
-                rect[1],
-                rect[3]
-            );
-            (View::Plane(PlaneView::axis_aligned(axis, offset, rect)), opts, name)
-        }
-        None => {
-            let (scene, scene_name) = load_scene(Some(&map), a.scene.as_deref())?;
-            scene_store = scene;
-            let camera = a.common.camera(&scene_store)?;
-            let opts = a.common.options(&camera, mode, estimator);
-            (View::Scene { scene: &scene_store, camera }, opts, scene_name)
-        }
+    let bar = progress_bar(0, "render");
+    let progress = |p: Progress| match p {
+        Progress::Start { tiles } => bar.set_length(tiles),
+        Progress::Tiles(n) => bar.inc(n),
     };
-    let renderer = Renderer { view, photons: Some(&photons), diagnostic: diagnostic.as_ref(), opts };
-    let bar = progress_bar(renderer.tiles(), "render");
     let t = Instant::now();
     let result = match a.common.pool()? {
-        Some(pool) => pool.install(|| renderer.render(&|n| bar.inc(n))),
-        None => renderer.render(&|n| bar.inc(n)),
+        Some(pool) => pool.install(|| render_map(map, &request, &progress)),
+        None => render_map(map, &request, &progress),
     };
     bar.finish_and_clear();
-    let (img, stats) = result?;
+    let rendered = result?;
     let secs = t.elapsed().as_secs_f64();
-    let o = &renderer.opts;
-    let what = match a.diagnostic {
-        Some(_) => format!("diagnostic {}", diagnostic_name(a.diagnostic)),
-        None => o.estimator.describe(),
-    };
-    let notes = vec![
-        (
-            "photonkit:units".to_string(),
-            if a.diagnostic.is_some() { "none (false colour)" } else { o.mode.unit() }.to_string(),
-        ),
-        ("photonkit:mode".to_string(), o.mode.name().to_string()),
-        ("photonkit:estimator".to_string(), what.clone()),
-        ("photonkit:photon_map".to_string(), file.clone()),
-        ("photonkit:scene".to_string(), scene_name),
-        ("photonkit:samples_per_pixel".to_string(), o.spp.to_string()),
-    ];
+    for remark in &rendered.remarks {
+        super::note!("photonkit render: note: {remark}");
+    }
     let outputs = Outputs { codes: a.diagnostic.is_some(), ..a.common.outputs(&a.output) };
-    render::image::write(&img, &outputs, &notes)?;
+    render::image::write(&rendered.image, &outputs, &rendered.notes)?;
+    let (o, stats) = (&rendered.options, rendered.stats);
     super::note!(
         "photonkit render: {}×{} × {} spp, {} ({}), {} photons: {:.2} s ({:.3} µs/sample, {} lookups)",
         o.width,
         o.height,
         o.spp,
         o.mode.name(),
-        what,
-        photons.len(),
+        rendered.description,
+        rendered.photons,
         secs,
         secs * 1e6 / stats.samples.max(1) as f64,
         stats.lookups
     );
-    Ok(ExitCode::SUCCESS)
-}
-
-fn diagnostic_name(d: Option<DiagnosticArg>) -> &'static str {
-    match d {
-        Some(DiagnosticArg::Params) => "params",
-        Some(DiagnosticArg::PathLength) => "path-length",
-        Some(DiagnosticArg::Constrained) => "constrained",
-        Some(DiagnosticArg::Splat) => "splat",
-        None => "none",
-    }
+    Ok(())
 }
 
 /// Render a reference image by progressive photon mapping (memoryless variant): no photon
@@ -585,11 +486,10 @@ pub struct ReferenceArgs {
     common: Common,
 }
 
-/// The EXR header attribute holding a progressive run's state (JSON).
-const STATE_NOTE: &str = "photonkit:reference_state";
-
 pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
-    use photonkit::render::reference::{Progressive, ReferenceOptions, ReferenceState};
+    use photonkit::eval::reference::{
+        self, Progressive, ReferenceOptions, ReferenceState, Resumed, SavedRun,
+    };
 
     let (scene, scene_name) = load_scene(None, a.scene.as_deref())?;
     let text = match &a.scene {
@@ -623,65 +523,28 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         max_bounces: 64,
         local_k: a.local_k.map(|k| k as usize),
     };
-    let settings = serde_json::json!({
-        "scene_crc32": photonkit::scene::scene_crc32(&text),
-        "camera": format!("{:?}", camera),
-        "width": render.width, "height": render.height, "spp": render.spp,
-        "mode": mode.name(), "kernel": kernel.name(), "specular": format!("{:?}", render.eye.specular),
-        "max_depth": render.eye.max_depth, "seed": render.seed,
-    });
+    let settings = reference::settings(&text, &camera, &render, kernel);
+    let saved = SavedRun { outputs: a.common.outputs(&a.output), mode, kernel, scene_name };
     let (mut image, mut state) = if a.resume {
-        let (image, notes) = render::image::read_exr(&a.output)
-            .with_context(|| format!("--resume: reading the saved run {}", a.output.display()))?;
-        let saved = notes.iter().find(|(k, _)| k == STATE_NOTE).with_context(|| {
-            format!("{}: not saved by `photonkit reference` (no run state)", a.output.display())
-        })?;
-        let state: ReferenceState = serde_json::from_str(&saved.1)
-            .with_context(|| format!("{}: unreadable run state", a.output.display()))?;
-        if state.settings != settings {
-            bail!(
-                "{}: saved with other settings ({}); resume with the same scene, camera, size, mode and kernel",
-                a.output.display(),
-                state.settings
-            );
+        match saved.resume(&settings, &options, a.passes)? {
+            Resumed::Continue(image, state) => (image, state),
+            Resumed::Done(passes) => {
+                super::note!("photonkit reference: {} already holds {passes} passes", a.output.display());
+                return Ok(ExitCode::SUCCESS);
+            }
         }
-        let same = ReferenceOptions { initial_radius: state.options.initial_radius, ..options.clone() };
-        if state.options != same {
-            bail!("{}: saved with other pass options ({:?})", a.output.display(), state.options);
-        }
-        if state.passes >= a.passes {
-            super::note!("photonkit reference: {} already holds {} passes", a.output.display(), state.passes);
-            return Ok(ExitCode::SUCCESS);
-        }
-        (image, state)
     } else {
-        let state = ReferenceState::start(options, settings);
-        (render::Image::new(render.width, render.height), state)
+        (render::Image::new(render.width, render.height), ReferenceState::start(options, settings))
     };
     let first = state.passes;
     let progressive = Progressive { scene: &scene, camera, render, kernel, bounces: None };
-    let outputs = a.common.outputs(&a.output);
-    let save = |state: &ReferenceState, image: &render::Image| -> Result<(), render::RenderError> {
-        let json = serde_json::to_string(state).expect("the state serialises");
-        let notes = vec![
-            ("photonkit:units".to_string(), mode.unit().to_string()),
-            ("photonkit:mode".to_string(), mode.name().to_string()),
-            (
-                "photonkit:estimator".to_string(),
-                format!("progressive photon mapping, {} kernel, {} passes", kernel.name(), state.passes),
-            ),
-            ("photonkit:scene".to_string(), scene_name.clone()),
-            (STATE_NOTE.to_string(), json),
-        ];
-        render::image::write(image, &outputs, &notes)
-    };
     let bar = progress_bar(a.passes - first, "reference");
     let t = Instant::now();
     let mut last_save = Instant::now();
-    let mut after = |s: &ReferenceState, img: &render::Image| -> Result<bool, render::RenderError> {
+    let mut after = |s: &ReferenceState, img: &render::Image| {
         bar.inc(1);
         if s.passes == a.passes || last_save.elapsed().as_secs_f64() >= a.save_every {
-            save(s, img)?;
+            saved.save(s, img)?;
             last_save = Instant::now();
         }
         Ok(true)
@@ -693,7 +556,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
     bar.finish_and_clear();
     result?;
     let secs = t.elapsed().as_secs_f64();
-    let shrink = photonkit::render::reference::radius2(1.0, state.options.alpha, state.passes).sqrt();
+    let shrink = reference::radius2(1.0, state.options.alpha, state.passes).sqrt();
     let radius = match state.options.local_k {
         Some(k) => format!("radius the {k}-NN distance of the first pass × 1 → × {shrink:.4}"),
         None => {

@@ -21,10 +21,10 @@ use glam::Vec3;
 use super::metrics::{self, Errors, Region, RegionErrors};
 use super::truth::{self, FloorGrid, Quality};
 use crate::detect::{DetectParams, Method};
+use crate::eval::reference::{Progressive, ReferenceOptions, ReferenceState};
 use crate::format::{Output, PhotonMap, PhotonTable};
 use crate::pipeline::{self, PipelineError, PipelineParams, Stage, StageDone};
 use crate::relax::RelaxParams;
-use crate::render::reference::{Progressive, ReferenceOptions, ReferenceState};
 use crate::render::{
     Estimator, EyeOptions, Image, Kernel, Mode, PhotonData, PhotonLookup, RenderOptions, Renderer, View,
 };
@@ -47,6 +47,8 @@ pub enum CompareError {
     Pipeline(#[from] crate::pipeline::PipelineError),
     #[error(transparent)]
     Render(#[from] crate::render::RenderError),
+    #[error(transparent)]
+    Reference(#[from] crate::eval::reference::ReferenceError),
     #[error(transparent)]
     Truth(#[from] truth::TruthError),
     #[error("{path}: {source}")]

@@ -5,5 +5,6 @@ pub mod compare;
 pub mod metrics;
 #[cfg(feature = "plots")]
 pub mod plots;
+pub mod reference;
 pub mod report;
 pub mod truth;

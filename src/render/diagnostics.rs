@@ -10,7 +10,7 @@
 use glam::Vec3;
 
 use super::{PhotonLookup, RenderError, Scratch};
-use crate::format::{DType, PhotonMap, name};
+use crate::format::{DType, MapView, name};
 
 /// Which property colours the photons.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -66,7 +66,7 @@ impl Diagnostics {
     /// Colours the photons of `map` by `which`; `threshold` is the constraint factor below
     /// which a photon counts as constrained.
     pub fn from_map(
-        map: &PhotonMap,
+        map: &MapView,
         which: Diagnostic,
         threshold: f32,
         dot_radius: Option<f32>,
@@ -101,8 +101,7 @@ impl Diagnostics {
             }
             Diagnostic::Params => {
                 let entry = map
-                    .meta()
-                    .column(name::PARAMS)
+                    .spec(name::PARAMS)
                     .ok_or_else(|| missing(name::PARAMS, " (trajectory parameters)"))?;
                 let stride = entry.components as usize;
                 if entry.dtype != DType::F32 || stride == 0 {
@@ -256,7 +255,7 @@ mod tests {
 #[cfg(test)]
 mod map_tests {
     use super::*;
-    use crate::format::{ColumnSpec, Output, State, write_map};
+    use crate::format::{ColumnSpec, Output, PhotonMap, State, write_map};
 
     /// A map of `uniform_square` photons with a basis_v column whose length is i/n for photon i.
     fn map_with_basis(n: usize) -> (tempfile::TempDir, PhotonMap, crate::synthetic::SyntheticMap) {
@@ -277,19 +276,19 @@ mod map_tests {
     fn photons_are_coloured_by_their_columns() {
         let (_dir, map, m) = map_with_basis(1000);
         // Constrained: red below the threshold (|basis_v| = i/n < 0.3), grey above.
-        let d = Diagnostics::from_map(&map, Diagnostic::Constrained, 0.3, None).unwrap();
+        let d = Diagnostics::from_map(&map.view(), Diagnostic::Constrained, 0.3, None).unwrap();
         for (i, c) in d.colours.iter().enumerate() {
             assert_eq!(*c == Vec3::X, (i as f32 / 1000.0) < 0.3, "photon {i}: {c}");
         }
         // Params: (u, v) normalised over the map to (u', v', 1 − (u' + v')/2).
-        let d = Diagnostics::from_map(&map, Diagnostic::Params, 0.5, None).unwrap();
+        let d = Diagnostics::from_map(&map.view(), Diagnostic::Params, 0.5, None).unwrap();
         let (lo, hi) = range(m.params.chunks(2).map(|p| p[0]));
         for (c, p) in d.colours.iter().zip(m.params.chunks(2)) {
             let u = (p[0] - lo) / (hi - lo);
             assert!((c.x - u).abs() < 1e-5 && (c.z - (1.0 - 0.5 * (c.x + c.y))).abs() < 1e-6);
         }
         // Path length: constant here, so every photon takes the ramp's first colour.
-        let d = Diagnostics::from_map(&map, Diagnostic::PathLength, 0.5, None).unwrap();
+        let d = Diagnostics::from_map(&map.view(), Diagnostic::PathLength, 0.5, None).unwrap();
         assert!(d.colours.iter().all(|c| *c == ramp(0.0)));
     }
 }

@@ -118,8 +118,8 @@ mod tests {
     #[test]
     fn a_glass_sphere_bends_the_background_by_the_refraction_closed_form() {
         use crate::render::shade::{EyeOptions, eye_path};
+        use crate::sampling::halton::PhotonRng;
         use crate::scene::{Ray, Scene};
-        use crate::trace::halton::PhotonRng;
         let w = 720;
         let mut image = Image::new(w, 4);
         for (i, p) in image.pixels.iter_mut().enumerate() {

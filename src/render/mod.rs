@@ -11,8 +11,8 @@
 pub mod diagnostics;
 pub mod environment;
 pub mod estimate;
+pub mod from_map;
 pub mod image;
-pub mod reference;
 pub mod shade;
 pub mod tone;
 
@@ -27,9 +27,8 @@ pub use image::{Image, Outputs};
 pub use shade::{DiffuseHit, EyeOptions, Lights, Specular};
 
 use crate::format::FormatError;
+use crate::sampling::halton::PhotonRng;
 use crate::scene::{Camera, Scene, SceneError};
-use crate::trace::TraceError;
-use crate::trace::halton::PhotonRng;
 
 /// Everything that can go wrong while rendering.
 #[derive(Debug, thiserror::Error)]
@@ -39,8 +38,6 @@ pub enum RenderError {
     Format(#[from] FormatError),
     #[error(transparent)]
     Scene(#[from] SceneError),
-    #[error(transparent)]
-    Trace(#[from] TraceError),
     #[error("{file}: the photon map holds no photons: nothing to render")]
     EmptyMap { file: String },
     #[error("{file}: photon {index} has a non-finite {column}")]

@@ -24,9 +24,9 @@ use std::f32::consts::PI;
 use glam::Vec3;
 
 use super::environment::Environment;
+use crate::sampling::halton::PhotonRng;
 use crate::scene::material::{fresnel, reflect, refract};
 use crate::scene::{EmitterShape, Material, Ray, Scene, Shape};
-use crate::trace::halton::PhotonRng;
 
 /// How an eye ray meeting a dielectric continues.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

@@ -257,8 +257,8 @@ fn heap_push(h: &mut Vec<Neighbour>, k: usize, c: Neighbour) {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::sampling::halton::PhotonRng;
     use crate::spatial::{PointSet, Query, Space, brute_force_knn};
-    use crate::trace::halton::PhotonRng;
 
     #[test]
     fn equals_brute_force_near_far_and_with_ties() {

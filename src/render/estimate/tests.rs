@@ -1,7 +1,7 @@
 //! The density estimators against closed forms and brute force.
 
 use super::*;
-use crate::trace::halton::PhotonRng;
+use crate::sampling::halton::PhotonRng;
 
 /// Photons uniformly at random on the square [−h, h]² of the plane z = 0, `total` W in all
 /// (split equally over RGB).

@@ -15,12 +15,33 @@
 //! low-discrepancy photons the tracer emits). The running mean and a small state record
 //! (pass count, next radius, settings) are all a run needs to be resumed.
 
+use std::path::Path;
+
 use serde::{Deserialize, Serialize};
 
-use super::{Estimator, Image, Kernel, PhotonData, PhotonLookup, RenderError, RenderOptions, Renderer, View};
+use crate::render::image::{self, Notes};
+use crate::render::{
+    Estimator, Image, Kernel, Mode, Outputs, PhotonData, PhotonLookup, RenderError, RenderOptions, Renderer,
+    View,
+};
 use crate::scene::{Camera, Scene};
 use crate::spatial::{Neighbours, PointSet, Query, Space, SpatialIndex};
-use crate::trace::{self, Budget, StorePolicy, TraceOptions};
+use crate::trace::{self, Budget, StorePolicy, TraceError, TraceOptions};
+
+/// Everything that can go wrong in a reference run.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum ReferenceError {
+    #[error(transparent)]
+    Render(#[from] RenderError),
+    #[error(transparent)]
+    Trace(#[from] TraceError),
+    #[error("{0}")]
+    Invalid(String),
+    /// The saved run to resume is missing, unreadable or saved with other settings.
+    #[error("{file}: {message}")]
+    Saved { file: String, message: String },
+}
 
 /// The paper's and Knaus & Zwicker's α.
 pub const ALPHA: f64 = 2.0 / 3.0;
@@ -121,6 +142,107 @@ pub fn initial_radius(positions: &[[f32; 3]]) -> Option<f32> {
     Some(*r.select_nth_unstable_by(mid, f32::total_cmp).1)
 }
 
+/// The EXR header attribute holding a progressive run's state (JSON).
+pub const STATE_NOTE: &str = "photonkit:reference_state";
+
+/// The settings a resumed run must share with the saved one: the scene file's CRC-32, the
+/// camera, image size, samples, mode, kernel, eye-path options and seed.
+pub fn settings(
+    scene_text: &str,
+    camera: &Camera,
+    render: &RenderOptions,
+    kernel: Kernel,
+) -> serde_json::Value {
+    serde_json::json!({
+        "scene_crc32": crate::scene::scene_crc32(scene_text),
+        "camera": format!("{:?}", camera),
+        "width": render.width, "height": render.height, "spp": render.spp,
+        "mode": render.mode.name(), "kernel": kernel.name(), "specular": format!("{:?}", render.eye.specular),
+        "max_depth": render.eye.max_depth, "seed": render.seed,
+    })
+}
+
+/// A run's image on disk: the running mean in an EXR whose header holds the run's state
+/// ([`STATE_NOTE`]), so `--resume` continues it.
+#[derive(Clone, Debug)]
+pub struct SavedRun {
+    /// The EXR (and the PNG preview, if any).
+    pub outputs: Outputs,
+    pub mode: Mode,
+    pub kernel: Kernel,
+    /// The scene's name for the header.
+    pub scene_name: String,
+}
+
+/// Where [`SavedRun::resume`] leaves a run.
+#[derive(Debug)]
+pub enum Resumed {
+    /// The saved image and state, to run on from.
+    Continue(Image, ReferenceState),
+    /// The saved run already holds this many passes (at least the number asked for).
+    Done(u64),
+}
+
+impl SavedRun {
+    fn exr(&self) -> Result<&Path, ReferenceError> {
+        self.outputs
+            .exr
+            .as_deref()
+            .ok_or_else(|| ReferenceError::Invalid("a saved run needs an EXR path".into()))
+    }
+
+    /// Reads the saved run for `until` passes in all, refusing one saved with other
+    /// `settings` ([`settings`]) or other pass `options` (the initial radius may differ: the
+    /// saved run's first pass chose it).
+    pub fn resume(
+        &self,
+        settings: &serde_json::Value,
+        options: &ReferenceOptions,
+        until: u64,
+    ) -> Result<Resumed, ReferenceError> {
+        let path = self.exr()?;
+        let saved = |message: String| ReferenceError::Saved { file: path.display().to_string(), message };
+        let (image, notes) =
+            image::read_exr(path).map_err(|e| saved(format!("reading the saved run: {e}")))?;
+        let state = notes
+            .iter()
+            .find(|(k, _)| k == STATE_NOTE)
+            .ok_or_else(|| saved("not saved by `photonkit reference` (no run state)".into()))?;
+        let state: ReferenceState =
+            serde_json::from_str(&state.1).map_err(|e| saved(format!("unreadable run state: {e}")))?;
+        if state.settings != *settings {
+            return Err(saved(format!(
+                "saved with other settings ({}); resume with the same scene, camera, size, mode and kernel",
+                state.settings
+            )));
+        }
+        let same = ReferenceOptions { initial_radius: state.options.initial_radius, ..options.clone() };
+        if state.options != same {
+            return Err(saved(format!("saved with other pass options ({:?})", state.options)));
+        }
+        if state.passes >= until {
+            return Ok(Resumed::Done(state.passes));
+        }
+        Ok(Resumed::Continue(image, state))
+    }
+
+    /// Writes the running mean with the run's state in its header.
+    pub fn save(&self, state: &ReferenceState, image: &Image) -> Result<(), ReferenceError> {
+        let json = serde_json::to_string(state).expect("the state serialises");
+        let notes: Notes = vec![
+            ("photonkit:units".to_string(), self.mode.unit().to_string()),
+            ("photonkit:mode".to_string(), self.mode.name().to_string()),
+            (
+                "photonkit:estimator".to_string(),
+                format!("progressive photon mapping, {} kernel, {} passes", self.kernel.name(), state.passes),
+            ),
+            ("photonkit:scene".to_string(), self.scene_name.clone()),
+            (STATE_NOTE.to_string(), json),
+        ];
+        Ok(image::write(image, &self.outputs, &notes)?)
+    }
+}
+
 /// A progressive photon mapping run over one scene and camera.
 pub struct Progressive<'a> {
     pub scene: &'a Scene,
@@ -143,22 +265,22 @@ impl Progressive<'_> {
         image: &mut Image,
         state: &mut ReferenceState,
         until: u64,
-        after_pass: &mut dyn FnMut(&ReferenceState, &Image) -> Result<bool, RenderError>,
-    ) -> Result<(), RenderError> {
+        after_pass: &mut dyn FnMut(&ReferenceState, &Image) -> Result<bool, ReferenceError>,
+    ) -> Result<(), ReferenceError> {
         let o = &state.options.clone();
         if o.photons_per_pass == 0 {
-            return Err(RenderError::Invalid("a pass needs at least one photon".into()));
+            return Err(ReferenceError::Invalid("a pass needs at least one photon".into()));
         }
         if !(o.alpha > 0.0 && o.alpha < 1.0) {
-            return Err(RenderError::Invalid(format!("α = {}: must lie in (0, 1)", o.alpha)));
+            return Err(ReferenceError::Invalid(format!("α = {}: must lie in (0, 1)", o.alpha)));
         }
         if (image.width, image.height) != (self.render.width, self.render.height) {
-            return Err(RenderError::Invalid(format!(
+            return Err(ReferenceError::Invalid(format!(
                 "the running image is {}×{}, the options say {}×{}",
                 image.width, image.height, self.render.width, self.render.height
             )));
         }
-        let pass_photons = |i: u64| -> Result<_, RenderError> {
+        let pass_photons = |i: u64| -> Result<_, ReferenceError> {
             let topts = TraceOptions {
                 seed: o.seed.wrapping_add(i - 1),
                 budget: Budget::Emitted(o.photons_per_pass),
@@ -188,7 +310,7 @@ impl Progressive<'_> {
                 let r1 = match o.initial_radius {
                     Some(r) => r,
                     None => initial_radius(&photons.position).ok_or_else(|| {
-                        RenderError::Invalid(
+                        ReferenceError::Invalid(
                             "the first pass stored too few photons to choose a radius: give one (--radius) or more \
                              photons per pass"
                                 .into(),

@@ -1,0 +1,390 @@
+//! Rendering a photon map: all of `photonkit render` as one library call.
+//!
+//! [`render_map`] takes a [`MapView`] (a memory-mapped file or an in-memory table), a
+//! [`MapRender`] request (a scene with its camera, or a scene-less plane; the estimator; an
+//! optional diagnostic colouring) and returns the image with the EXR header notes that say
+//! what it holds. Writing the image is the caller's choice ([`super::image::write`]).
+
+use glam::Vec3;
+
+use super::{
+    Diagnostic, Diagnostics, Estimator, EyeOptions, Image, Mode, PhotonData, PhotonLookup, PlaneView,
+    RenderError, RenderOptions, RenderStats, Renderer, View, image::Notes,
+};
+use crate::format::{MapView, name};
+use crate::scene::{Camera, Projection, Scene};
+
+/// Changes to a scene's camera; every field left `None` keeps the scene's.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct CameraChanges {
+    pub eye: Option<Vec3>,
+    pub look_at: Option<Vec3>,
+    /// Roughly up in the image (default: the scene camera's, else +z).
+    pub up: Option<Vec3>,
+    /// A pinhole camera with this vertical field of view, degrees.
+    pub fov_deg: Option<f32>,
+    /// An orthographic camera showing this height, metres.
+    pub ortho_height_m: Option<f32>,
+    /// Image size in pixels; one alone keeps the camera's aspect.
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+}
+
+impl CameraChanges {
+    /// The camera `base` (a scene's, if it has one) with these changes; a scene without a
+    /// camera needs at least the eye and the look-at point (40° pinhole, 600×600 by default).
+    pub fn camera(&self, base: Option<&Camera>) -> Result<Camera, RenderError> {
+        let invalid = |m: String| RenderError::Invalid(m);
+        let eye = self.eye.or(base.map(|c| c.eye));
+        let look = self.look_at.or(base.map(|c| c.eye + c.forward));
+        let up = self.up.or(base.map(|c| c.up)).unwrap_or(Vec3::Z);
+        let projection = match (self.fov_deg, self.ortho_height_m, base) {
+            (Some(f), _, _) if f > 0.0 && f < 180.0 => Projection::Pinhole { fov_y_rad: f.to_radians() },
+            (Some(f), _, _) => {
+                return Err(invalid(format!("--fov {f}: needs a field of view between 0 and 180 degrees")));
+            }
+            (_, Some(h), _) if h > 0.0 && h.is_finite() => Projection::Orthographic { height_m: h },
+            (_, Some(h), _) => {
+                return Err(invalid(format!("--ortho {h}: needs a positive height in metres")));
+            }
+            (None, None, Some(c)) => c.projection,
+            (None, None, None) => Projection::Pinhole { fov_y_rad: 40f32.to_radians() },
+        };
+        let (Some(eye), Some(look)) = (eye, look) else {
+            return Err(invalid(
+                "the scene has no [camera]: give --eye and --look-at (and --fov or --ortho)".into(),
+            ));
+        };
+        let res = base.map_or([600, 600], |c| c.resolution);
+        let aspect =
+            |n: u32, num: u32, den: u32| ((n as f64 * num as f64 / den as f64).round() as u32).max(1);
+        let (w, h) = match (self.width, self.height) {
+            (Some(w), Some(h)) => (w, h),
+            (Some(w), None) => (w, aspect(w, res[1], res[0])),
+            (None, Some(h)) => (aspect(h, res[0], res[1]), h),
+            (None, None) => (res[0], res[1]),
+        };
+        Camera::look_at(projection, eye, look, up, [w, h]).ok_or_else(|| {
+            invalid("the camera's eye and look-at coincide, or the view is parallel to up".into())
+        })
+    }
+}
+
+/// What the image looks at.
+#[derive(Clone, Debug)]
+pub enum Framing<'s> {
+    /// A scene through a camera (whose resolution is the image's); `name` goes to the header.
+    Scene { scene: &'s Scene, camera: Camera, name: String },
+    /// No scene: the photons within `tolerance_m` of the plane `axis` = `offset` (axis 0, 1, 2
+    /// for x, y, z), seen orthographically from its positive side; irradiance only.
+    Plane {
+        axis: usize,
+        offset: f32,
+        tolerance_m: f32,
+        /// [u0, v0, u1, v1] in the plane's other two coordinates (default: the photons' frame).
+        rect: Option<[f32; 4]>,
+        /// Image size; one alone follows the rectangle's aspect, neither gives 600 on the longer side.
+        width: Option<u32>,
+        height: Option<u32>,
+    },
+}
+
+/// A diagnostic view: photons as dots coloured by a property, instead of radiance.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct DiagnosticView {
+    pub which: Diagnostic,
+    /// Constraint factor |basis_v| below which [`Diagnostic::Constrained`] paints a photon red.
+    pub threshold: f32,
+    /// Dot radius, metres (default: 0.4 × the local photon spacing, bounded).
+    pub dot_radius: Option<f32>,
+}
+
+/// Everything [`render_map`] needs besides the map.
+#[derive(Clone, Debug)]
+pub struct MapRender<'s> {
+    pub framing: Framing<'s>,
+    /// What to render; `None`: full radiance, or irradiance for a plane.
+    pub mode: Option<Mode>,
+    pub estimator: Estimator,
+    pub diagnostic: Option<DiagnosticView>,
+    /// Samples per pixel (the paper: 4).
+    pub spp: u32,
+    pub eye: EyeOptions,
+    /// Seeds the sub-pixel jitter and sampled Fresnel choices.
+    pub seed: u64,
+    /// Keep every sample for a tone-mapped preview ([`RenderOptions::keep_samples`]).
+    pub keep_samples: bool,
+}
+
+impl<'s> MapRender<'s> {
+    /// The paper's setting on `framing`: full radiance (irradiance for a plane), K = 15
+    /// Epanechnikov, 4 samples per pixel, samples kept for the preview.
+    pub fn new(framing: Framing<'s>) -> Self {
+        let o = RenderOptions::default();
+        MapRender {
+            framing,
+            mode: None,
+            estimator: o.estimator,
+            diagnostic: None,
+            spp: o.spp,
+            eye: o.eye,
+            seed: o.seed,
+            keep_samples: true,
+        }
+    }
+}
+
+/// Progress of [`render_map`]: the number of tiles once known, then tiles as they finish.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress {
+    Start { tiles: u64 },
+    Tiles(u64),
+}
+
+/// What [`render_map`] made.
+#[derive(Debug)]
+pub struct Rendered {
+    pub image: Image,
+    pub stats: RenderStats,
+    /// The EXR header's notes: units, mode, estimator, photon map, scene, samples per pixel.
+    pub notes: Notes,
+    /// The options the image was rendered with (the mode as finally chosen).
+    pub options: RenderOptions,
+    /// The estimator's description, or the diagnostic's.
+    pub description: String,
+    /// Photons the estimate used (for a plane: those near it).
+    pub photons: usize,
+    /// Things the caller may tell the user (e.g. direct light not added twice).
+    pub remarks: Vec<String>,
+}
+
+/// Renders `map` as `request` asks (the whole of `photonkit render`).
+///
+/// A map traced with direct photons stored is rendered in caustic mode when full radiance is
+/// asked for (direct light would count twice), with a remark saying so.
+pub fn render_map(
+    map: &MapView,
+    request: &MapRender,
+    progress: &(dyn Fn(Progress) + Sync),
+) -> Result<Rendered, RenderError> {
+    let file = map.file_name();
+    let plane = match request.framing {
+        Framing::Plane { axis, offset, tolerance_m, .. } => Some((axis, offset, tolerance_m)),
+        Framing::Scene { .. } => None,
+    };
+    let mut mode = request.mode.unwrap_or(if plane.is_some() { Mode::Irradiance } else { Mode::Full });
+    if plane.is_some() && mode != Mode::Irradiance {
+        return Err(RenderError::Invalid(
+            "--plane shows irradiance only (no scene, no materials): leave out --mode or use irradiance"
+                .into(),
+        ));
+    }
+    check_estimator(&request.estimator, request.diagnostic.as_ref())?;
+    if map.is_empty() {
+        return Err(RenderError::EmptyMap { file: file.to_string() });
+    }
+    let mut remarks = Vec::new();
+    let traced_direct = map.info().trace_record().is_some_and(|t| t.parameters.store == "direct");
+    if traced_direct && mode == Mode::Full {
+        remarks.push("the map stores direct photons too, so direct light is not added again".to_string());
+        mode = Mode::Caustic;
+    }
+    let diagnostic = request
+        .diagnostic
+        .map(|d| Diagnostics::from_map(map, d.which, d.threshold, d.dot_radius))
+        .transpose()?;
+
+    // Photon columns: the plane view keeps the photons near its plane (and ignores normals).
+    let (positions, flux) = (map.positions(), map.flux());
+    let near_plane: Option<Vec<u32>> = plane.map(|(axis, offset, tolerance)| {
+        (0..positions.len() as u32)
+            .filter(|&i| (positions[i as usize][axis] - offset).abs() <= tolerance)
+            .collect()
+    });
+    let kept: Option<(Vec<[f32; 3]>, Vec<[f32; 3]>)> = near_plane.as_ref().map(|keep| {
+        (
+            keep.iter().map(|&i| positions[i as usize]).collect(),
+            keep.iter().map(|&i| flux[i as usize]).collect(),
+        )
+    });
+    let data = match &kept {
+        Some((p, f)) => PhotonData { positions: p, flux: f, normals: None },
+        None => PhotonData { positions, flux, normals: map.column::<[f32; 3]>(name::NORMAL)? },
+    };
+    if let (Some((p, _)), Some((_, _, tolerance))) = (&kept, plane)
+        && p.is_empty()
+    {
+        return Err(RenderError::Invalid(format!(
+            "{file}: no photon lies within {tolerance} m of the plane"
+        )));
+    }
+    let photons = PhotonLookup::new(file, data)?.prepared_for(&request.estimator);
+    let diagnostic = match (diagnostic, &near_plane) {
+        (Some(d), Some(keep)) => {
+            Some(Diagnostics { colours: keep.iter().map(|&i| d.colours[i as usize]).collect(), ..d })
+        }
+        (d, _) => d,
+    }
+    .map(|d| d.bounded(&photons));
+
+    let options = |width: u32, height: u32| RenderOptions {
+        width,
+        height,
+        spp: request.spp,
+        mode,
+        estimator: request.estimator,
+        eye: request.eye,
+        seed: request.seed,
+        keep_samples: request.keep_samples,
+    };
+    let (view, opts, scene_name) = match &request.framing {
+        Framing::Plane { axis, offset, rect, width, height, .. } => {
+            let points = &kept.as_ref().expect("a plane keeps its photons").0;
+            let rect = rect.unwrap_or_else(|| PlaneView::frame(*axis, points));
+            let (w, h) = PlaneView::image_size(rect, *width, *height, 600);
+            let name = format!(
+                "plane {}={offset} [{}, {}] × [{}, {}]",
+                ["x", "y", "z"][*axis],
+                rect[0],
+                rect[2],
+                rect[1],
+                rect[3]
+            );
+            (View::Plane(PlaneView::axis_aligned(*axis, *offset, rect)), options(w, h), name)
+        }
+        Framing::Scene { scene, camera, name } => {
+            let [w, h] = camera.resolution;
+            (View::Scene { scene, camera: camera.clone() }, options(w, h), name.clone())
+        }
+    };
+    let renderer = Renderer { view, photons: Some(&photons), diagnostic: diagnostic.as_ref(), opts };
+    progress(Progress::Start { tiles: renderer.tiles() });
+    let (image, stats) = renderer.render(&|n| progress(Progress::Tiles(n)))?;
+    let o = renderer.opts;
+    let description = match request.diagnostic {
+        Some(d) => format!("diagnostic {}", d.which.name()),
+        None => o.estimator.describe(),
+    };
+    let unit = if request.diagnostic.is_some() { "none (false colour)" } else { o.mode.unit() };
+    let notes = vec![
+        ("photonkit:units".to_string(), unit.to_string()),
+        ("photonkit:mode".to_string(), o.mode.name().to_string()),
+        ("photonkit:estimator".to_string(), description.clone()),
+        ("photonkit:photon_map".to_string(), file.to_string()),
+        ("photonkit:scene".to_string(), scene_name),
+        ("photonkit:samples_per_pixel".to_string(), o.spp.to_string()),
+    ];
+    Ok(Rendered { image, stats, notes, options: o, description, photons: photons.len(), remarks })
+}
+
+/// The estimator's and the diagnostic's settings, checked before any work.
+fn check_estimator(estimator: &Estimator, diagnostic: Option<&DiagnosticView>) -> Result<(), RenderError> {
+    let positive = |x: f32| x > 0.0 && x.is_finite();
+    let (k, q, max_radius) = match *estimator {
+        Estimator::Knn { k, max_radius, .. } => (k, None, max_radius),
+        Estimator::Variable { k, .. } => (k, None, None),
+        Estimator::Diffusion { k, q } => (k, Some(q), None),
+        _ => (estimator.k(), None, None),
+    };
+    if k == 0 {
+        return Err(RenderError::Invalid("-k and --diffusion-k need at least 1 neighbour".into()));
+    }
+    if q.is_some_and(|q| !positive(q))
+        || max_radius.is_some_and(|r| !positive(r))
+        || diagnostic.and_then(|d| d.dot_radius).is_some_and(|r| !positive(r))
+    {
+        return Err(RenderError::Invalid(
+            "--diffusion-q, --max-radius and --dot-radius must be positive".into(),
+        ));
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::format::PhotonTable;
+    use crate::synthetic::uniform_square;
+
+    fn plane(offset: f32) -> Framing<'static> {
+        Framing::Plane {
+            axis: 2,
+            offset,
+            tolerance_m: 1e-3,
+            rect: Some([0.1, 0.1, 0.9, 0.9]),
+            width: Some(32),
+            height: None,
+        }
+    }
+
+    #[test]
+    fn a_plane_view_of_uniform_photons_shows_their_irradiance() {
+        // 1 W spread uniformly over the unit square: E = 1/3 W/m² per channel.
+        let m = uniform_square(20_000, 3, 1.0);
+        let info = m.info("test", 3, "2026-01-01T00:00:00Z");
+        let table = PhotonTable::from_columns("square", info, &m.columns()).unwrap();
+        let ticks = std::sync::atomic::AtomicU64::new(0);
+        let total = std::sync::atomic::AtomicU64::new(0);
+        let progress = |p: Progress| match p {
+            Progress::Start { tiles } => total.store(tiles, std::sync::atomic::Ordering::Relaxed),
+            Progress::Tiles(n) => _ = ticks.fetch_add(n, std::sync::atomic::Ordering::Relaxed),
+        };
+        let r = render_map(&table.view(), &MapRender::new(plane(0.0)), &progress).unwrap();
+        assert_eq!((r.image.width, r.image.height), (32, 32), "the square rectangle keeps its aspect");
+        assert_eq!(r.options.mode, Mode::Irradiance);
+        assert_eq!(r.photons, 20_000);
+        assert_eq!(ticks.into_inner(), total.into_inner());
+        let mean = r.image.mean();
+        for c in mean.to_array() {
+            assert!((c / (1.0 / 3.0) - 1.0).abs() < 0.03, "mean irradiance {mean} W/m², expected 1/3");
+        }
+        let unit = r.notes.iter().find(|(k, _)| k == "photonkit:units").unwrap();
+        assert!(unit.1.starts_with("W/m^2"), "{unit:?}");
+    }
+
+    #[test]
+    fn bad_requests_are_refused_before_any_work() {
+        let m = uniform_square(100, 3, 1.0);
+        let info = m.info("test", 3, "2026-01-01T00:00:00Z");
+        let table = PhotonTable::from_columns("square", info, &m.columns()).unwrap();
+        let none = |_: Progress| {};
+        let err = |req: &MapRender| render_map(&table.view(), req, &none).unwrap_err().to_string();
+        let full = MapRender { mode: Some(Mode::Full), ..MapRender::new(plane(0.0)) };
+        assert!(err(&full).contains("irradiance only"), "{}", err(&full));
+        let far = MapRender::new(plane(5.0));
+        assert!(err(&far).contains("no photon lies within"), "{}", err(&far));
+        let k0 = MapRender {
+            estimator: Estimator::Knn { k: 0, kernel: super::super::Kernel::Epanechnikov, max_radius: None },
+            ..MapRender::new(plane(0.0))
+        };
+        assert!(err(&k0).contains("at least 1 neighbour"), "{}", err(&k0));
+        let empty = uniform_square(0, 3, 1.0);
+        let info = empty.info("test", 3, "2026-01-01T00:00:00Z");
+        let table = PhotonTable::from_columns("empty", info, &empty.columns()).unwrap();
+        let e = render_map(&table.view(), &MapRender::new(plane(0.0)), &none).unwrap_err();
+        assert!(matches!(e, RenderError::EmptyMap { .. }), "{e}");
+    }
+
+    #[test]
+    fn camera_changes_keep_the_aspect_and_need_a_view() {
+        let base = Camera::look_at(
+            Projection::Pinhole { fov_y_rad: 0.5 },
+            Vec3::new(0.0, -3.0, 1.0),
+            Vec3::ZERO,
+            Vec3::Z,
+            [800, 400],
+        )
+        .unwrap();
+        let c = CameraChanges { width: Some(300), ..Default::default() }.camera(Some(&base)).unwrap();
+        assert_eq!(c.resolution, [300, 150]);
+        assert_eq!(c.eye, base.eye);
+        assert!(c.forward.abs_diff_eq(base.forward, 1e-6));
+        let c =
+            CameraChanges { ortho_height_m: Some(2.0), ..Default::default() }.camera(Some(&base)).unwrap();
+        assert_eq!(c.projection, Projection::Orthographic { height_m: 2.0 });
+        let e = CameraChanges::default().camera(None).unwrap_err().to_string();
+        assert!(e.contains("no [camera]"), "{e}");
+        let e = CameraChanges { fov_deg: Some(180.0), ..Default::default() }.camera(Some(&base)).unwrap_err();
+        assert!(e.to_string().contains("between 0 and 180"), "{e}");
+    }
+}

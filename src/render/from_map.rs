@@ -201,7 +201,9 @@ pub fn render_map(
             .filter(|&i| (positions[i as usize][axis] - offset).abs() <= tolerance)
             .collect()
     });
-    let kept: Option<(Vec<[f32; 3]>, Vec<[f32; 3]>)> = near_plane.as_ref().map(|keep| {
+    // (positions, flux) of the photons near the plane.
+    type Columns = (Vec<[f32; 3]>, Vec<[f32; 3]>);
+    let kept: Option<Columns> = near_plane.as_ref().map(|keep| {
         (
             keep.iter().map(|&i| positions[i as usize]).collect(),
             keep.iter().map(|&i| flux[i as usize]).collect(),

@@ -156,6 +156,34 @@ impl BoxTree {
     }
 }
 
+impl BoxTree {
+    /// Calls `visit(index, dist²)` for every point within distance² `r2` of `q` (inclusive),
+    /// in no particular order: a fixed-radius gather whose count has no cap.
+    pub fn within(&self, q: [f32; 3], r2: f32, visit: &mut dyn FnMut(u32, f32)) {
+        if self.nodes.is_empty() || r2.is_nan() || r2 < 0.0 {
+            return;
+        }
+        let mut stack = vec![0usize];
+        while let Some(node) = stack.pop() {
+            let n = &self.nodes[node];
+            if box_dist2(n, &q) > r2 {
+                continue;
+            }
+            if n.right == 0 {
+                for i in n.start as usize..n.end as usize {
+                    let d = dist2(&self.points[i], &q);
+                    if d <= r2 {
+                        visit(self.index[i], d);
+                    }
+                }
+            } else {
+                stack.push(n.right as usize);
+                stack.push(node + 1);
+            }
+        }
+    }
+}
+
 struct Search<'a> {
     tree: &'a BoxTree,
     q: [f32; 3],
@@ -259,6 +287,30 @@ mod tests {
     use super::*;
     use crate::sampling::halton::PhotonRng;
     use crate::spatial::{PointSet, Query, Space, brute_force_knn};
+
+    #[test]
+    fn within_equals_brute_force() {
+        let mut rng = PhotonRng::new(7, 1);
+        let pts: Vec<[f32; 3]> = (0..3000)
+            .map(|i| if i % 10 == 0 { [0.5, 0.5, 0.0] } else { [rng.next_f32(), rng.next_f32(), 0.0] })
+            .collect();
+        let tree = BoxTree::build(&pts);
+        for (q, r) in [
+            ([0.5f32, 0.5, 0.0], 0.05f32),
+            ([0.0, 0.0, 0.0], 0.2),
+            ([3.0, 3.0, 0.0], 0.1),
+            ([0.3, 0.7, 0.0], 0.0),
+        ] {
+            let mut got = Vec::new();
+            tree.within(q, r * r, &mut |i, d| got.push((i, d)));
+            got.sort_by_key(|g| g.0);
+            let want: Vec<(u32, f32)> = (0..pts.len() as u32)
+                .map(|i| (i, dist2(&pts[i as usize], &q)))
+                .filter(|&(_, d)| d <= r * r)
+                .collect();
+            assert_eq!(got, want, "query {q:?} radius {r}");
+        }
+    }
 
     #[test]
     fn equals_brute_force_near_far_and_with_ties() {

@@ -245,6 +245,32 @@ pub fn trace(
     })
 }
 
+/// Traces the emission numbers `range` of `scene` (the budget and shard of `opts` are not
+/// used), every photon's flux the scene's power over the range's length: a pass of a
+/// progressive method that continues the emission sequence where an earlier run stopped, so
+/// its photons are new and the run stays deterministic.
+pub fn trace_range(
+    scene: &Scene,
+    opts: &TraceOptions,
+    range: Range<u64>,
+    progress: &(dyn Fn(u64, u64) + Sync),
+) -> Result<Traced, TraceError> {
+    let tracer = Tracer::new(scene, opts);
+    let layout = Layout { dims: tracer.dims, emitter_column: tracer.emitter_column };
+    let mut store = ChunkStore::new(layout, opts.spool.clone(), None);
+    let bounce_limited = tracer.run(range.clone(), &mut store, progress)?;
+    Ok(Traced {
+        stored: store.count(),
+        store,
+        param_dims: scene.param_dims(),
+        emitter_column: tracer.emitter_column,
+        emitted: range.end - range.start,
+        range,
+        bounce_limited,
+        power_w: tracer.power_w,
+    })
+}
+
 /// Whether testing an emitter's rays against the box around the specular surfaces saves
 /// time: true when at least one in eight of 256 rays spread over its sample square misses
 /// the box. A photon whose emission ray misses reaches a diffuse surface (or nothing) first

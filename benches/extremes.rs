@@ -117,7 +117,7 @@ fn main() {
     let img = stage("render 64×64, full, 1 spp (index + render)", n, || {
         let data = PhotonData { positions: &pos, flux: &ph.flux, normals: Some(&ph.normal) };
         let lookup = PhotonLookup::new("bench", data).expect("lookup");
-        let camera = scene.camera.clone().expect("camera");
+        let camera = scene.camera().cloned().expect("camera");
         let opts =
             RenderOptions { width: 64, height: 64, spp: 1, mode: Mode::Full, ..RenderOptions::default() };
         let r = Renderer {

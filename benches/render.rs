@@ -59,7 +59,7 @@ fn main() {
     let data = PhotonData { positions: &p.position, flux: &p.flux, normals: Some(&p.normal) };
     let lookup = PhotonLookup::new("bench", data).expect("photons");
     let build = t.elapsed().as_secs_f64();
-    let camera = scene.camera.clone().expect("the prism scene has a camera");
+    let camera = scene.camera().cloned().expect("the prism scene has a camera");
     let opts = RenderOptions { width: side, height: side, spp: 4, mode: Mode::Full, ..Default::default() };
     let renderer = Renderer {
         view: View::Scene { scene: &scene, camera: camera.clone() },

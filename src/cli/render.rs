@@ -264,7 +264,7 @@ impl Common {
 
     /// The scene's camera with the command line's changes; its resolution is the image's.
     fn camera(&self, scene: &Scene) -> anyhow::Result<Camera> {
-        let base = scene.camera.clone();
+        let base = scene.camera().cloned();
         let eye = self.eye.or(base.as_ref().map(|c| c.eye));
         let look = self.look_at.or(base.as_ref().map(|c| c.eye + c.forward));
         let up = self.up.or(base.as_ref().map(|c| c.up)).unwrap_or(Vec3::Z);

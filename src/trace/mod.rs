@@ -285,10 +285,10 @@ impl<'a> Tracer<'a> {
     /// The tracer of `scene` under `opts`: emitters chosen in proportion to power, the Halton
     /// sequence of the seed, and which emitters' rays are culled.
     fn new(scene: &'a Scene, opts: &'a TraceOptions) -> Self {
-        let power: f64 = scene.emitters.iter().map(|e| e.power_w).sum();
+        let power: f64 = scene.emitters().iter().map(|e| e.power_w).sum();
         let mut acc = 0.0;
         let mut cdf: Vec<f32> = scene
-            .emitters
+            .emitters()
             .iter()
             .map(|e| {
                 acc += e.power_w;
@@ -300,7 +300,7 @@ impl<'a> Tracer<'a> {
         }
         let table = EmitterTable {
             cdf,
-            colour: scene.emitters.iter().map(|e| e.colour / e.colour.element_sum()).collect(),
+            colour: scene.emitters().iter().map(|e| e.colour / e.colour.element_sum()).collect(),
         };
         Tracer {
             scene,
@@ -309,20 +309,20 @@ impl<'a> Tracer<'a> {
             halton: Halton::new(opts.seed),
             dims: scene.param_dims() as usize,
             wavelength_slot: scene
-                .emitters
+                .emitters()
                 .iter()
                 .map(|e| scene.is_spectral().then(|| e.param_dims(false) as usize))
                 .collect(),
-            emitter_column: scene.emitters.len() > 1,
+            emitter_column: scene.emitters().len() > 1,
             cull: scene
-                .emitters
+                .emitters()
                 .iter()
                 .map(|e| opts.store != StorePolicy::Direct && cull_worth_it(scene, e))
                 .collect(),
             avx: crate::scene::bvh::avx_available(),
             power_w: power,
             dispersive: {
-                let mut d = scene.materials.iter().filter_map(|m| match m {
+                let mut d = scene.materials().iter().filter_map(|m| match m {
                     Material::Dielectric(d) if d.dispersion.is_some() => Some(d),
                     _ => None,
                 });

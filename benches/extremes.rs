@@ -62,6 +62,8 @@ fn finite3(v: &[[f32; 3]]) -> bool {
     v.iter().flatten().all(|x| x.is_finite())
 }
 
+// Long because it is the benchmark read top to bottom: each measurement set up, timed and
+// printed in turn, as the module docs list them.
 fn main() {
     let emitted: u64 = env("PHOTONKIT_BENCH_PHOTONS", 10_000_000);
     let scale: f32 = env("PHOTONKIT_BENCH_SCALE", 1e-6);

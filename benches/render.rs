@@ -35,6 +35,8 @@ fn env(name: &str, default: u64) -> u64 {
     std::env::var(name).ok().and_then(|v| v.parse().ok()).unwrap_or(default)
 }
 
+// Long because it is the benchmark read top to bottom: each measurement set up, timed and
+// printed in turn, as the module docs list them.
 fn main() {
     let stored = env("PHOTONKIT_BENCH_PHOTONS", 863_000);
     let side = env("PHOTONKIT_BENCH_SIDE", 600) as u32;

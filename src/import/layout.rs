@@ -4,6 +4,8 @@
 //! ([`Columns`]).
 
 use crate::format::columns::{KNOWN_COLUMNS, KnownColumn, WAVELENGTH_TEXT_NAME};
+use std::collections::HashMap;
+
 use crate::format::{ColumnSpec, DType, name};
 
 use super::{At, ImportError, Result};
@@ -66,7 +68,7 @@ pub(crate) fn layout(
     extra_dtype: &dyn Fn(usize) -> DType,
 ) -> Result<Layout> {
     let bad = |at: At, message: String| ImportError::Malformed { file: file.to_string(), at, message };
-    let mut seen = std::collections::HashMap::new();
+    let mut seen = HashMap::new();
     for f in fields {
         if f.name.is_empty() || f.name.len() > 256 {
             return Err(bad(f.at, format!("field name '{}' must be 1 to 256 bytes long", f.name)));
@@ -140,7 +142,23 @@ pub(crate) fn layout(
         let col = col_of(&mut specs, ColumnSpec::new(known.name, known.dtype, comps));
         slots[i] = Some(Slot { col, comp, scale });
     }
-    // Every component of a known column must be present.
+    check_complete(file, fields, &specs, &slots, &seen, colours_as_flux, spectral)?;
+    extra_columns(file, fields, extra_dtype, &mut specs, &mut slots)?;
+    Ok(Layout { specs, slots, spectral })
+}
+
+/// Refuses a layout that lacks a component of a known column it makes (`z` beside `x y`), or
+/// lacks `position` or `flux` altogether.
+fn check_complete(
+    file: &str,
+    fields: &[Field],
+    specs: &[ColumnSpec],
+    slots: &[Option<Slot>],
+    seen: &HashMap<&str, At>,
+    colours_as_flux: bool,
+    spectral: bool,
+) -> Result<()> {
+    let bad = |at: At, message: String| ImportError::Malformed { file: file.to_string(), at, message };
     for (ci, s) in specs.iter().enumerate() {
         let names: Vec<&str> = if s.name == name::FLUX && colours_as_flux {
             COLOUR_NAMES.to_vec()
@@ -178,8 +196,18 @@ pub(crate) fn layout(
             });
         }
     }
+    Ok(())
+}
 
-    // Other fields become extra columns, kept; `c_0 … c_{n-1}` (n ≥ 2, same type) is one column.
+/// Other fields become extra columns, kept; `c_0 … c_{n-1}` (n ≥ 2, same type) is one column.
+fn extra_columns(
+    file: &str,
+    fields: &[Field],
+    extra_dtype: &dyn Fn(usize) -> DType,
+    specs: &mut Vec<ColumnSpec>,
+    slots: &mut [Option<Slot>],
+) -> Result<()> {
+    let bad = |at: At, message: String| ImportError::Malformed { file: file.to_string(), at, message };
     // (Names in a set: a table of many thousand columns costs linear time.)
     let mut spec_names: std::collections::HashSet<String> = specs.iter().map(|s| s.name.clone()).collect();
     let mut i = 0;
@@ -215,7 +243,7 @@ pub(crate) fn layout(
         }
         i += n;
     }
-    Ok(Layout { specs, slots, spectral })
+    Ok(())
 }
 
 /// Whether values of type `from` can be stored in a column of type `to` without losing their

@@ -13,10 +13,10 @@
 //! 2. **Neighbourhood**: the Kc nearest photons by world-space distance among those of the
 //!    same emitter with parameters within r_param(i) of i's ([`crate::spatial`]); i is one of
 //!    them. r is the world-space distance to the farthest (the Kc-th). *Not in the paper:* a
-//!    photon held by step 3 whose ball binds from both sides ([`ball_binds`]: a stretched map
-//!    from parameters to the surface, not an edge) is measured again with r_param doubled, up
-//!    to [`DetectParams::growths`] times; the `r_param` column holds the radius finally used
-//!    (docs/parameter-ball.md).
+//!    photon held by step 3 whose ball binds from both sides (two neighbours in its outer
+//!    fifth on opposite sides of it: a stretched map from parameters to the surface, not an
+//!    edge) is measured again with r_param doubled, up to [`DetectParams::growths`] times; the
+//!    `r_param` column holds the radius finally used (docs/parameter-ball.md).
 //! 3. **PCA** in i's tangent plane (Eq. 2–7): the neighbours' offsets are projected onto an
 //!    orthonormal basis of the plane orthogonal to the normal, their covariance (mean removed,
 //!    divided by the count m) decomposed in closed form ([`eigen2`]), λ1 ≥ λ2 normalised by r²,
@@ -74,6 +74,7 @@ pub enum Method {
 }
 
 impl Method {
+    /// The method's name on the command line and in stage records.
     pub fn name(self) -> &'static str {
         match self {
             Method::ParamPca => "param-pca",
@@ -87,6 +88,7 @@ impl Method {
 /// Detection parameters; the defaults are the paper's.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct DetectParams {
+    /// How constraints are computed.
     pub method: Method,
     /// Kc: neighbours in the PCA (and gradient) kernel.
     pub kc: usize,
@@ -98,8 +100,8 @@ pub struct DetectParams {
     pub gain: f32,
     /// μ(K), σ(K) of Eq. 4–6.
     pub noise: NoiseModel,
-    /// Times a photon's parameter ball may be doubled when it binds ([`ball_binds`]); 0 keeps
-    /// the paper's fixed ball.
+    /// Times a photon's parameter ball may be doubled when it binds from both sides (the
+    /// module docs, step 2); 0 keeps the paper's fixed ball.
     pub growths: u32,
     /// S: the visible spectrum's length in parameter space, in units of the spread of an
     /// emitter's other parameters ([`spectral_scales`]; docs/spectral.md). Used only for maps
@@ -137,21 +139,41 @@ pub const DEFAULT_GAIN: f32 = 0.6;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum DetectError {
+    /// Reading the map's columns failed.
     #[error(transparent)]
     Format(#[from] FormatError),
+    /// The photons can not be indexed (a non-finite position, say), photon indices in the
+    /// caller's order.
     #[error(transparent)]
     Spatial(#[from] SpatialError),
+    /// `param-pca` asked of a map without trajectory parameters.
     #[error(
         "{file}: method param-pca needs trajectory parameters (a 'params' column and emitters with \
          param_dims > 0); this map has none: use --method world-pca or gradient"
     )]
-    NoParameters { file: String },
+    NoParameters {
+        /// The map as named to the user.
+        file: String,
+    },
+    /// A column detection reads is not as it needs it.
     #[error("{file}: {message}")]
-    Input { file: String, message: String },
+    Input {
+        /// The map as named to the user.
+        file: String,
+        /// What is wrong with the column.
+        message: String,
+    },
+    /// A [`DetectParams`] value out of its range.
     #[error("invalid parameter: {0}")]
     Parameter(String),
+    /// A map's photons can not be indexed.
     #[error("{file}: {source}")]
-    Photons { file: String, source: SpatialError },
+    Photons {
+        /// The map as named to the user.
+        file: String,
+        /// Why, photon indices in the map's order.
+        source: SpatialError,
+    },
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -160,12 +182,15 @@ pub enum DetectError {
 /// The photons detection reads (photon i at `positions[i]`).
 #[derive(Clone, Copy, Debug)]
 pub struct DetectInput<'a> {
+    /// Photon positions, metres.
     pub positions: &'a [[f32; 3]],
     /// Surface normals (any non-zero length); missing or unusable ones are estimated.
     pub normals: Option<&'a [[f32; 3]]>,
     /// RGB flux, for the `gradient` method's weights (without it every photon weighs 1).
     pub flux: Option<&'a [[f32; 3]]>,
+    /// Trajectory parameters; without them only the world-space methods run.
     pub params: Option<ParamColumn<'a>>,
+    /// Each photon's emitter; `None`: all of emitter 0.
     pub emitters: Option<&'a [u16]>,
 }
 
@@ -193,8 +218,11 @@ impl<'a> DetectInput<'a> {
 /// Constraint columns for every photon, and what happened.
 #[derive(Clone, Debug, Default)]
 pub struct Detection {
+    /// u_b (Eq. 7): unit, in the tangent plane.
     pub basis_u: Vec<[f32; 3]>,
+    /// v_b (Eq. 7): orthogonal to u_b in the tangent plane, its length the factor in [0, 1].
     pub basis_v: Vec<[f32; 3]>,
+    /// The normalised second eigenvalue λ2 of each photon's neighbourhood (Eq. 2–6).
     pub lambda2: Vec<f32>,
     /// Eq. 1's r_param per photon for method `param-pca` (0 for photons of an emitter
     /// without parameters, whose search ignores it); `None` for the world-space methods.
@@ -202,22 +230,29 @@ pub struct Detection {
     /// Per emitter, the scale its wavelength component was given ([`spectral_scales`]), for
     /// the emitters that have one; empty when the input's parameters were used as given.
     pub spectral_scales: Vec<Option<f32>>,
+    /// Counts for the stage's report.
     pub summary: Summary,
 }
 
 /// Counts for the stage's report.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Summary {
+    /// Photons detected.
     pub photons: usize,
+    /// Photons whose neighbourhood was measured.
     pub measured: usize,
+    /// Photons with fewer than 3 neighbours: left free.
     pub too_few: usize,
+    /// Photons whose neighbours all lie on top of them, or only along the normal: left free.
     pub coincident: usize,
     /// Photons with a factor on v_b below 1/2.
     pub constrained: usize,
+    /// The mean factor on v_b (Eq. 7) over every photon.
     pub mean_factor: f64,
 }
 
 impl Summary {
+    /// [`Summary::constrained`] as a fraction of the photons (0 for none).
     pub fn constrained_fraction(&self) -> f64 {
         if self.photons == 0 { 0.0 } else { self.constrained as f64 / self.photons as f64 }
     }

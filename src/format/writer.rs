@@ -15,7 +15,9 @@ use super::{ColumnSpec, FormatError, Result};
 /// Where a stage writes its photon map.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Output {
+    /// A file, replaced atomically once every photon is written.
     Path(PathBuf),
+    /// Standard output (`-` on the command line), copied there once the file is complete.
     Stdout,
 }
 

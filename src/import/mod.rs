@@ -50,38 +50,72 @@ impl fmt::Display for At {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ImportError {
+    /// Reading the input failed.
     #[error("{file}: {source}")]
-    Io { file: String, source: std::io::Error },
+    Io {
+        /// The input as named to the user.
+        file: String,
+        /// What the system said.
+        source: std::io::Error,
+    },
     /// Bad bytes or text at a known place.
     #[error("{file}: {at}: {message}")]
-    Malformed { file: String, at: At, message: String },
+    Malformed {
+        /// The input as named to the user.
+        file: String,
+        /// The line or byte offset.
+        at: At,
+        /// What is wrong there.
+        message: String,
+    },
     /// Well-formed input that does not make a photon map (no positions, inconsistent options).
     #[error("{file}: {message}")]
-    Invalid { file: String, message: String },
+    Invalid {
+        /// The input as named to the user.
+        file: String,
+        /// What is missing or inconsistent.
+        message: String,
+    },
     /// A variant of a format this importer knows of but does not read.
     #[error("{file}: {variant} is not supported: {message}")]
-    Unsupported { file: String, variant: String, message: String },
+    Unsupported {
+        /// The input as named to the user.
+        file: String,
+        /// The variant found (a Radiance version, record size or map kind).
+        variant: String,
+        /// What this importer reads instead.
+        message: String,
+    },
+    /// Neither the first bytes nor the extension say which format the input is.
     #[error(
         "{file}: format not recognised (expected a PLY file starting with 'ply', a Radiance photon map \
          starting with '#?RADIANCE', or a .csv/.tsv/.txt table); name it with --from"
     )]
-    UnknownFormat { file: String },
+    UnknownFormat {
+        /// The input as named to the user.
+        file: String,
+    },
+    /// Writing the PHM file failed.
     #[error(transparent)]
     Format(#[from] FormatError),
 }
 
+/// A result whose error is an [`ImportError`].
 pub type Result<T, E = ImportError> = std::result::Result<T, E>;
 
 /// The formats `photonkit import` reads.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SourceFormat {
+    /// PLY point cloud, ASCII or binary (format-spec/import.md).
     Ply,
     /// Comma- or tab-separated text with a header row (the delimiter is taken from the header).
     Csv,
+    /// A Radiance photon map written by `mkpmap` (format 3.1).
     Radiance,
 }
 
 impl SourceFormat {
+    /// The format's name in messages and stage records (`ply`, `csv`, `radiance`).
     pub fn name(self) -> &'static str {
         match self {
             SourceFormat::Ply => "ply",
@@ -126,23 +160,28 @@ pub struct Options {
 /// Photons read from another format, held as PHM columns in memory.
 #[derive(Clone, Debug)]
 pub struct Imported {
+    /// The format the photons were read from.
     pub format: SourceFormat,
     /// Columns in the order they will be written; `position` and `flux` always present.
     pub columns: Vec<(ColumnSpec, Vec<u8>)>,
+    /// One `external` emitter per value of the `emitter` column (one when there is none).
     pub emitters: Vec<Emitter>,
     /// What the importer learnt about the source (stored in the stage record's `report`).
     pub report: Value,
 }
 
 impl Imported {
+    /// Number of photons.
     pub fn len(&self) -> usize {
         self.columns.first().map_or(0, |(s, b)| b.len() / s.stride().max(1) as usize)
     }
 
+    /// Whether no photon was imported.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
 
+    /// The bytes of the column named `column`, if there is one.
     pub fn column(&self, column: &str) -> Option<&[u8]> {
         self.columns.iter().find(|(s, _)| s.name == column).map(|(_, b)| b.as_slice())
     }

@@ -45,29 +45,55 @@ const RAY_OFFSET_FALLBACK_M: f32 = 1e-4;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum SceneError {
+    /// Reading the scene file failed.
     #[error("{file}: {source}")]
-    Io { file: String, source: std::io::Error },
+    Io {
+        /// The scene file as named to the user.
+        file: String,
+        /// What the system said.
+        source: std::io::Error,
+    },
     /// A syntax, type or value error at a place in the file (line and column 1-based).
     #[error("{file}:{line}:{column}: {field}: {message}")]
-    Invalid { file: String, line: usize, column: usize, field: String, message: String },
+    Invalid {
+        /// The scene file as named to the user.
+        file: String,
+        /// The line, 1-based.
+        line: usize,
+        /// The column, 1-based.
+        column: usize,
+        /// The key's path (`shapes[1].radius`).
+        field: String,
+        /// What is wrong with it.
+        message: String,
+    },
     /// The scene file a map's trace record names is not where the record says.
     #[error("{map}: traced from the scene '{scene}', which is not found here: pass --scene FILE")]
-    NotFound { map: String, scene: String },
+    NotFound {
+        /// The map as named to the user.
+        map: String,
+        /// The scene file as the record names it.
+        scene: String,
+    },
 }
 
 /// The geometry of one surface, in world space.
 #[derive(Clone, Debug, PartialEq)]
 pub enum SurfaceGeometry {
+    /// A shape intersected in closed form.
     Analytic(Shape),
+    /// A triangle mesh, its triangles in the scene's BVH.
     Mesh(Mesh),
 }
 
 /// One shape of the scene: its name, material and geometry.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Surface {
+    /// The name in messages (the scene file's `name`, or one made from its kind and number).
     pub name: String,
     /// Index into [`SceneDescription::materials`].
     pub material: u32,
+    /// Its shape, world space.
     pub geometry: SurfaceGeometry,
 }
 
@@ -205,7 +231,14 @@ pub enum Background {
     /// An equirectangular image (linear RGB OpenEXR), loaded by the renderer: the image's
     /// top row looks up (+z), its horizontal centre along +x turned by `rotate_deg` about z
     /// (anticlockwise seen from above), each pixel times `strength`.
-    Image { path: std::path::PathBuf, strength: f32, rotate_deg: f32 },
+    Image {
+        /// The OpenEXR file, resolved against the scene file's folder.
+        path: std::path::PathBuf,
+        /// The factor every pixel is multiplied by.
+        strength: f32,
+        /// The turn about z, degrees, anticlockwise seen from above.
+        rotate_deg: f32,
+    },
 }
 
 impl Scene {

@@ -277,7 +277,7 @@ fn scene_triangles(file: &str) -> Vec<[Vec3; 3]> {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("samples/scenes").join(file);
     let scene = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
     let mut out = Vec::new();
-    for s in &scene.surfaces {
+    for s in scene.surfaces() {
         if let SurfaceGeometry::Mesh(m) = &s.geometry {
             out.extend((0..m.indices.len()).map(|i| m.triangle(i)));
         }

@@ -43,6 +43,8 @@ fn measure<T>(f: impl FnOnce() -> T) -> (T, f64, f64) {
     (out, cpu() - c, t.elapsed().as_secs_f64())
 }
 
+// Long because it is the benchmark read top to bottom: each measurement set up, timed and
+// printed in turn, as the module docs list them.
 fn main() {
     let emitted: u64 =
         std::env::var("PHOTONKIT_BENCH_PHOTONS").ok().and_then(|s| s.parse().ok()).unwrap_or(1_430_000);

@@ -18,23 +18,54 @@ use crate::format::{DType, Output, PhotonMap};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ExportError {
+    /// Writing the output failed.
     #[error("{file}: {source}")]
-    Io { file: String, source: std::io::Error },
+    Io {
+        /// The output as named to the user.
+        file: String,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// A value the format can not hold so that `import` reads it back the same.
     #[error("{file}: column '{column}', photon {photon}: {message}")]
-    Value { file: String, column: String, photon: usize, message: String },
+    Value {
+        /// The map or output as named to the user.
+        file: String,
+        /// The column holding the value.
+        column: String,
+        /// The photon's index (0-based).
+        photon: usize,
+        /// Why the value can not be written.
+        message: String,
+    },
+    /// A column whose name can not be a field name of the format.
     #[error("{file}: column '{column}' can not be named in {format}: {message}")]
-    Name { file: String, column: String, format: &'static str, message: String },
+    Name {
+        /// The output as named to the user.
+        file: String,
+        /// The column's name.
+        column: String,
+        /// `PLY` or `CSV`.
+        format: &'static str,
+        /// Why the name does not fit.
+        message: String,
+    },
 }
 
+/// A result whose error is an [`ExportError`].
 pub type Result<T, E = ExportError> = std::result::Result<T, E>;
 
+/// The formats `photonkit export` writes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ExportFormat {
+    /// Binary little-endian PLY, one `vertex` per photon.
     Ply,
+    /// Comma-separated text with a header row.
     Csv,
 }
 
 impl ExportFormat {
+    /// The file name extension (`ply`, `csv`).
     pub fn extension(self) -> &'static str {
         match self {
             ExportFormat::Ply => "ply",

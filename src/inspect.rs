@@ -15,38 +15,59 @@ use crate::format::{
 /// Statistics of one component of one column, over its finite values.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ComponentStats {
+    /// Smallest finite value; `None` when there is none.
     pub min: Option<f64>,
+    /// Largest finite value; `None` when there is none.
     pub max: Option<f64>,
     /// Mean of the finite values, summed in f64 in file order.
     pub mean: Option<f64>,
+    /// Number of NaN values.
     pub nan: u64,
+    /// Number of infinite values.
     pub inf: u64,
 }
 
+/// One row of the column table, with statistics of its values.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct ColumnSummary {
+    /// The column's name.
     pub name: String,
+    /// Its element type.
     pub dtype: DType,
+    /// Components per photon.
     pub components: u32,
+    /// Byte offset in the file.
     pub offset: u64,
+    /// Length, bytes.
     pub length: u64,
+    /// The stored CRC-32.
     pub crc32: u32,
+    /// One entry per component.
     pub stats: Vec<ComponentStats>,
 }
 
 /// What `photonkit inspect --json` prints.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Summary {
+    /// The map as named to the user.
     pub file: String,
+    /// The file's version, `major.minor`.
     pub version: String,
+    /// Number of photons.
     pub photon_count: u64,
+    /// The map's state (`traced`, `detected`, `collapsed`).
     pub state: String,
+    /// Units of length and flux.
     pub units: Units,
+    /// The light sources.
     pub emitters: Vec<Emitter>,
+    /// The box around every photon position, metres; `None` for an empty map.
     pub bounding_box: Option<BoundingBox>,
     /// Sum of the flux column per RGB channel, watts (f64, file order).
     pub total_flux_w: [f64; 3],
+    /// The column table, in file order, with statistics.
     pub columns: Vec<ColumnSummary>,
+    /// The stages that wrote the file, oldest first.
     pub history: Vec<StageRecord>,
 }
 
@@ -117,8 +138,11 @@ pub fn summarize(map: &PhotonMap) -> Summary {
 /// One broken invariant: which rule, how many photons break it, and the first of them.
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Violation {
+    /// The rule broken (format-spec/phm-v1.md §5), or the checksum error.
     pub rule: String,
+    /// Photons that break it (0 for a checksum error).
     pub photons: u64,
+    /// The first of them (0-based).
     pub first: Option<u64>,
 }
 

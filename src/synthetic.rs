@@ -12,25 +12,37 @@ use crate::format::{ColumnSpec, Emitter, EmitterKind, MapInfo, Parameterisation,
 /// Photons held as columns in memory, ready for [`crate::format::write_map`].
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct SyntheticMap {
+    /// Where each photon lies, metres.
     pub position: Vec<[f32; 3]>,
+    /// The unit surface normal there.
     pub normal: Vec<[f32; 3]>,
+    /// RGB flux, watts.
     pub flux: Vec<[f32; 3]>,
+    /// Unit direction of travel when it arrived.
     pub incident: Vec<[f32; 3]>,
+    /// Index of its emitter in [`Self::emitters`].
     pub emitter: Vec<u16>,
     /// Trajectory parameters, `param_dims` per photon.
     pub params: Vec<f32>,
+    /// Components of `params` per photon.
     pub param_dims: u32,
+    /// Length of the path from the emitter, metres.
     pub path_length: Vec<f32>,
+    /// Specular interactions on the path.
     pub bounces: Vec<u8>,
+    /// The photon's number in the emission sequence.
     pub emission_index: Vec<u64>,
+    /// The emitters, as the map's metadata lists them.
     pub emitters: Vec<Emitter>,
 }
 
 impl SyntheticMap {
+    /// Number of photons.
     pub fn len(&self) -> usize {
         self.position.len()
     }
 
+    /// Whether there are none.
     pub fn is_empty(&self) -> bool {
         self.position.is_empty()
     }

@@ -218,7 +218,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                  reference of {} passes",
                 a.reference_passes
             );
-            let Some(cam) = scene.camera.clone() else {
+            let Some(cam) = scene.camera().cloned() else {
                 bail!("the scene has no [camera] to view the reference through")
             };
             let h = ((a.cells as f64) * cam.resolution[1] as f64 / cam.resolution[0] as f64).round().max(1.0)

@@ -277,7 +277,7 @@ impl Common {
 
     /// The scene's camera with the command line's changes; its resolution is the image's.
     fn camera(&self, scene: &Scene) -> anyhow::Result<Camera> {
-        Ok(self.camera_changes().camera(scene.camera.as_ref())?)
+        Ok(self.camera_changes().camera(scene.camera())?)
     }
 
     fn options(&self, camera: &Camera, mode: Mode, estimator: Estimator) -> RenderOptions {

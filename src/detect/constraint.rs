@@ -12,7 +12,9 @@ use super::NoiseModel;
 /// Eigen-decomposition of the symmetric 2×2 matrix [[a, b], [b, c]].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Eigen2 {
+    /// The larger eigenvalue λ1.
     pub lambda1: f64,
+    /// The smaller eigenvalue λ2 (≤ λ1).
     pub lambda2: f64,
     /// Unit eigenvector of λ1.
     pub p1: [f64; 2],
@@ -149,6 +151,7 @@ pub struct PhotonConstraint {
     pub lambda2: f32,
     /// The factor on v_b, in [0, 1].
     pub factor: f32,
+    /// How it was decided.
     pub outcome: Outcome,
 }
 
@@ -168,8 +171,11 @@ impl PhotonConstraint {
 /// A photon's neighbourhood as the kernels read it: offsets x_j − x_i (i itself included,
 /// at zero), r² the squared world distance to the farthest, and the photon's stored normal.
 pub struct Neighbourhood<'a> {
+    /// x_j − x_i for each neighbour j, metres.
     pub offsets: &'a [DVec3],
+    /// r²: the squared distance to the farthest neighbour, m².
     pub r2: f64,
+    /// The photon's stored normal, if any (any non-zero length).
     pub normal: Option<[f32; 3]>,
 }
 

@@ -13,10 +13,10 @@
 //! 2. **Neighbourhood**: the Kc nearest photons by world-space distance among those of the
 //!    same emitter with parameters within r_param(i) of i's ([`crate::spatial`]); i is one of
 //!    them. r is the world-space distance to the farthest (the Kc-th). *Not in the paper:* a
-//!    photon held by step 3 whose ball binds from both sides ([`ball_binds`]: a stretched map
-//!    from parameters to the surface, not an edge) is measured again with r_param doubled, up
-//!    to [`DetectParams::growths`] times; the `r_param` column holds the radius finally used
-//!    (docs/parameter-ball.md).
+//!    photon held by step 3 whose ball binds from both sides (two neighbours in its outer
+//!    fifth on opposite sides of it: a stretched map from parameters to the surface, not an
+//!    edge) is measured again with r_param doubled, up to [`DetectParams::growths`] times; the
+//!    `r_param` column holds the radius finally used (docs/parameter-ball.md).
 //! 3. **PCA** in i's tangent plane (Eq. 2–7): the neighbours' offsets are projected onto an
 //!    orthonormal basis of the plane orthogonal to the normal, their covariance (mean removed,
 //!    divided by the count m) decomposed in closed form ([`eigen2`]), λ1 ≥ λ2 normalised by r²,
@@ -40,6 +40,7 @@
 //! unless fewer photons qualify), from [`NoiseModel`].
 
 mod constraint;
+mod map;
 mod noise;
 
 use glam::DVec3;
@@ -51,9 +52,10 @@ pub use constraint::{
     Eigen2, LAMBDA2_MIN, Neighbourhood, Outcome, PhotonConstraint, eigen2, erf, gradient_constraint,
     migration, noise_filter, pca_constraint, tangent_basis, v_factor,
 };
+pub use map::{choose_method, detect_map, detected_map, map_input, spectral_scales};
 pub use noise::{NoiseModel, Row, SIMULATED, in_disc, lambda2_of, simulate};
 
-use crate::format::{FormatError, MapView, PhotonTable, StageRecord, State, name};
+use crate::format::FormatError;
 use crate::spatial::{Neighbours, ParamColumn, PointSet, Space, SpatialError, SpatialIndex};
 
 /// How constraints are computed.
@@ -72,6 +74,7 @@ pub enum Method {
 }
 
 impl Method {
+    /// The method's name on the command line and in stage records.
     pub fn name(self) -> &'static str {
         match self {
             Method::ParamPca => "param-pca",
@@ -85,6 +88,7 @@ impl Method {
 /// Detection parameters; the defaults are the paper's.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct DetectParams {
+    /// How constraints are computed.
     pub method: Method,
     /// Kc: neighbours in the PCA (and gradient) kernel.
     pub kc: usize,
@@ -96,8 +100,8 @@ pub struct DetectParams {
     pub gain: f32,
     /// μ(K), σ(K) of Eq. 4–6.
     pub noise: NoiseModel,
-    /// Times a photon's parameter ball may be doubled when it binds ([`ball_binds`]); 0 keeps
-    /// the paper's fixed ball.
+    /// Times a photon's parameter ball may be doubled when it binds from both sides (the
+    /// module docs, step 2); 0 keeps the paper's fixed ball.
     pub growths: u32,
     /// S: the visible spectrum's length in parameter space, in units of the spread of an
     /// emitter's other parameters ([`spectral_scales`]; docs/spectral.md). Used only for maps
@@ -135,21 +139,41 @@ pub const DEFAULT_GAIN: f32 = 0.6;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum DetectError {
+    /// Reading the map's columns failed.
     #[error(transparent)]
     Format(#[from] FormatError),
+    /// The photons can not be indexed (a non-finite position, say), photon indices in the
+    /// caller's order.
     #[error(transparent)]
     Spatial(#[from] SpatialError),
+    /// `param-pca` asked of a map without trajectory parameters.
     #[error(
         "{file}: method param-pca needs trajectory parameters (a 'params' column and emitters with \
          param_dims > 0); this map has none: use --method world-pca or gradient"
     )]
-    NoParameters { file: String },
+    NoParameters {
+        /// The map as named to the user.
+        file: String,
+    },
+    /// A column detection reads is not as it needs it.
     #[error("{file}: {message}")]
-    Input { file: String, message: String },
+    Input {
+        /// The map as named to the user.
+        file: String,
+        /// What is wrong with the column.
+        message: String,
+    },
+    /// A [`DetectParams`] value out of its range.
     #[error("invalid parameter: {0}")]
     Parameter(String),
+    /// A map's photons can not be indexed.
     #[error("{file}: {source}")]
-    Photons { file: String, source: SpatialError },
+    Photons {
+        /// The map as named to the user.
+        file: String,
+        /// Why, photon indices in the map's order.
+        source: SpatialError,
+    },
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -158,12 +182,15 @@ pub enum DetectError {
 /// The photons detection reads (photon i at `positions[i]`).
 #[derive(Clone, Copy, Debug)]
 pub struct DetectInput<'a> {
+    /// Photon positions, metres.
     pub positions: &'a [[f32; 3]],
     /// Surface normals (any non-zero length); missing or unusable ones are estimated.
     pub normals: Option<&'a [[f32; 3]]>,
     /// RGB flux, for the `gradient` method's weights (without it every photon weighs 1).
     pub flux: Option<&'a [[f32; 3]]>,
+    /// Trajectory parameters; without them only the world-space methods run.
     pub params: Option<ParamColumn<'a>>,
+    /// Each photon's emitter; `None`: all of emitter 0.
     pub emitters: Option<&'a [u16]>,
 }
 
@@ -191,8 +218,11 @@ impl<'a> DetectInput<'a> {
 /// Constraint columns for every photon, and what happened.
 #[derive(Clone, Debug, Default)]
 pub struct Detection {
+    /// u_b (Eq. 7): unit, in the tangent plane.
     pub basis_u: Vec<[f32; 3]>,
+    /// v_b (Eq. 7): orthogonal to u_b in the tangent plane, its length the factor in [0, 1].
     pub basis_v: Vec<[f32; 3]>,
+    /// The normalised second eigenvalue λ2 of each photon's neighbourhood (Eq. 2–6).
     pub lambda2: Vec<f32>,
     /// Eq. 1's r_param per photon for method `param-pca` (0 for photons of an emitter
     /// without parameters, whose search ignores it); `None` for the world-space methods.
@@ -200,22 +230,29 @@ pub struct Detection {
     /// Per emitter, the scale its wavelength component was given ([`spectral_scales`]), for
     /// the emitters that have one; empty when the input's parameters were used as given.
     pub spectral_scales: Vec<Option<f32>>,
+    /// Counts for the stage's report.
     pub summary: Summary,
 }
 
 /// Counts for the stage's report.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct Summary {
+    /// Photons detected.
     pub photons: usize,
+    /// Photons whose neighbourhood was measured.
     pub measured: usize,
+    /// Photons with fewer than 3 neighbours: left free.
     pub too_few: usize,
+    /// Photons whose neighbours all lie on top of them, or only along the normal: left free.
     pub coincident: usize,
     /// Photons with a factor on v_b below 1/2.
     pub constrained: usize,
+    /// The mean factor on v_b (Eq. 7) over every photon.
     pub mean_factor: f64,
 }
 
 impl Summary {
+    /// [`Summary::constrained`] as a fraction of the photons (0 for none).
     pub fn constrained_fraction(&self) -> f64 {
         if self.photons == 0 { 0.0 } else { self.constrained as f64 / self.photons as f64 }
     }
@@ -510,191 +547,6 @@ fn detect_in_order(
     }
     d.summary.mean_factor = if n > 0 { factor_sum / n as f64 } else { 0.0 };
     Ok(d)
-}
-
-// ---------------------------------------------------------------------------------------------
-// Over a PHM file.
-
-/// The method to run on `map`: `requested` if given (an error if it is `param-pca` and the map
-/// has no trajectory parameters), else `param-pca`, or `world-pca` with a note to show the
-/// user when the map has no trajectory parameters.
-pub fn choose_method(
-    map: &MapView,
-    requested: Option<Method>,
-) -> Result<(Method, Option<String>), DetectError> {
-    let has = map_input(map)?.has_params();
-    match requested {
-        Some(Method::ParamPca) if !has => Err(DetectError::NoParameters { file: map.file_name().into() }),
-        Some(m) => Ok((m, None)),
-        None if has => Ok((Method::ParamPca, None)),
-        None => Ok((
-            Method::WorldPca,
-            Some(format!(
-                "{} has no trajectory parameters: detecting with world-pca (world-space neighbours only)",
-                map.file_name()
-            )),
-        )),
-    }
-}
-
-/// The columns of `map` that detection reads, validated.
-pub fn map_input<'a>(map: &MapView<'a>) -> Result<DetectInput<'a>, DetectError> {
-    let file = map.file_name();
-    let meta = map.info();
-    let input = |message: String| DetectError::Input { file: file.to_string(), message };
-    let emitters = map.column::<u16>(name::EMITTER)?;
-    if let Some(e) = emitters
-        && let Some(i) = e.iter().position(|&e| e as usize >= meta.emitters.len().max(1))
-    {
-        return Err(input(format!(
-            "photon {i} has emitter {} but the map lists {} emitters",
-            e[i],
-            meta.emitters.len()
-        )));
-    }
-    let params = match map.spec(name::PARAMS) {
-        None => None,
-        Some(c) if c.dtype != crate::format::DType::F32 => {
-            return Err(input(format!("the params column is {}, expected f32", c.dtype.name())));
-        }
-        Some(c) => {
-            let bytes = map.column_bytes(name::PARAMS).unwrap_or(&[]);
-            let values: &[f32] =
-                bytemuck::try_cast_slice(bytes).map_err(|e| input(format!("params column: {e}")))?;
-            Some((values, c.components as usize))
-        }
-    };
-    Ok(DetectInput {
-        positions: map.positions(),
-        normals: map.column::<[f32; 3]>(name::NORMAL)?,
-        flux: Some(map.flux()),
-        params: params.map(|(values, stride)| ParamColumn { values, stride, dims: &[] }),
-        emitters,
-    })
-}
-
-/// [`detect`] over a map (the file's emitter list gives each emitter's parameter dimensions).
-pub fn detect_map(
-    map: &MapView,
-    p: &DetectParams,
-    progress: &(dyn Fn(u64) + Sync),
-) -> Result<Detection, DetectError> {
-    check_params(p)?;
-    let emitters = &map.info().emitters;
-    let dims: Vec<u32> = emitters.iter().map(|e| e.param_dims).collect();
-    let mut input = map_input(map)?;
-    input.params = input.params.map(|c| ParamColumn { dims: &dims, ..c });
-    // A wavelength component enters distances scaled (docs/spectral.md).
-    let mut scales = Vec::new();
-    let scaled = match input.params {
-        Some(c) if p.method == Method::ParamPca && emitters.iter().any(|e| e.is_spectral()) => {
-            scales = spectral_scales(emitters, c, input.emitters, p.spectral_scale);
-            // The factors relax will read back from the records write_detected makes.
-            let factors: Vec<Vec<f32>> = emitters
-                .iter()
-                .zip(&scales)
-                .map(|(e, s)| {
-                    s.map_or_else(|| e.param_scales(), |s| e.with_spectral_scale(s as f64).param_scales())
-                })
-                .collect();
-            Some(c.scaled(input.emitters, &factors))
-        }
-        _ => None,
-    };
-    if let (Some(values), Some(c)) = (scaled.as_deref(), input.params.as_mut()) {
-        c.values = values;
-    }
-    let mut d = detect(&input, p, progress).map_err(|e| match e {
-        DetectError::NoParameters { .. } => DetectError::NoParameters { file: map.file_name().into() },
-        DetectError::Spatial(source) => DetectError::Photons { file: map.file_name().into(), source },
-        e => e,
-    })?;
-    d.spectral_scales = scales;
-    Ok(d)
-}
-
-/// Per emitter, the scale of its wavelength component in parameter-space distances (`None`
-/// for an emitter without one): S·ℓ/(λmax − λmin), where ℓ is the root-mean-square distance
-/// of the emitter's photons' other parameters from their mean and [λmin, λmax] the
-/// dimension's range. The visible range then spans S times the spread of the parameters
-/// that say where a photon left, whatever their units (a rectangle's (u, v), or directions in
-/// a narrow spot's cone) (docs/spectral.md).
-pub fn spectral_scales(
-    emitters: &[crate::format::Emitter],
-    params: ParamColumn,
-    photon_emitters: Option<&[u16]>,
-    s: f32,
-) -> Vec<Option<f32>> {
-    let n = params.values.len() / params.stride.max(1);
-    emitters
-        .iter()
-        .enumerate()
-        .map(|(e, em)| {
-            let k = em.parameterisation.spectral_component()?;
-            let [lo, hi] = em.dimensions().get(k).and_then(|d| d.range).unwrap_or_else(|| {
-                let (lo, hi) = crate::format::meta::WAVELENGTH_RANGE_NM;
-                [lo as f64, hi as f64]
-            });
-            let mine = |i: &usize| photon_emitters.map_or(e == 0, |pe| pe[*i] as usize == e);
-            let rows = || (0..n).filter(mine).map(|i| &params.values[i * params.stride..][..k]);
-            let count = rows().count().max(1) as f64;
-            let mut mean = vec![0.0f64; k];
-            for q in rows() {
-                mean.iter_mut().zip(q).for_each(|(m, &x)| *m += x as f64);
-            }
-            mean.iter_mut().for_each(|m| *m /= count);
-            let var: f64 = rows()
-                .map(|q| q.iter().zip(&mean).map(|(&x, m)| (x as f64 - m).powi(2)).sum::<f64>())
-                .sum::<f64>()
-                / count;
-            let spread = if var > 0.0 { var.sqrt() } else { 1.0 };
-            let width = if hi > lo { hi - lo } else { 1.0 };
-            Some((s as f64 * spread / width) as f32)
-        })
-        .collect()
-}
-
-/// `map` with the constraint columns of `d` (replacing any from an earlier run), every other
-/// column carried through unchanged (borrowed), state `detected`, and a stage record.
-pub fn detected_map<'a>(
-    map: &MapView<'a>,
-    d: &Detection,
-    p: &DetectParams,
-    seconds: f64,
-) -> Result<PhotonTable<'a>, DetectError> {
-    let mut info = map.info().clone();
-    info.state = State::Detected;
-    let mut parameters = serde_json::to_value(p).unwrap_or_default();
-    for (e, s) in info.emitters.iter_mut().zip(&d.spectral_scales) {
-        if let Some(s) = s {
-            *e = e.with_spectral_scale(*s as f64);
-            parameters["spectral_scale"] = serde_json::json!(p.spectral_scale);
-        }
-    }
-    let mut rec = StageRecord::now("detect", parameters);
-    let s = &d.summary;
-    rec.report = serde_json::json!({
-        "seconds": crate::format::meta::reported_seconds(seconds),
-        "photons": s.photons,
-        "constrained_fraction": s.constrained_fraction(),
-        "mean_factor": s.mean_factor,
-        "measured": s.measured,
-        "too_few_neighbours": s.too_few,
-        "coincident": s.coincident,
-        "parameter_space": d.r_param.is_some(),
-    });
-    info.history.push(rec);
-    let mut table = PhotonTable::carrying(map, info);
-    for column in [name::BASIS_U, name::BASIS_V, name::LAMBDA2, name::R_PARAM] {
-        table.remove(column);
-    }
-    table.set(name::BASIS_U, &d.basis_u)?;
-    table.set(name::BASIS_V, &d.basis_v)?;
-    table.set(name::LAMBDA2, &d.lambda2)?;
-    if let Some(r) = &d.r_param {
-        table.set(name::R_PARAM, r)?;
-    }
-    Ok(table)
 }
 
 #[cfg(test)]

@@ -234,8 +234,10 @@ pub enum Region {
 }
 
 impl Region {
+    /// Every region, in report order.
     pub const ALL: [Region; 4] = [Region::Core, Region::Edge, Region::Smooth, Region::Dark];
 
+    /// The region's name in reports.
     pub fn name(self) -> &'static str {
         match self {
             Region::Core => "core",
@@ -305,17 +307,22 @@ pub fn regions(truth: &[[f64; 3]], width: usize, height: usize, edges: &[bool]) 
 pub struct RegionErrors {
     /// `None`: the whole image.
     pub region: Option<Region>,
+    /// Cell count of the region.
     pub cells: usize,
+    /// RMSE over the truth's mean over the whole image; √(`bias2` + `variance`).
     pub nrmse: f64,
     /// The same RMSE over the region's own truth mean (NaN where that is 0, as in the dark
     /// region): the relative error the time-to-error table targets.
     pub rel_rmse: f64,
-    /// The median and 90th percentile of the relative error of each cell's luminance,
+    /// The median of the relative error of each cell's luminance,
     /// |L(x) − L(t)| / L(t), over the region's cells in every seed's image; in dark cells,
     /// where L(t) = 0, |L(x)| over the truth's mean luminance.
     pub median_rel: f64,
+    /// The 90th percentile of the same relative error.
     pub p90_rel: f64,
+    /// Squared bias over the squared truth mean, unbiased (the struct's docs).
     pub bias2: f64,
+    /// Variance across seeds over the squared truth mean (the struct's docs).
     pub variance: f64,
     /// Colour error: the root mean square over the region's cells (in every seed's image) of
     /// the distance between the cell's chromaticity (r, g, b)/(r + g + b) and the truth's,

@@ -13,7 +13,9 @@ use crate::render::Image;
 /// for a single run; e.g. "photons = 300000" in a sweep).
 #[derive(Clone, Debug)]
 pub struct Run {
+    /// What was varied ("photons = 300000"); empty for a single run.
     pub label: String,
+    /// One row per method.
     pub rows: Vec<Row>,
 }
 

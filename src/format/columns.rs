@@ -6,15 +6,25 @@ use serde::{Deserialize, Serialize};
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum DType {
+    /// Unsigned 8-bit integer.
     U8,
+    /// Unsigned 16-bit integer.
     U16,
+    /// Unsigned 32-bit integer.
     U32,
+    /// Unsigned 64-bit integer.
     U64,
+    /// Signed 8-bit integer.
     I8,
+    /// Signed 16-bit integer.
     I16,
+    /// Signed 32-bit integer.
     I32,
+    /// Signed 64-bit integer.
     I64,
+    /// IEEE 754 single precision.
     F32,
+    /// IEEE 754 double precision.
     F64,
 }
 
@@ -29,10 +39,12 @@ impl DType {
         }
     }
 
+    /// Whether this is `f32` or `f64`.
     pub fn is_float(self) -> bool {
         matches!(self, DType::F32 | DType::F64)
     }
 
+    /// The type's name in the metadata (`u8` … `f64`).
     pub fn name(self) -> &'static str {
         match self {
             DType::U8 => "u8",
@@ -89,7 +101,9 @@ impl DType {
 
 /// A Rust type that is the exact in-memory image of one photon's entry in a column.
 pub trait Element: bytemuck::Pod {
+    /// The column's element type.
     const DTYPE: DType;
+    /// Components per photon (3 for `[f32; 3]`).
     const COMPONENTS: u32;
 }
 
@@ -155,13 +169,17 @@ pub mod name {
 
 /// A column PHM 1.0 defines: its type, allowed component counts and text names.
 pub struct KnownColumn {
+    /// The column's name in the metadata.
     pub name: &'static str,
+    /// Its element type.
     pub dtype: DType,
+    /// The component counts it may have.
     pub components: &'static [u32],
     /// Names of the components in text form (TSV, CSV, PLY), for the first allowed count.
     pub text_names: &'static [&'static str],
 }
 
+/// Every column PHM 1.0 defines (format-spec/phm-v1.md §4.1).
 pub const KNOWN_COLUMNS: &[KnownColumn] = &[
     KnownColumn { name: name::POSITION, dtype: DType::F32, components: &[3], text_names: &["x", "y", "z"] },
     KnownColumn { name: name::NORMAL, dtype: DType::F32, components: &[3], text_names: &["nx", "ny", "nz"] },
@@ -214,6 +232,7 @@ pub const KNOWN_COLUMNS: &[KnownColumn] = &[
     KnownColumn { name: name::R_PARAM, dtype: DType::F32, components: &[1], text_names: &["r_param"] },
 ];
 
+/// The catalogue entry of the column named `name`, if PHM defines it.
 pub fn known_column(name: &str) -> Option<&'static KnownColumn> {
     KNOWN_COLUMNS.iter().find(|k| k.name == name)
 }
@@ -253,8 +272,11 @@ pub const WAVELENGTH_TEXT_NAME: &str = "wavelength";
 /// The type and shape of one column, without its place in a file.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct ColumnSpec {
+    /// The column's name.
     pub name: String,
+    /// Its element type.
     pub dtype: DType,
+    /// Components per photon.
     pub components: u32,
     /// Keys of the column's table entry that this version does not define (a newer minor
     /// version's), carried through unchanged by a stage that passes the column on.
@@ -262,6 +284,7 @@ pub struct ColumnSpec {
 }
 
 impl ColumnSpec {
+    /// A column of `components` values of `dtype` per photon, with no extra keys.
     pub fn new(name: &str, dtype: DType, components: u32) -> Self {
         ColumnSpec { name: name.to_string(), dtype, components, extra: Default::default() }
     }

@@ -11,14 +11,21 @@ use super::columns::DType;
 /// The whole metadata object.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Metadata {
+    /// Number of photons: every column holds this many elements.
     pub photon_count: u64,
+    /// The column table, in file order.
     pub columns: Vec<ColumnEntry>,
+    /// The light sources; a photon's `emitter` value indexes this list.
     pub emitters: Vec<Emitter>,
+    /// Units of length and flux.
     pub units: Units,
     /// Axis-aligned box around every photon position; `null` for an empty map.
     pub bounding_box: Option<BoundingBox>,
+    /// Where the map is in the pipeline.
     pub state: State,
+    /// The stages that wrote the file, oldest first.
     pub history: Vec<StageRecord>,
+    /// Keys this version does not know, kept.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
@@ -26,8 +33,11 @@ pub struct Metadata {
 /// One row of the column table.
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ColumnEntry {
+    /// The column's name (§4.1 for the known ones).
     pub name: String,
+    /// Its element type.
     pub dtype: DType,
+    /// Components per photon.
     pub components: u32,
     /// Absolute byte offset of the column in the file; a multiple of 64.
     pub offset: u64,
@@ -35,6 +45,7 @@ pub struct ColumnEntry {
     pub length: u64,
     /// CRC-32 of the column's `length` bytes.
     pub crc32: u32,
+    /// Keys this version does not know, kept.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
@@ -70,6 +81,7 @@ pub enum Parameterisation {
     DirectionSpectral,
     /// No trajectory parameters: 0 dimensions.
     None,
+    /// A parameterisation written by a newer minor version.
     #[serde(other)]
     Unknown,
 }
@@ -177,7 +189,9 @@ pub const UNIT_TOLERANCE: f32 = 1e-3;
 pub struct Emitter {
     /// Equal to the emitter's index in the list; the value stored in the `emitter` column.
     pub id: u32,
+    /// What kind of light source it is.
     pub kind: EmitterKind,
+    /// How its trajectory parameters are written in `params`.
     pub parameterisation: Parameterisation,
     /// Number of `params` components this emitter uses.
     pub param_dims: u32,
@@ -196,6 +210,7 @@ pub struct Emitter {
     /// parameterisations). Empty: the parameterisation's [`Parameterisation::dimensions`].
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub dimensions: Vec<ParamDimension>,
+    /// Keys this version does not know, kept.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
@@ -239,6 +254,7 @@ impl Emitter {
 pub struct ParamDimension {
     /// `u`, `v`, `x`, `y`, `z` or `wavelength`.
     pub name: String,
+    /// What it measures.
     pub kind: DimensionKind,
     /// Unit of the stored values (`nm` for a wavelength); absent for dimensionless ones.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -251,11 +267,13 @@ pub struct ParamDimension {
     /// one over its range's width).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scale: Option<f64>,
+    /// Keys this version does not know, kept.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
 
 impl ParamDimension {
+    /// A dimension with no unit, range or scale.
     pub fn new(name: &str, kind: DimensionKind) -> Self {
         ParamDimension { name: name.into(), kind, unit: None, range: None, scale: None, extra: Map::new() }
     }
@@ -284,16 +302,19 @@ pub enum DimensionKind {
     Directional,
     /// The photon's wavelength.
     Spectral,
+    /// A kind written by a newer minor version.
     #[serde(other)]
     Unknown,
 }
 
+/// The units of the stored quantities (always metres and watts in version 1).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Units {
     /// Unit of length of positions and path lengths: "m".
     pub length: String,
     /// Unit of flux: "W".
     pub flux: String,
+    /// Keys this version does not know, kept.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
@@ -304,9 +325,12 @@ impl Default for Units {
     }
 }
 
+/// An axis-aligned box, metres.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct BoundingBox {
+    /// The smallest x, y and z.
     pub min: [f32; 3],
+    /// The largest x, y and z.
     pub max: [f32; 3],
 }
 
@@ -329,11 +353,13 @@ pub enum State {
     Detected,
     /// Parameter dimensions dropped from the neighbour search (they stay in the file).
     Collapsed,
+    /// A state written by a newer minor version.
     #[serde(other)]
     Unknown,
 }
 
 impl State {
+    /// The state's name in the metadata.
     pub fn name(self) -> &'static str {
         match self {
             State::Traced => "traced",
@@ -358,6 +384,7 @@ pub struct StageRecord {
     /// Measurements the stage made (per-iteration relaxation measures, timings, …).
     #[serde(default, skip_serializing_if = "Value::is_null")]
     pub report: Value,
+    /// Keys this version does not know, kept.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
@@ -383,14 +410,20 @@ impl StageRecord {
 /// (count, column table, checksums, bounding box).
 #[derive(Clone, Debug, PartialEq)]
 pub struct MapInfo {
+    /// The light sources; a photon's `emitter` value indexes this list.
     pub emitters: Vec<Emitter>,
+    /// Units of length and flux.
     pub units: Units,
+    /// Where the map is in the pipeline.
     pub state: State,
+    /// The stages that wrote the file, oldest first (the writing stage adds its own).
     pub history: Vec<StageRecord>,
+    /// Keys this version does not know, kept.
     pub extra: Map<String, Value>,
 }
 
 impl MapInfo {
+    /// A header in metres and watts with no history yet.
     pub fn new(emitters: Vec<Emitter>, state: State) -> Self {
         MapInfo { emitters, units: Units::default(), state, history: Vec::new(), extra: Map::new() }
     }
@@ -416,6 +449,7 @@ impl Metadata {
         u16::from(v1_1)
     }
 
+    /// The column table's entry for `name`, if the map has that column.
     pub fn column(&self, name: &str) -> Option<&ColumnEntry> {
         self.columns.iter().find(|c| c.name == name)
     }

@@ -37,31 +37,114 @@ compile_error!("photonkit views PHM columns in place and needs a little-endian m
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum FormatError {
+    /// Reading or writing the file failed.
     #[error("{file}: {source}")]
-    Io { file: String, source: std::io::Error },
+    Io {
+        /// The file as named to the user.
+        file: String,
+        /// What the system said.
+        source: std::io::Error,
+    },
+    /// The file does not start with the PHM magic number (format-spec/phm-v1.md §2).
     #[error("{file}: not a PHM photon map (the first 8 bytes are not the PHM magic number)")]
-    BadMagic { file: String },
+    BadMagic {
+        /// The file as named to the user.
+        file: String,
+    },
+    /// The file ends before a part it declares.
     #[error("{file}: truncated: {what} needs {needed} bytes but the file has {actual}")]
-    Truncated { file: String, what: &'static str, needed: u64, actual: u64 },
+    Truncated {
+        /// The file as named to the user.
+        file: String,
+        /// The part that does not fit (the preamble, the metadata, a column).
+        what: &'static str,
+        /// Bytes the part needs the file to have.
+        needed: u64,
+        /// Bytes the file has.
+        actual: u64,
+    },
+    /// A major version this build does not read.
     #[error(
         "{file}: PHM version {major}.{minor} is not supported: this photonkit reads major version 1 \
          (a newer major version changes the layout; upgrade photonkit)"
     )]
-    UnsupportedVersion { file: String, major: u16, minor: u16 },
+    UnsupportedVersion {
+        /// The file as named to the user.
+        file: String,
+        /// The preamble's major version.
+        major: u16,
+        /// The preamble's minor version.
+        minor: u16,
+    },
+    /// The metadata is longer than [`MAX_METADATA_LEN`](preamble::MAX_METADATA_LEN).
     #[error("{file}: metadata length {len} bytes exceeds the limit of {limit} bytes")]
-    MetadataTooLarge { file: String, len: u64, limit: u64 },
+    MetadataTooLarge {
+        /// The file as named to the user.
+        file: String,
+        /// The metadata's length, bytes.
+        len: u64,
+        /// The limit, bytes.
+        limit: u64,
+    },
+    /// The preamble's CRC-32 over the metadata does not match it.
     #[error("{file}: metadata checksum mismatch (bytes 32..{end}): the header is corrupt")]
-    MetadataChecksum { file: String, end: u64 },
+    MetadataChecksum {
+        /// The file as named to the user.
+        file: String,
+        /// Byte offset just past the metadata.
+        end: u64,
+    },
+    /// The metadata is not JSON of the expected shape.
     #[error("{file}: metadata (byte {offset}): {message}")]
-    MetadataJson { file: String, offset: u64, message: String },
+    MetadataJson {
+        /// The file as named to the user.
+        file: String,
+        /// Byte offset in the file where the JSON parser stopped.
+        offset: u64,
+        /// What the parser said.
+        message: String,
+    },
+    /// Metadata that parses but breaks a rule of the spec (or a request to write such a file).
     #[error("{file}: invalid metadata: {message}")]
-    Invalid { file: String, message: String },
+    Invalid {
+        /// The file as named to the user.
+        file: String,
+        /// Which rule, and how.
+        message: String,
+    },
+    /// A column whose entry or data breaks a rule of the spec.
     #[error("{file}: column '{column}': {message}")]
-    Column { file: String, column: String, message: String },
+    Column {
+        /// The file as named to the user.
+        file: String,
+        /// The column's name.
+        column: String,
+        /// Which rule, and how.
+        message: String,
+    },
+    /// A column's data does not match its stored CRC-32.
     #[error("{file}: column '{column}' fails its checksum (stored {stored:08x}, computed {computed:08x})")]
-    Checksum { file: String, column: String, stored: u32, computed: u32 },
+    Checksum {
+        /// The file as named to the user.
+        file: String,
+        /// The column's name.
+        column: String,
+        /// The CRC-32 in the column table.
+        stored: u32,
+        /// The CRC-32 of the bytes read.
+        computed: u32,
+    },
+    /// A NaN or infinity where the spec requires finite values (§5).
     #[error("{file}: photon {index} has a non-finite value in column '{column}'")]
-    NonFinite { file: String, column: String, index: u64 },
+    NonFinite {
+        /// The file as named to the user.
+        file: String,
+        /// The column's name.
+        column: String,
+        /// The photon's index (0-based).
+        index: u64,
+    },
 }
 
+/// A result whose error is a [`FormatError`].
 pub type Result<T, E = FormatError> = std::result::Result<T, E>;

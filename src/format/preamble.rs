@@ -20,7 +20,9 @@ pub const COLUMN_ALIGN: u64 = 64;
 /// The preamble as it lies on disk.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Preamble {
+    /// Major version: files of another major version are refused.
     pub version_major: u16,
+    /// Minor version: additions a reader of an older minor version may ignore.
     pub version_minor: u16,
     /// CRC-32 (zlib's polynomial) of the metadata region.
     pub metadata_crc32: u32,
@@ -31,6 +33,7 @@ pub struct Preamble {
 }
 
 impl Preamble {
+    /// The 32 bytes as written to the file.
     pub fn to_bytes(self) -> [u8; PREAMBLE_LEN] {
         let mut b = [0u8; PREAMBLE_LEN];
         b[0..8].copy_from_slice(&MAGIC);

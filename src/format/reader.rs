@@ -127,6 +127,7 @@ impl PhotonMap {
         (self.preamble.version_major, self.preamble.version_minor)
     }
 
+    /// The metadata as read and validated.
     pub fn meta(&self) -> &Metadata {
         &self.meta
     }
@@ -141,6 +142,7 @@ impl PhotonMap {
         self.meta.photon_count as usize
     }
 
+    /// Whether the map has no photons.
     pub fn is_empty(&self) -> bool {
         self.meta.photon_count == 0
     }

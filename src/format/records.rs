@@ -18,9 +18,12 @@ pub struct TraceParameters {
     pub scene: String,
     /// CRC-32 of the scene file's text, 8 hex digits ([`crate::scene::scene_crc32`]).
     pub scene_crc32: String,
+    /// The seed of the emission sequence's rotation and of the per-photon random streams
+    /// ([`crate::sampling`]).
     pub seed: u64,
     /// Which photons were stored: "caustic" (L S+ D) or "direct".
     pub store: String,
+    /// Specular interactions after which a photon is dropped.
     pub max_bounces: u32,
     /// Photons emitted (a fixed emission budget).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -31,6 +34,7 @@ pub struct TraceParameters {
     /// "i/n" for shard i of n.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub shard: Option<String>,
+    /// Keys this version does not know, kept.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
@@ -52,8 +56,11 @@ impl TraceParameters {
 #[derive(Clone, Debug, Default, PartialEq, Serialize, Deserialize)]
 #[serde(default)]
 pub struct TraceReport {
+    /// Photons emitted (by the whole run, every shard).
     pub emitted: u64,
+    /// Photons stored in the map.
     pub stored: u64,
+    /// Photons dropped at the bounce limit.
     pub bounce_limited: u64,
     /// The emission numbers a shard traced, [start, end).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -61,6 +68,7 @@ pub struct TraceReport {
     /// Where the scene file lies relative to the map's folder, when it was known.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub scene_from_map: Option<String>,
+    /// Keys this version does not know, kept.
     #[serde(flatten)]
     pub extra: Map<String, Value>,
 }
@@ -68,7 +76,9 @@ pub struct TraceReport {
 /// A map's `trace` record, typed.
 #[derive(Clone, Debug, PartialEq)]
 pub struct TraceRecord {
+    /// What was traced, and how.
     pub parameters: TraceParameters,
+    /// What the trace did.
     pub report: TraceReport,
 }
 

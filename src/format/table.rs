@@ -53,6 +53,7 @@ impl<'a> MapView<'a> {
         self.len
     }
 
+    /// Whether the map has no photons.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
@@ -143,6 +144,7 @@ impl Bytes<'_> {
 #[derive(Clone, Debug)]
 pub struct PhotonTable<'a> {
     file: String,
+    /// The header the map will be written with.
     pub info: MapInfo,
     columns: Vec<(ColumnSpec, Bytes<'a>)>,
     len: usize,
@@ -196,10 +198,12 @@ impl<'a> PhotonTable<'a> {
         }
     }
 
+    /// Number of photons.
     pub fn len(&self) -> usize {
         self.len
     }
 
+    /// Whether the table has no photons.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }

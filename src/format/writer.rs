@@ -15,7 +15,9 @@ use super::{ColumnSpec, FormatError, Result};
 /// Where a stage writes its photon map.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Output {
+    /// A file, replaced atomically once every photon is written.
     Path(PathBuf),
+    /// Standard output (`-` on the command line), copied there once the file is complete.
     Stdout,
 }
 
@@ -57,40 +59,44 @@ pub struct PhotonWriter {
     bbox: Option<BoundingBox>,
 }
 
+/// Refuses a layout the reader would refuse: a column given twice, unnamed or without
+/// components, a known column (format-spec/phm-v1.md §4.1) of the wrong type or width, a
+/// missing `position` or `flux`, or emitters not numbered 0, 1, … with finite power and colour.
+fn check_layout(tname: &str, info: &MapInfo, specs: &[ColumnSpec]) -> Result<()> {
+    let bad = |message: String| FormatError::Invalid { file: tname.to_string(), message };
+    let mut seen = HashSet::new();
+    for s in specs {
+        if !seen.insert(s.name.as_str()) {
+            return Err(bad(format!("column '{}' given twice", s.name)));
+        }
+        if s.components == 0 || s.name.is_empty() {
+            return Err(bad(format!("column '{}' needs a name and at least one component", s.name)));
+        }
+        if let Some(k) = known_column(&s.name)
+            && (k.dtype != s.dtype || !k.components.contains(&s.components))
+        {
+            return Err(bad(format!("column '{}' must be {}×{:?}", s.name, k.dtype.name(), k.components)));
+        }
+    }
+    for required in [name::POSITION, name::FLUX] {
+        if !seen.contains(required) {
+            return Err(bad(format!("the required column '{required}' is missing")));
+        }
+    }
+    for (i, e) in info.emitters.iter().enumerate() {
+        if e.id as usize != i || !e.power_w.is_finite() || e.colour.iter().any(|c| !c.is_finite()) {
+            return Err(bad(format!("emitter {i} needs id {i} and finite power and colour")));
+        }
+    }
+    Ok(())
+}
+
 impl PhotonWriter {
     /// Lays out a file of `count` photons with the given columns (position and flux required).
     pub fn create(target: Output, info: MapInfo, specs: &[ColumnSpec], count: u64) -> Result<Self> {
         let tname = target.display();
         let bad = |message: String| FormatError::Invalid { file: tname.clone(), message };
-        let mut seen = HashSet::new();
-        for s in specs {
-            if !seen.insert(s.name.as_str()) {
-                return Err(bad(format!("column '{}' given twice", s.name)));
-            }
-            if s.components == 0 || s.name.is_empty() {
-                return Err(bad(format!("column '{}' needs a name and at least one component", s.name)));
-            }
-            if let Some(k) = known_column(&s.name)
-                && (k.dtype != s.dtype || !k.components.contains(&s.components))
-            {
-                return Err(bad(format!(
-                    "column '{}' must be {}×{:?}",
-                    s.name,
-                    k.dtype.name(),
-                    k.components
-                )));
-            }
-        }
-        for required in [name::POSITION, name::FLUX] {
-            if !seen.contains(required) {
-                return Err(bad(format!("the required column '{required}' is missing")));
-            }
-        }
-        for (i, e) in info.emitters.iter().enumerate() {
-            if e.id as usize != i || !e.power_w.is_finite() || e.colour.iter().any(|c| !c.is_finite()) {
-                return Err(bad(format!("emitter {i} needs id {i} and finite power and colour")));
-            }
-        }
+        check_layout(&tname, &info, specs)?;
 
         // The metadata is written last but sits first, so reserve room for its longest form:
         // the same JSON with the widest possible checksums, offsets and box, plus slack.

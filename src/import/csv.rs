@@ -59,30 +59,7 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
         message,
     };
 
-    // The header: the first line that is not blank and not a comment, or a comment line that
-    // names x, y and z (a header written behind `#` or `//`).
-    let mut offset = 0usize;
-    let mut header: Option<(u64, String)> = None;
-    let mut comments = 0usize;
-    for (i, line) in text.split_inclusive('\n').enumerate() {
-        offset += line.len();
-        let l = line.trim();
-        if l.is_empty() {
-            continue;
-        }
-        let commented = l.strip_prefix("//").or_else(|| l.strip_prefix('#'));
-        match commented {
-            Some(rest) if !names_xyz(&split_header(rest, delimiter(rest))) => comments += 1,
-            Some(rest) => {
-                header = Some((i as u64 + 1, rest.trim().to_string()));
-                break;
-            }
-            None => {
-                header = Some((i as u64 + 1, l.to_string()));
-                break;
-            }
-        }
-    }
+    let (offset, header, comments) = find_header(text);
     let (header_line, header) = header.ok_or_else(|| ImportError::Invalid {
         file: file.into(),
         message: "the file is empty: no header row".into(),
@@ -116,50 +93,7 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
         }
     }
 
-    // 1-based file line of a byte offset into the rows (from the offsets of the line ends).
-    let data = &text.as_bytes()[offset..];
-    let line_ends: Vec<usize> =
-        data.iter().enumerate().filter(|(_, b)| **b == b'\n').map(|(i, _)| i).collect();
-    // (A record's position may be that of the blank lines before it: skip them.)
-    let line_at = |byte: u64| {
-        let mut b = byte as usize;
-        while b < data.len() && matches!(data[b], b'\n' | b'\r') {
-            b += 1;
-        }
-        header_line + 1 + line_ends.partition_point(|&e| e < b) as u64
-    };
-    // The rows, split by the csv crate: one record per line, `#` lines skipped.
-    let mut reader = csv::ReaderBuilder::new()
-        .has_headers(false)
-        .delimiter(delim)
-        .flexible(true)
-        .comment(Some(b'#'))
-        .trim(csv::Trim::All)
-        .from_reader(data);
-    let expected = names.len();
-    let mut rows: Vec<(u64, csv::StringRecord)> = Vec::new();
-    for record in reader.records() {
-        let record = record.map_err(|e| {
-            let line = e.position().map_or(header_line, |p| line_at(p.byte()));
-            malformed(line, format!("unreadable row: {e}"))
-        })?;
-        let line = record.position().map_or(header_line, |p| line_at(p.byte()));
-        if record.len() == 1 && record[0].is_empty() {
-            continue; // a blank line
-        }
-        let n = if trailing && record.len() == expected + 1 && record[expected].is_empty() {
-            expected
-        } else {
-            record.len()
-        };
-        if n != expected {
-            return Err(malformed(
-                line,
-                format!("expected {expected} values (one per header name), found {n}"),
-            ));
-        }
-        rows.push((line, record));
-    }
+    let rows = records(file, &text.as_bytes()[offset..], header_line, delim, names.len(), trailing)?;
 
     let fields: Vec<Field> = canonical
         .iter()
@@ -189,6 +123,97 @@ pub fn read(file: &str, bytes: &[u8], options: &Options) -> Result<super::Import
     }
     let spectral = lay_spectral;
     with_emitters(file, SourceFormat::Csv, cols.into_columns(), options.parameterisation, spectral, report)
+}
+
+/// The header: the first line that is not blank and not a comment, or a comment line that
+/// names x, y and z (a header written behind `#` or `//`). Returns the byte offset just past
+/// it, its 1-based line and text (`None`: no header), and how many comment lines came before.
+fn find_header(text: &str) -> (usize, Option<(u64, String)>, usize) {
+    let mut offset = 0usize;
+    let mut header: Option<(u64, String)> = None;
+    let mut comments = 0usize;
+    for (i, line) in text.split_inclusive('\n').enumerate() {
+        offset += line.len();
+        let l = line.trim();
+        if l.is_empty() {
+            continue;
+        }
+        let commented = l.strip_prefix("//").or_else(|| l.strip_prefix('#'));
+        match commented {
+            Some(rest) if !names_xyz(&split_header(rest, delimiter(rest))) => comments += 1,
+            Some(rest) => {
+                header = Some((i as u64 + 1, rest.trim().to_string()));
+                break;
+            }
+            None => {
+                header = Some((i as u64 + 1, l.to_string()));
+                break;
+            }
+        }
+    }
+    (offset, header, comments)
+}
+
+/// The rows after the header (`data`, whose first line is file line `header_line + 1`), split
+/// by the csv crate: one record per line, `#` lines and blank lines skipped, each with its
+/// 1-based file line. A row of other than `expected` values is refused, except for the empty
+/// last value a `trailing` delimiter leaves.
+fn records(
+    file: &str,
+    data: &[u8],
+    header_line: u64,
+    delim: u8,
+    expected: usize,
+    trailing: bool,
+) -> Result<Vec<(u64, csv::StringRecord)>> {
+    let malformed = |line: u64, message: String| ImportError::Malformed {
+        file: file.into(),
+        at: At::Line(line),
+        message,
+    };
+    // 1-based file line of a byte offset into the rows (from the offsets of the line ends).
+    let line_ends: Vec<usize> =
+        data.iter().enumerate().filter(|(_, b)| **b == b'\n').map(|(i, _)| i).collect();
+    // (A record's position may be that of the blank lines before it: skip them.)
+    let line_at = |byte: u64| {
+        let mut b = byte as usize;
+        while b < data.len() && matches!(data[b], b'\n' | b'\r') {
+            b += 1;
+        }
+        header_line + 1 + line_ends.partition_point(|&e| e < b) as u64
+    };
+    // The rows, split by the csv crate: one record per line, `#` lines skipped.
+    let mut reader = csv::ReaderBuilder::new()
+        .has_headers(false)
+        .delimiter(delim)
+        .flexible(true)
+        .comment(Some(b'#'))
+        .trim(csv::Trim::All)
+        .from_reader(data);
+    let mut rows: Vec<(u64, csv::StringRecord)> = Vec::new();
+    for record in reader.records() {
+        let record = record.map_err(|e| {
+            let line = e.position().map_or(header_line, |p| line_at(p.byte()));
+            malformed(line, format!("unreadable row: {e}"))
+        })?;
+        let line = record.position().map_or(header_line, |p| line_at(p.byte()));
+        if record.len() == 1 && record[0].is_empty() {
+            continue; // a blank line
+        }
+        let n = if trailing && record.len() == expected + 1 && record[expected].is_empty() {
+            expected
+        } else {
+            record.len()
+        };
+        if n != expected {
+            return Err(malformed(
+                line,
+                format!("expected {expected} values (one per header name), found {n}"),
+            ));
+        }
+        rows.push((line, record));
+    }
+    Ok(rows)
 }
 
 /// The type of a column this importer does not know, from its text: integers as i64, floats

@@ -310,7 +310,44 @@ pub fn read(path: &Path, bytes: &[u8], options: &Options) -> Result<Imported> {
     let np_at = r.pos;
     let num_primary = r.uint32("numPrimary")? as usize;
 
-    // Primary rays: source index and, in the D variant, the direction towards the source.
+    let primaries = read_primaries(&mut r, variant, num_primary, np_at)?;
+
+    let (photons, storage) = if variant.out_of_core {
+        (read_ooc(path, &mut r, variant, num_photons)?, "out-of-core octree + .leaf")
+    } else {
+        (read_kd(&mut r, variant, num_photons)?, "kd-tree")
+    };
+
+    let mut imported = photon_columns(&r, &photons, &primaries, variant, options.caustic_only)?;
+    let n = imported.len();
+    imported.report = json!({
+        "radiance_format": th.format,
+        "radiance_version": version,
+        "mkpmap_command": th.command,
+        "storage": storage,
+        "photons_in_file": num_photons,
+        "photons": n,
+        "primary_rays": num_primary,
+        "average_flux_w": avg_flux,
+        "bounding_box": { "min": [bounds[0], bounds[2], bounds[4]], "max": [bounds[1], bounds[3], bounds[5]] },
+        "centre_of_gravity": cog,
+        "primary_positions": if variant.primary_pos {
+            "not imported: Radiance stores the previous emission's origin there"
+        } else {
+            "absent"
+        },
+    });
+    Ok(imported)
+}
+
+/// The primary rays: each one's source index and, in the D variant, the unit direction
+/// towards the source. `np_at` is the byte offset of the `numPrimary` count, for errors.
+fn read_primaries(
+    r: &mut Reader,
+    variant: Variant,
+    num_primary: usize,
+    np_at: usize,
+) -> Result<Vec<(u16, Option<[f32; 3]>)>> {
     let psize = variant.primary_size();
     if num_primary.checked_mul(psize).is_none_or(|b| b > r.remaining()) {
         return Err(r.err(
@@ -342,15 +379,20 @@ pub fn read(path: &Path, bytes: &[u8], options: &Options) -> Result<Imported> {
         }
         primaries.push((src, dir));
     }
+    Ok(primaries)
+}
 
-    let (photons, storage) = if variant.out_of_core {
-        (read_ooc(path, &mut r, variant, num_photons)?, "out-of-core octree + .leaf")
-    } else {
-        (read_kd(&mut r, variant, num_photons)?, "kd-tree")
-    };
-
-    // Columns, in file order (pmapdump's order), keeping only caustic photons if asked.
-    let keep: Vec<&Photon> = photons.iter().filter(|p| p.caustic || !options.caustic_only).collect();
+/// The photon columns in file order (pmapdump's order), only the caustic photons if
+/// `caustic_only`, with one external emitter per primary source index (the report left empty).
+fn photon_columns(
+    r: &Reader,
+    photons: &[Photon],
+    primaries: &[(u16, Option<[f32; 3]>)],
+    variant: Variant,
+    caustic_only: bool,
+) -> Result<Imported> {
+    let num_primary = primaries.len();
+    let keep: Vec<&Photon> = photons.iter().filter(|p| p.caustic || !caustic_only).collect();
     let n = keep.len();
     let mut pos = Vec::with_capacity(n);
     let mut flux = Vec::with_capacity(n);
@@ -404,24 +446,7 @@ pub fn read(path: &Path, bytes: &[u8], options: &Options) -> Result<Imported> {
         columns.push((ColumnSpec::of::<[f32; 3]>(name::PARAMS), bytemuck::cast_slice(&params).to_vec()));
     }
     columns.push((ColumnSpec::new("caustic", DType::U8, 1), caustic));
-    let report = json!({
-        "radiance_format": th.format,
-        "radiance_version": version,
-        "mkpmap_command": th.command,
-        "storage": storage,
-        "photons_in_file": num_photons,
-        "photons": n,
-        "primary_rays": num_primary,
-        "average_flux_w": avg_flux,
-        "bounding_box": { "min": [bounds[0], bounds[2], bounds[4]], "max": [bounds[1], bounds[3], bounds[5]] },
-        "centre_of_gravity": cog,
-        "primary_positions": if variant.primary_pos {
-            "not imported: Radiance stores the previous emission's origin there"
-        } else {
-            "absent"
-        },
-    });
-    Ok(Imported { format: SourceFormat::Radiance, columns, emitters, report })
+    Ok(Imported { format: SourceFormat::Radiance, columns, emitters, report: serde_json::Value::Null })
 }
 
 fn read_kd(r: &mut Reader, variant: Variant, n: usize) -> Result<Vec<Photon>> {
@@ -456,7 +481,9 @@ fn read_kd(r: &mut Reader, variant: Variant, n: usize) -> Result<Vec<Photon>> {
     Ok(out)
 }
 
-fn read_ooc(path: &Path, r: &mut Reader, variant: Variant, n: usize) -> Result<Vec<Photon>> {
+/// The out-of-core map's octree, checked and skipped (the photons are in the `.leaf` file):
+/// its origin and size, for the check that every photon lies inside it.
+fn read_octree(r: &mut Reader, variant: Variant, n: usize) -> Result<([f64; 3], f64)> {
     let origin = r.flt3("octree origin")?;
     let size = r.flt("octree size")?;
     let rs_at = r.pos;
@@ -494,6 +521,12 @@ fn read_ooc(path: &Path, r: &mut Reader, variant: Variant, n: usize) -> Result<V
     if r.remaining() != 0 {
         return Err(r.err(r.pos, format!("{} bytes of trailing data after the octree", r.remaining())));
     }
+    Ok((origin, size))
+}
+
+/// The photons of an out-of-core map, from the `.leaf` file beside `path`.
+fn read_ooc(path: &Path, r: &mut Reader, variant: Variant, n: usize) -> Result<Vec<Photon>> {
+    let (origin, size) = read_octree(r, variant, n)?;
 
     let mut leaf_path = path.as_os_str().to_owned();
     leaf_path.push(".leaf");

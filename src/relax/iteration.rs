@@ -12,6 +12,7 @@ use super::force::{clamp_step, nudge, project_on_basis, project_on_tangent, repu
 /// What one iteration did, for the per-iteration report.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
 pub struct IterationMeasure {
+    /// Which iteration, from 0.
     pub iteration: usize,
     /// Coefficient of variation (sd/mean) of nearest-neighbour distances before the move; it
     /// falls from ≈ 0.52 (uniform random points in 2-D) toward ≈ 0.1–0.2 for blue noise.
@@ -20,7 +21,9 @@ pub struct IterationMeasure {
     /// distance to the Kf-th (photons with r_K > 0): the same measure made local, so density
     /// variation (a caustic's bright core beside its sparse tail) does not swamp it.
     pub local_nn_cv: f64,
+    /// Mean distance a photon moved, metres.
     pub mean_displacement: f64,
+    /// Largest distance a photon moved, metres.
     pub max_displacement: f64,
     /// Photons that sat on another photon and were moved apart ([`iterate`]): an index built
     /// over them no longer fits the moved photons, and is rebuilt ([`index_positions`]).
@@ -79,9 +82,17 @@ pub trait NeighbourSearch: Sync {
 #[derive(Clone, Copy, Debug)]
 pub enum Constraint<'a> {
     /// Eq. 9 with the `basis_u` and `basis_v` columns.
-    Basis { u: &'a [[f32; 3]], v: &'a [[f32; 3]] },
+    Basis {
+        /// u_b per photon (Eq. 7).
+        u: &'a [[f32; 3]],
+        /// v_b per photon, scaled by its factor (Eq. 7).
+        v: &'a [[f32; 3]],
+    },
     /// Unconstrained motion in the tangent plane of the `normal` column.
-    Tangent { normal: &'a [[f32; 3]] },
+    Tangent {
+        /// The unit surface normal per photon.
+        normal: &'a [[f32; 3]],
+    },
 }
 
 pub(super) const CHUNK: usize = 4096;
@@ -242,8 +253,11 @@ pub fn iterate(
 /// index searches world + parameter space. Neighbour positions come from the index, so
 /// `points.positions` must be the snapshot [`iterate`] is given.
 pub struct IndexSearch<'a> {
+    /// The index over `points`.
     pub index: &'a crate::spatial::SpatialIndex,
+    /// The photons as this iteration sees them.
     pub points: &'a crate::spatial::PointSet<'a>,
+    /// r_param per photon (Eq. 1), for an index over world + parameter space.
     pub radius: Option<&'a [f32]>,
 }
 

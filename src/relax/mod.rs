@@ -51,14 +51,28 @@ impl Default for RelaxParams {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum RelaxError {
+    /// Reading the map's columns failed.
     #[error(transparent)]
     Format(#[from] crate::format::FormatError),
+    /// The photons can not be indexed.
     #[error(transparent)]
     Spatial(#[from] crate::spatial::SpatialError),
+    /// A parameter out of range, or a column relax needs missing or malformed.
     #[error("{file}: {message}")]
-    Input { file: String, message: String },
+    Input {
+        /// The map as named to the user.
+        file: String,
+        /// What is wrong.
+        message: String,
+    },
+    /// A map's photons can not be indexed.
     #[error("{file}: {source}")]
-    Photons { file: String, source: crate::spatial::SpatialError },
+    Photons {
+        /// The map as named to the user.
+        file: String,
+        /// Why, photon indices in the map's order.
+        source: crate::spatial::SpatialError,
+    },
 }
 
 /// The most iterations one `relax` runs. Relaxation settles within tens of iterations (the
@@ -88,10 +102,13 @@ pub enum RelaxSpace {
 
 /// The outcome of relaxing a map: new positions and what each iteration did.
 pub struct Relaxed {
+    /// The relaxed positions, in the map's photon order, metres.
     pub positions: Vec<[f32; 3]>,
+    /// Which neighbours were used.
     pub space: RelaxSpace,
     /// False when the map has no constraint basis and photons moved freely in their tangent plane.
     pub constrained: bool,
+    /// One per iteration, in order.
     pub measures: Vec<IterationMeasure>,
     /// New surface normals when photons were returned to curved surfaces ([`relax_map_on`]).
     pub normals: Option<Vec<[f32; 3]>>,

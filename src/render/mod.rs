@@ -272,7 +272,7 @@ impl Renderer<'_> {
             View::Scene { scene, .. }
                 if matches!(o.mode, Mode::Full | Mode::Direct) && self.diagnostic.is_none() =>
             {
-                scene.background.as_ref().map(environment::Environment::load).transpose()?
+                scene.background().map(environment::Environment::load).transpose()?
             }
             _ => None,
         };

@@ -196,7 +196,7 @@ pub struct Lights {
 impl Lights {
     pub fn new(scene: &Scene) -> Lights {
         let lights = scene
-            .emitters
+            .emitters()
             .iter()
             .filter_map(|e| {
                 let sum = e.colour.element_sum();

@@ -16,6 +16,7 @@ pub struct Halton {
 }
 
 impl Halton {
+    /// The sequence rotated by offsets drawn from `seed`.
     pub fn new(seed: u64) -> Self {
         let mut s = seed ^ 0x005E_ED0F_4A17_0A5E;
         Halton {
@@ -200,6 +201,7 @@ fn splitmix64(state: &mut u64) -> u64 {
 pub struct PhotonRng(u64);
 
 impl PhotonRng {
+    /// The stream of photon `index` for `seed`.
     pub fn new(seed: u64, index: u64) -> Self {
         let mut s = seed.wrapping_mul(0xD1B5_4A32_D192_ED03) ^ index;
         PhotonRng(splitmix64(&mut s))

@@ -5,25 +5,36 @@ use glam::Vec3;
 
 use super::shape::Ray;
 
+/// A view of the scene: where it looks from, how it projects, and the image size.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Camera {
+    /// Pinhole or orthographic.
     pub projection: Projection,
+    /// The eye (pinhole) or the centre of the rectangle rays start from (orthographic), metres.
     pub eye: Vec3,
     /// Unit viewing direction (towards `look_at`).
     pub forward: Vec3,
-    /// Unit vectors spanning the image plane: right and up.
+    /// Unit vector along the image's rows, to the right.
     pub right: Vec3,
+    /// Unit vector along the image's columns, up; with `right`, spans the image plane.
     pub up: Vec3,
     /// Image size in pixels (width, height).
     pub resolution: [u32; 2],
 }
 
+/// How the camera projects the scene onto the image.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Projection {
-    /// Vertical field of view, radians.
-    Pinhole { fov_y_rad: f32 },
-    /// Height of the view, metres.
-    Orthographic { height_m: f32 },
+    /// A pinhole camera: rays fan out from the eye.
+    Pinhole {
+        /// Vertical field of view, radians.
+        fov_y_rad: f32,
+    },
+    /// Parallel rays along the viewing direction, from a rectangle centred on the eye.
+    Orthographic {
+        /// Height of the view, metres.
+        height_m: f32,
+    },
 }
 
 impl Camera {

@@ -15,6 +15,7 @@ use crate::format::{self, EmitterKind, Parameterisation};
 /// A light source with its power.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Emitter {
+    /// Where and in which directions it emits.
     pub kind: EmitterShape,
     /// Emitted power, watts, summed over RGB.
     pub power_w: f64,
@@ -22,16 +23,36 @@ pub struct Emitter {
     pub colour: Vec3,
 }
 
+/// The geometry of an emitter, world space, metres.
 #[derive(Clone, Debug, PartialEq)]
 pub enum EmitterShape {
     /// A rectangle `origin + u·edge_u + v·edge_v` emitting parallel rays along the unit
     /// `direction` (not in the rectangle's plane; by default its normal edge_u × edge_v).
-    Collimated { origin: Vec3, edge_u: Vec3, edge_v: Vec3, direction: Vec3 },
+    Collimated {
+        /// The corner at (u, v) = (0, 0).
+        origin: Vec3,
+        /// The edge along u.
+        edge_u: Vec3,
+        /// The edge along v.
+        edge_v: Vec3,
+        /// The unit direction of every ray.
+        direction: Vec3,
+    },
     /// An isotropic point light.
-    Point { position: Vec3 },
+    Point {
+        /// Where the light is.
+        position: Vec3,
+    },
     /// A Lambertian point light: cosine-weighted about `axis` within `half_angle_rad` (≤ π/2;
     /// π/2 is the whole hemisphere).
-    Spot { position: Vec3, axis: Vec3, half_angle_rad: f32 },
+    Spot {
+        /// Where the light is.
+        position: Vec3,
+        /// The unit axis of the cone.
+        axis: Vec3,
+        /// The cone's half angle, radians.
+        half_angle_rad: f32,
+    },
 }
 
 impl Emitter {

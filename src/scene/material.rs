@@ -7,9 +7,15 @@ use glam::Vec3;
 #[derive(Clone, Debug, PartialEq)]
 pub enum Material {
     /// Lambertian diffuse with an RGB `albedo`: where caustic photons are stored.
-    Diffuse { albedo: Vec3 },
+    Diffuse {
+        /// Fraction of irradiance reflected per RGB channel.
+        albedo: Vec3,
+    },
     /// A perfect mirror reflecting the fraction `reflectance` per RGB channel.
-    Mirror { reflectance: Vec3 },
+    Mirror {
+        /// Fraction of flux reflected per RGB channel.
+        reflectance: Vec3,
+    },
     /// A smooth dielectric interface: outside (the normal's side) has index 1, inside `ior`.
     Dielectric(Dielectric),
     /// Absorbs every photon that reaches it.
@@ -17,11 +23,13 @@ pub enum Material {
 }
 
 impl Material {
+    /// Whether photons continue from it (a mirror or a dielectric): the S of an L S+ D path.
     pub fn is_specular(&self) -> bool {
         matches!(self, Material::Mirror { .. } | Material::Dielectric(_))
     }
 }
 
+/// A smooth refracting interface (glass, water).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Dielectric {
     /// Index of refraction without dispersion (and the value reported for it).
@@ -48,12 +56,25 @@ impl Dielectric {
 #[derive(Clone, Debug, PartialEq)]
 pub enum Dispersion {
     /// n(λ) = A + B/λ² + C/λ⁴ with λ in µm.
-    Cauchy { a: f64, b: f64, c: f64 },
+    Cauchy {
+        /// A, dimensionless.
+        a: f64,
+        /// B, µm².
+        b: f64,
+        /// C, µm⁴.
+        c: f64,
+    },
     /// n²(λ) = 1 + Σ Bᵢ λ² / (λ² − Cᵢ) with λ in µm and Cᵢ in µm².
-    Sellmeier { b: Vec<f64>, c: Vec<f64> },
+    Sellmeier {
+        /// The Bᵢ, dimensionless.
+        b: Vec<f64>,
+        /// The Cᵢ, µm², one per Bᵢ.
+        c: Vec<f64>,
+    },
 }
 
 impl Dispersion {
+    /// Index of refraction at `wavelength_nm`.
     pub fn ior(&self, wavelength_nm: f32) -> f32 {
         let l = wavelength_nm as f64 * 1e-3;
         let l2 = l * l;
@@ -82,8 +103,11 @@ pub fn refract(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
 /// Fresnel reflectance at the same interface needs them too: [`fresnel_cosines`]).
 #[derive(Clone, Copy, Debug)]
 pub struct Refraction {
+    /// The refracted direction.
     pub dir: Vec3,
+    /// cos θi, of the angle of incidence (≥ 0).
     pub cos_i: f32,
+    /// cos θt, of the angle of refraction (≥ 0).
     pub cos_t: f32,
 }
 

@@ -9,16 +9,20 @@ use glam::{Mat3, Vec2, Vec3};
 /// A triangle mesh with optional per-vertex shading normals.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Mesh {
+    /// Vertex positions, metres.
     pub positions: Vec<Vec3>,
     /// One unit normal per position, for smooth shading; `None` for flat facets.
     pub normals: Option<Vec<Vec3>>,
+    /// Vertex indices of each triangle, counter-clockwise seen from outside.
     pub indices: Vec<[u32; 3]>,
 }
 
 /// An affine placement: scale, then rotate about x, y, z (in that order), then translate.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Transform {
+    /// Scale, then rotation.
     pub linear: Mat3,
+    /// Translation, metres.
     pub translate: Vec3,
 }
 
@@ -29,6 +33,7 @@ impl Default for Transform {
 }
 
 impl Transform {
+    /// Scales by `scale`, rotates by `rotate_deg` about x, then y, then z (degrees), then translates.
     pub fn new(scale: Vec3, rotate_deg: Vec3, translate: Vec3) -> Self {
         let r = Mat3::from_rotation_z(rotate_deg.z.to_radians())
             * Mat3::from_rotation_y(rotate_deg.y.to_radians())
@@ -36,10 +41,12 @@ impl Transform {
         Transform { linear: r * Mat3::from_diagonal(scale), translate }
     }
 
+    /// Where the point `p` goes.
     pub fn point(&self, p: Vec3) -> Vec3 {
         self.linear * p + self.translate
     }
 
+    /// Where the vector `v` goes (no translation).
     pub fn vector(&self, v: Vec3) -> Vec3 {
         self.linear * v
     }
@@ -76,6 +83,7 @@ impl Mesh {
         self
     }
 
+    /// The vertices of triangle `i`.
     pub fn triangle(&self, i: usize) -> [Vec3; 3] {
         self.indices[i].map(|k| self.positions[k as usize])
     }

@@ -15,6 +15,7 @@ pub fn scene_crc32(scene_text: &str) -> String {
 /// A scene found for a map, and what the user should be told about how it was found.
 #[derive(Debug)]
 pub struct ResolvedScene {
+    /// The scene, built.
     pub scene: Scene,
     /// The scene file's path as found, or the embedded default's name.
     pub name: String,

@@ -8,15 +8,19 @@ use glam::Vec3;
 /// A ray `origin + t·dir` with `dir` a unit vector; distances `t` are in metres.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
+    /// Where it starts, metres.
     pub origin: Vec3,
+    /// Its unit direction.
     pub dir: Vec3,
 }
 
 impl Ray {
+    /// The ray from `origin` along unit `dir`.
     pub fn new(origin: Vec3, dir: Vec3) -> Self {
         Ray { origin, dir }
     }
 
+    /// The point at distance `t` along it.
     pub fn at(&self, t: f32) -> Vec3 {
         self.origin + self.dir * t
     }
@@ -38,35 +42,55 @@ pub struct Hit {
 /// An analytic shape.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Shape {
+    /// A sphere; the outward normal points away from its centre.
     Sphere {
+        /// Its centre.
         center: Vec3,
+        /// Its radius, metres.
         radius: f32,
     },
     /// The plane through `point` with unit `normal`.
     Plane {
+        /// A point of the plane.
         point: Vec3,
+        /// The unit outward normal.
         normal: Vec3,
     },
     /// The parallelogram `origin + a·edge_u + b·edge_v`, a, b ∈ [0, 1]; normal edge_u × edge_v.
+    /// Made by [`Shape::rectangle`], which works out the normal and the dual vectors.
     Rectangle {
+        /// The corner at (a, b) = (0, 0).
         origin: Vec3,
+        /// The edge along a.
         edge_u: Vec3,
+        /// The edge along b.
         edge_v: Vec3,
+        /// The unit outward normal, edge_u × edge_v normalised.
         normal: Vec3,
+        /// (p − origin)·dual_u = a for a point p of the plane.
         dual_u: Vec3,
+        /// (p − origin)·dual_v = b for a point p of the plane.
         dual_v: Vec3,
     },
+    /// A flat disc.
     Disc {
+        /// Its centre.
         center: Vec3,
+        /// The unit outward normal.
         normal: Vec3,
+        /// Its radius, metres.
         radius: f32,
     },
     /// The side wall of a cylinder of `radius` around the unit `axis` from `base` to
     /// `base + height·axis`, with no caps; the outward normal points away from the axis.
     Cylinder {
+        /// The centre of the bottom rim.
         base: Vec3,
+        /// The unit axis, from bottom to top.
         axis: Vec3,
+        /// Its radius, metres.
         radius: f32,
+        /// Its length along the axis, metres.
         height: f32,
     },
 }

@@ -121,10 +121,12 @@ impl BoxTree {
         BoxTree { nodes, points, index }
     }
 
+    /// Number of points.
     pub fn len(&self) -> usize {
         self.points.len()
     }
 
+    /// Whether it holds no point.
     pub fn is_empty(&self) -> bool {
         self.points.is_empty()
     }

@@ -120,7 +120,9 @@ impl ParamColumn<'_> {
 /// emitter ids (photon `i` is at `positions[i]`).
 #[derive(Clone, Copy, Debug)]
 pub struct PointSet<'a> {
+    /// Photon positions, metres.
     pub positions: &'a [[f32; 3]],
+    /// Trajectory parameters, for [`Space::WorldParams`] and [`Space::Params`].
     pub params: Option<ParamColumn<'a>>,
     /// Emitter id per photon; `None` puts every photon in emitter 0.
     pub emitters: Option<&'a [u16]>,
@@ -132,10 +134,12 @@ impl<'a> PointSet<'a> {
         PointSet { positions, params: None, emitters: None }
     }
 
+    /// Number of photons.
     pub fn len(&self) -> usize {
         self.positions.len()
     }
 
+    /// Whether there are none.
     pub fn is_empty(&self) -> bool {
         self.positions.is_empty()
     }
@@ -242,7 +246,9 @@ pub struct Query<'a> {
 /// One neighbour found: its squared distance in the index's space and its photon index.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Neighbour {
+    /// Squared distance to the query, in the index's space.
     pub dist2: f32,
+    /// The photon's index in the [`PointSet`].
     pub index: u32,
 }
 
@@ -299,6 +305,7 @@ impl Default for Neighbours {
 }
 
 impl Neighbours {
+    /// An ordered buffer with coordinates, with room for `k` neighbours.
     pub fn with_capacity(k: usize) -> Self {
         Neighbours {
             items: Vec::with_capacity(k),
@@ -345,6 +352,7 @@ impl Neighbours {
         (self.found > 0).then_some(self.far2)
     }
 
+    /// The neighbours found, nearest first in an ordered buffer.
     pub fn as_slice(&self) -> &[Neighbour] {
         &self.items
     }
@@ -354,10 +362,12 @@ impl Neighbours {
         self.found
     }
 
+    /// Whether none was found.
     pub fn is_empty(&self) -> bool {
         self.found == 0
     }
 
+    /// The neighbours' photon indices, in the order of [`Self::as_slice`].
     pub fn indices(&self) -> impl ExactSizeIterator<Item = u32> + '_ {
         self.items.iter().map(|n| n.index)
     }
@@ -397,14 +407,38 @@ impl Neighbours {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum SpatialError {
+    /// A NaN or infinite position or parameter.
     #[error("photon {index} has a non-finite {what}")]
-    NonFinite { index: usize, what: &'static str },
+    NonFinite {
+        /// The photon's index (0-based).
+        index: usize,
+        /// `position` or `params`.
+        what: &'static str,
+    },
+    /// An emitter with more parameter dimensions than an index holds.
     #[error("emitter {emitter} uses {dims} parameter dimensions; at most {MAX_PARAM_DIMS} are supported")]
-    ParamDims { emitter: u16, dims: usize },
+    ParamDims {
+        /// The emitter's id.
+        emitter: u16,
+        /// Its parameter dimensions.
+        dims: usize,
+    },
+    /// More photons than a `u32` index numbers.
     #[error("{count} photons: an index holds fewer than 2³² − 1")]
-    TooMany { count: usize },
+    TooMany {
+        /// The photons given.
+        count: usize,
+    },
+    /// A column whose length does not match the positions'.
     #[error("the {what} slice holds {actual} values, expected {expected}")]
-    Length { what: &'static str, expected: usize, actual: usize },
+    Length {
+        /// `emitters` or `params`.
+        what: &'static str,
+        /// Values it should hold.
+        expected: usize,
+        /// Values it holds.
+        actual: usize,
+    },
 }
 
 /// One emitter's (or, in world space, every photon's) tree, by shape: `D` distance
@@ -534,6 +568,7 @@ impl SpatialIndex {
         Ok(())
     }
 
+    /// The distance this index measures.
     pub fn space(&self) -> Space {
         self.space
     }
@@ -543,6 +578,7 @@ impl SpatialIndex {
         self.len
     }
 
+    /// Whether it holds no photon.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }

@@ -42,32 +42,74 @@ pub const CHUNK: u64 = 4096;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum TraceError {
+    /// Reading a shard or writing the map failed.
     #[error(transparent)]
     Format(#[from] FormatError),
+    /// A shard index not below the shard count.
     #[error("shard {index}/{count}: needs 0 ≤ i < n")]
-    BadShard { index: u64, count: u64 },
+    BadShard {
+        /// The shard asked for.
+        index: u64,
+        /// The number of shards.
+        count: u64,
+    },
+    /// A storage budget with a shard: a shard's range of emission numbers is fixed in advance.
     #[error("--stored cannot be combined with --shard: a shard traces a fixed range of emission numbers")]
     StoredWithShard,
+    /// A storage budget that stored nothing in the first 50 million emissions.
     #[error(
         "no photon was stored after {emitted} emitted: does light reach a diffuse surface by way of \
          a mirror or dielectric? (--store direct stores direct hits too)"
     )]
-    NothingStored { emitted: u64 },
+    NothingStored {
+        /// Photons emitted before giving up.
+        emitted: u64,
+    },
+    /// Shards that do not make one run.
     #[error("{file}: cannot merge: {message}")]
-    Merge { file: String, message: String },
+    Merge {
+        /// The shard as named to the user.
+        file: String,
+        /// How it differs from the others.
+        message: String,
+    },
+    /// The stored photons would not fit in memory.
     #[error(
         "{what} would need about {need_gb:.1} GB for the stored photons, more than the {avail_gb:.1} GB of memory \
          available: trace fewer photons, lower `trace --memory`, or split the run with --shard i/n and join the shards with `photonkit merge`"
     )]
-    OutOfMemory { what: String, need_gb: f64, avail_gb: f64 },
+    OutOfMemory {
+        /// The run, as the message names it.
+        what: String,
+        /// Memory needed, GB.
+        need_gb: f64,
+        /// Memory available, GB.
+        avail_gb: f64,
+    },
+    /// The spooled photons and the output would not fit on disk.
     #[error(
         "{what} would need about {need_gb:.1} GB of disk for the stored photons (spooled, then the output), \
          more than the {avail_gb:.1} GB free in {dir}: trace fewer photons, write to a larger disk, or split the \
          run with --shard i/n and join the shards with `photonkit merge`"
     )]
-    OutOfDisk { what: String, need_gb: f64, avail_gb: f64, dir: String },
+    OutOfDisk {
+        /// The run, as the message names it.
+        what: String,
+        /// Disk needed, GB.
+        need_gb: f64,
+        /// Disk free, GB.
+        avail_gb: f64,
+        /// The folder the spool is in.
+        dir: String,
+    },
+    /// Writing or reading the spool failed.
     #[error("spooling stored photons in {dir}: {source}")]
-    Spool { dir: String, source: std::io::Error },
+    Spool {
+        /// The folder the spool is in.
+        dir: String,
+        /// What the system said.
+        source: std::io::Error,
+    },
 }
 
 /// What to trace until.
@@ -92,7 +134,9 @@ pub enum StorePolicy {
 /// One slice `index` of `count` equal slices of the emission numbers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Shard {
+    /// Which slice, from 0.
     pub index: u64,
+    /// How many slices.
     pub count: u64,
 }
 
@@ -104,11 +148,17 @@ impl Shard {
     }
 }
 
+/// How a trace runs.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TraceOptions {
+    /// The seed of the emission sequence's rotation and of the per-photon random streams
+    /// ([`crate::sampling`]).
     pub seed: u64,
+    /// What to trace until.
     pub budget: Budget,
+    /// Which photons are stored.
     pub store: StorePolicy,
+    /// The slice of the emission numbers to trace; `None`: all of them.
     pub shard: Option<Shard>,
     /// Specular interactions after which a photon is dropped (counted in the report).
     pub max_bounces: u32,
@@ -134,24 +184,35 @@ impl Default for TraceOptions {
 /// the share of one photon carrying the scene's whole power.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Photons {
+    /// Where each photon landed, metres.
     pub position: Vec<[f32; 3]>,
+    /// The unit geometric normal there (on the side the photon arrived from).
     pub normal: Vec<[f32; 3]>,
+    /// RGB flux.
     pub flux: Vec<[f32; 3]>,
+    /// Unit direction of travel when it arrived.
     pub incident: Vec<[f32; 3]>,
+    /// Index of its emitter in the scene.
     pub emitter: Vec<u16>,
     /// `param_dims` values per photon.
     pub params: Vec<f32>,
+    /// Length of the path from the emitter, metres.
     pub path_length: Vec<f32>,
+    /// Specular interactions on the path.
     pub bounces: Vec<u8>,
+    /// The photon's number in the emission sequence.
     pub emission_index: Vec<u64>,
+    /// The scene surface it lies on ([`Scene::surfaces`]).
     pub surface: Vec<u32>,
 }
 
 impl Photons {
+    /// Number of photons.
     pub fn len(&self) -> usize {
         self.position.len()
     }
 
+    /// Whether there are none.
     pub fn is_empty(&self) -> bool {
         self.position.is_empty()
     }
@@ -311,10 +372,10 @@ impl<'a> Tracer<'a> {
     /// The tracer of `scene` under `opts`: emitters chosen in proportion to power, the Halton
     /// sequence of the seed, and which emitters' rays are culled.
     fn new(scene: &'a Scene, opts: &'a TraceOptions) -> Self {
-        let power: f64 = scene.emitters.iter().map(|e| e.power_w).sum();
+        let power: f64 = scene.emitters().iter().map(|e| e.power_w).sum();
         let mut acc = 0.0;
         let mut cdf: Vec<f32> = scene
-            .emitters
+            .emitters()
             .iter()
             .map(|e| {
                 acc += e.power_w;
@@ -326,7 +387,7 @@ impl<'a> Tracer<'a> {
         }
         let table = EmitterTable {
             cdf,
-            colour: scene.emitters.iter().map(|e| e.colour / e.colour.element_sum()).collect(),
+            colour: scene.emitters().iter().map(|e| e.colour / e.colour.element_sum()).collect(),
         };
         Tracer {
             scene,
@@ -335,20 +396,20 @@ impl<'a> Tracer<'a> {
             halton: Halton::new(opts.seed),
             dims: scene.param_dims() as usize,
             wavelength_slot: scene
-                .emitters
+                .emitters()
                 .iter()
                 .map(|e| scene.is_spectral().then(|| e.param_dims(false) as usize))
                 .collect(),
-            emitter_column: scene.emitters.len() > 1,
+            emitter_column: scene.emitters().len() > 1,
             cull: scene
-                .emitters
+                .emitters()
                 .iter()
                 .map(|e| opts.store != StorePolicy::Direct && cull_worth_it(scene, e))
                 .collect(),
             avx: crate::scene::bvh::avx_available(),
             power_w: power,
             dispersive: {
-                let mut d = scene.materials.iter().filter_map(|m| match m {
+                let mut d = scene.materials().iter().filter_map(|m| match m {
                     Material::Dielectric(d) if d.dispersion.is_some() => Some(d),
                     _ => None,
                 });

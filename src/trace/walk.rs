@@ -24,7 +24,7 @@ impl Tracer<'_> {
         let scene = self.scene;
         let [u0, u1, u2, u3] = point;
         let e = self.table.cdf.iter().position(|&c| u0 < c).unwrap_or(self.table.cdf.len() - 1);
-        let (mut ray, [p0, p1, p2]) = scene.emitters[e].emit(u1, u2);
+        let (mut ray, [p0, p1, p2]) = scene.emitters()[e].emit(u1, u2);
         let mut params = [p0, p1, p2, 0.0];
         if let Some(slot) = self.wavelength_slot[e] {
             params[slot] = wavelength_nm(u3);

@@ -26,6 +26,8 @@ fn rows(csv: &str) -> Vec<std::collections::HashMap<String, String>> {
         .collect()
 }
 
+// Long because one run of `compare` (the slow part) is checked for every file and figure it
+// writes.
 #[test]
 fn compare_runs_every_method_and_relaxation_beats_raw_photon_mapping_on_the_same_photons() {
     let dir = tempfile::tempdir().unwrap();

@@ -85,7 +85,7 @@ fn pipeline(scene: &Scene, photons: u64, dir: &Path, mode: Mode) -> Run {
     assert!(normals.is_none_or(all_finite));
     let data = PhotonData { positions: map.positions(), flux: map.flux(), normals };
     let lookup = PhotonLookup::new("relaxed.phm", data).unwrap();
-    let camera = scene.camera.clone().expect("the scene has a camera");
+    let camera = scene.camera().cloned().expect("the scene has a camera");
     let ro = RenderOptions { width: 48, height: 48, spp: 1, mode, ..RenderOptions::default() };
     let r =
         Renderer { view: View::Scene { scene, camera }, photons: Some(&lookup), diagnostic: None, opts: ro };
@@ -186,9 +186,9 @@ fn the_scale_key_multiplies_every_length() {
     let close = |x: f32, y: f32| (x - y).abs() <= 1e-6 * x.abs().max(y.abs());
     assert!(close(b.extent(), 1e-6 * a.extent()), "{} {}", a.extent(), b.extent());
     assert!(close(b.ray_offset(), 1e-6 * a.ray_offset()));
-    let (ca, cb) = (a.camera.as_ref().unwrap(), b.camera.as_ref().unwrap());
+    let (ca, cb) = (a.camera().unwrap(), b.camera().unwrap());
     assert!((cb.eye - ca.eye * 1e-6).length() <= 1e-12 && cb.forward == ca.forward);
-    assert_eq!(a.emitters[0].power_w, b.emitters[0].power_w);
+    assert_eq!(a.emitters()[0].power_w, b.emitters()[0].power_w);
     // A vertical ray through the sphere's top: the hit is at 1.3·s over the floor's 0.
     let ray = |s: f32| photonkit::scene::Ray::new(Vec3::new(0.0, 0.0, 2.0 * s), Vec3::NEG_Z);
     let (ha, hb) = (a.intersect(&ray(1.0), 0.0, f32::INFINITY), b.intersect(&ray(1e-6), 0.0, f32::INFINITY));

@@ -559,6 +559,7 @@ fn corrupted_column_data_opens_but_fails_verification_naming_the_column() {
 // ---------------------------------------------------------------------------------------------
 // Corruption: every metadata field, with the metadata CRC recomputed.
 
+// Long because it is a table: one row per corrupted field, each with the error it must give.
 #[test]
 fn every_metadata_field_corrupted_in_turn_is_refused() {
     let b = sample();

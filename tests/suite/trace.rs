@@ -245,7 +245,7 @@ material = "glass"
         if e == 0 {
             assert_eq!(params[2], 0.0, "unused trailing parameter is zero");
         }
-        let ray = s.emitters[e].ray_from_params(params).unwrap();
+        let ray = s.emitters()[e].ray_from_params(params).unwrap();
         let q = retrace(&s, ray).unwrap();
         let d = (q - Vec3::from_array(p.position[i])).length();
         assert!(d < 1e-3, "photon {i} (emitter {e}) re-traced {d} m away");
@@ -286,12 +286,12 @@ fn every_sample_scene_stores_caustic_photons_and_no_more_than_its_power() {
         }
         n += 1;
         let s = Scene::load(&path).unwrap_or_else(|e| panic!("{e}"));
-        assert!(s.camera.is_some(), "{} has no camera", path.display());
+        assert!(s.camera().is_some(), "{} has no camera", path.display());
         let t = run(&s, 20_000);
         let p = t.photons().unwrap();
         assert!(p.len() > 20, "{}: only {} photons stored", path.display(), p.len());
         assert!(p.bounces.iter().all(|&b| b > 0));
-        let power: f64 = s.emitters.iter().map(|e| e.power_w).sum();
+        let power: f64 = s.emitters().iter().map(|e| e.power_w).sum();
         // Dispersion weights average 1 per channel, so allow their noise on top.
         assert!(total_flux(&p) <= power * 1.01, "{}", path.display());
         for n in &p.normal {

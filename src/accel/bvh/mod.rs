@@ -106,9 +106,13 @@ impl Tri {
 /// barycentric coordinates (b1, b2) of the hit (weights of the second and third vertices).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TriHit {
+    /// Distance along the ray, metres.
     pub t: f32,
+    /// The triangle's index in the list the BVH was built from.
     pub index: u32,
+    /// Weight of the second vertex.
     pub b1: f32,
+    /// Weight of the third vertex.
     pub b2: f32,
 }
 
@@ -241,6 +245,7 @@ impl Bvh {
         self.bounds
     }
 
+    /// Whether it holds no triangle.
     pub fn is_empty(&self) -> bool {
         self.index.is_empty() && self.pair_index.is_empty()
     }

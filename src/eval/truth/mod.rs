@@ -26,9 +26,13 @@ use splat::Accumulator;
 /// with up = +y).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FloorGrid {
+    /// The smallest (x, y), metres.
     pub min: [f64; 2],
+    /// The largest (x, y), metres.
     pub max: [f64; 2],
+    /// Columns and rows.
     pub cells: [usize; 2],
+    /// The floor's height, metres.
     pub z: f64,
 }
 
@@ -77,7 +81,9 @@ impl FloorGrid {
 /// (index = `row * cells[0] + column`).
 #[derive(Clone, Debug)]
 pub struct FloorTruth {
+    /// The cells.
     pub grid: FloorGrid,
+    /// Irradiance per cell, W/m² per RGB channel, row-major.
     pub irradiance: Vec<[f64; 3]>,
     /// Which stored photons this truth accounts for, by their BOUNCES value (specular bounces
     /// before the floor), e.g. `[2]` for the sphere's once-in-once-out light. The comparison keeps
@@ -103,12 +109,20 @@ pub enum Quality {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum TruthError {
+    /// A scene whose caustic has no closed-form optics here (why in the message).
     #[error("no ground truth for this scene: {0}")]
     Unsupported(String),
+    /// A grid with no cells, too many, or a non-finite or empty extent.
     #[error("unusable floor grid {0}: needs positive extents, 1 to 2^26 cells and finite values")]
     BadGrid(String),
+    /// A grid that is not in the scene's floor plane.
     #[error("the grid lies at z = {grid}, the scene's floor at z = {floor}")]
-    WrongPlane { grid: f64, floor: f64 },
+    WrongPlane {
+        /// The grid's z, metres.
+        grid: f64,
+        /// The floor's z, metres.
+        floor: f64,
+    },
 }
 
 /// Integration effort: parameter quads per side, subdivision depth, wavelengths.

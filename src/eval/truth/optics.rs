@@ -168,10 +168,10 @@ fn unsupported(why: impl Into<String>) -> TruthError {
 
 impl Setup {
     pub fn from_scene(scene: &Scene) -> Result<Setup, TruthError> {
-        let [e] = scene.emitters.as_slice() else {
+        let [e] = scene.emitters() else {
             return Err(unsupported(format!(
                 "{} emitters; the truth needs exactly one",
-                scene.emitters.len()
+                scene.emitters().len()
             )));
         };
         let EmitterShape::Collimated { origin, edge_u, edge_v, direction } = e.kind else {
@@ -188,8 +188,8 @@ impl Setup {
         };
         let mut floor = None;
         let mut optic = None;
-        for s in &scene.surfaces {
-            let m = &scene.materials[s.material as usize];
+        for s in scene.surfaces() {
+            let m = &scene.materials()[s.material as usize];
             match (m, &s.geometry) {
                 (Material::Diffuse { .. }, SurfaceGeometry::Analytic(g)) => {
                     if floor.is_some() {

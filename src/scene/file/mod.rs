@@ -18,7 +18,7 @@ use toml::Spanned;
 
 use super::camera::{Camera, Projection};
 use super::material::{Dielectric, Dispersion, Material};
-use super::{Background, Scene, SceneError};
+use super::{Background, Scene, SceneDescription, SceneError, Surface};
 use emitters::emitter;
 use shapes::shape;
 
@@ -382,23 +382,25 @@ pub(super) fn parse(src: &str, file: &str, dir: &Path) -> Result<Scene, SceneErr
         return Err(cx.err(raw.emitters[0].span(), "emitters", "more than 65536 emitters"));
     }
 
-    let mut scene = Scene::empty();
-    scene.name = raw.name.clone();
-    scene.camera = camera;
-    scene.background = background;
-    scene.materials = materials;
-    scene.material_names = material_names;
-    scene.emitters = emitters;
-    scene.emitter_names = emitter_names;
+    let mut surfaces = Vec::new();
     for (i, s) in raw.shapes.iter().enumerate() {
         let (name, material, geometry) = shape(&cx, i, s, &material_index, dir)?;
-        scene.add_surface(name, material, geometry);
+        surfaces.push(Surface { name, material, geometry });
     }
-    if scene.surfaces.is_empty() {
+    if surfaces.is_empty() {
         return Err(cx.err(0..0, "shapes", "the scene has no shape: add a [[shapes]] table"));
     }
-    scene.finish();
-    Ok(if scale == 1.0 { scene } else { scene.scaled(scale) })
+    let desc = SceneDescription {
+        name: raw.name.clone(),
+        camera,
+        background,
+        materials,
+        material_names,
+        emitters,
+        emitter_names,
+        surfaces,
+    };
+    Ok(if scale == 1.0 { desc } else { desc.scaled(scale) }.build())
 }
 
 /// Refuses keys that are not in `allowed` for this `kind`.

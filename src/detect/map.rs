@@ -1,0 +1,188 @@
+//! Detection over a photon map: the columns it reads, the method it runs, the wavelength's
+//! scale, and the map it writes back.
+
+use super::{DetectError, DetectInput, DetectParams, Detection, Method, check_params, detect};
+use crate::format::{MapView, PhotonTable, StageRecord, State, name};
+use crate::spatial::ParamColumn;
+
+/// The method to run on `map`: `requested` if given (an error if it is `param-pca` and the map
+/// has no trajectory parameters), else `param-pca`, or `world-pca` with a note to show the
+/// user when the map has no trajectory parameters.
+pub fn choose_method(
+    map: &MapView,
+    requested: Option<Method>,
+) -> Result<(Method, Option<String>), DetectError> {
+    let has = map_input(map)?.has_params();
+    match requested {
+        Some(Method::ParamPca) if !has => Err(DetectError::NoParameters { file: map.file_name().into() }),
+        Some(m) => Ok((m, None)),
+        None if has => Ok((Method::ParamPca, None)),
+        None => Ok((
+            Method::WorldPca,
+            Some(format!(
+                "{} has no trajectory parameters: detecting with world-pca (world-space neighbours only)",
+                map.file_name()
+            )),
+        )),
+    }
+}
+
+/// The columns of `map` that detection reads, validated.
+pub fn map_input<'a>(map: &MapView<'a>) -> Result<DetectInput<'a>, DetectError> {
+    let file = map.file_name();
+    let meta = map.info();
+    let input = |message: String| DetectError::Input { file: file.to_string(), message };
+    let emitters = map.column::<u16>(name::EMITTER)?;
+    if let Some(e) = emitters
+        && let Some(i) = e.iter().position(|&e| e as usize >= meta.emitters.len().max(1))
+    {
+        return Err(input(format!(
+            "photon {i} has emitter {} but the map lists {} emitters",
+            e[i],
+            meta.emitters.len()
+        )));
+    }
+    let params = match map.spec(name::PARAMS) {
+        None => None,
+        Some(c) if c.dtype != crate::format::DType::F32 => {
+            return Err(input(format!("the params column is {}, expected f32", c.dtype.name())));
+        }
+        Some(c) => {
+            let bytes = map.column_bytes(name::PARAMS).unwrap_or(&[]);
+            let values: &[f32] =
+                bytemuck::try_cast_slice(bytes).map_err(|e| input(format!("params column: {e}")))?;
+            Some((values, c.components as usize))
+        }
+    };
+    Ok(DetectInput {
+        positions: map.positions(),
+        normals: map.column::<[f32; 3]>(name::NORMAL)?,
+        flux: Some(map.flux()),
+        params: params.map(|(values, stride)| ParamColumn { values, stride, dims: &[] }),
+        emitters,
+    })
+}
+
+/// [`detect`] over a map (the file's emitter list gives each emitter's parameter dimensions).
+pub fn detect_map(
+    map: &MapView,
+    p: &DetectParams,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Detection, DetectError> {
+    check_params(p)?;
+    let emitters = &map.info().emitters;
+    let dims: Vec<u32> = emitters.iter().map(|e| e.param_dims).collect();
+    let mut input = map_input(map)?;
+    input.params = input.params.map(|c| ParamColumn { dims: &dims, ..c });
+    // A wavelength component enters distances scaled (docs/spectral.md).
+    let mut scales = Vec::new();
+    let scaled = match input.params {
+        Some(c) if p.method == Method::ParamPca && emitters.iter().any(|e| e.is_spectral()) => {
+            scales = spectral_scales(emitters, c, input.emitters, p.spectral_scale);
+            // The factors relax will read back from the records write_detected makes.
+            let factors: Vec<Vec<f32>> = emitters
+                .iter()
+                .zip(&scales)
+                .map(|(e, s)| {
+                    s.map_or_else(|| e.param_scales(), |s| e.with_spectral_scale(s as f64).param_scales())
+                })
+                .collect();
+            Some(c.scaled(input.emitters, &factors))
+        }
+        _ => None,
+    };
+    if let (Some(values), Some(c)) = (scaled.as_deref(), input.params.as_mut()) {
+        c.values = values;
+    }
+    let mut d = detect(&input, p, progress).map_err(|e| match e {
+        DetectError::NoParameters { .. } => DetectError::NoParameters { file: map.file_name().into() },
+        DetectError::Spatial(source) => DetectError::Photons { file: map.file_name().into(), source },
+        e => e,
+    })?;
+    d.spectral_scales = scales;
+    Ok(d)
+}
+
+/// Per emitter, the scale of its wavelength component in parameter-space distances (`None`
+/// for an emitter without one): S·ℓ/(λmax − λmin), where ℓ is the root-mean-square distance
+/// of the emitter's photons' other parameters from their mean and [λmin, λmax] the
+/// dimension's range. The visible range then spans S times the spread of the parameters
+/// that say where a photon left, whatever their units (a rectangle's (u, v), or directions in
+/// a narrow spot's cone) (docs/spectral.md).
+pub fn spectral_scales(
+    emitters: &[crate::format::Emitter],
+    params: ParamColumn,
+    photon_emitters: Option<&[u16]>,
+    s: f32,
+) -> Vec<Option<f32>> {
+    let n = params.values.len() / params.stride.max(1);
+    emitters
+        .iter()
+        .enumerate()
+        .map(|(e, em)| {
+            let k = em.parameterisation.spectral_component()?;
+            let [lo, hi] = em.dimensions().get(k).and_then(|d| d.range).unwrap_or_else(|| {
+                let (lo, hi) = crate::format::meta::WAVELENGTH_RANGE_NM;
+                [lo as f64, hi as f64]
+            });
+            let mine = |i: &usize| photon_emitters.map_or(e == 0, |pe| pe[*i] as usize == e);
+            let rows = || (0..n).filter(mine).map(|i| &params.values[i * params.stride..][..k]);
+            let count = rows().count().max(1) as f64;
+            let mut mean = vec![0.0f64; k];
+            for q in rows() {
+                mean.iter_mut().zip(q).for_each(|(m, &x)| *m += x as f64);
+            }
+            mean.iter_mut().for_each(|m| *m /= count);
+            let var: f64 = rows()
+                .map(|q| q.iter().zip(&mean).map(|(&x, m)| (x as f64 - m).powi(2)).sum::<f64>())
+                .sum::<f64>()
+                / count;
+            let spread = if var > 0.0 { var.sqrt() } else { 1.0 };
+            let width = if hi > lo { hi - lo } else { 1.0 };
+            Some((s as f64 * spread / width) as f32)
+        })
+        .collect()
+}
+
+/// `map` with the constraint columns of `d` (replacing any from an earlier run), every other
+/// column carried through unchanged (borrowed), state `detected`, and a stage record.
+pub fn detected_map<'a>(
+    map: &MapView<'a>,
+    d: &Detection,
+    p: &DetectParams,
+    seconds: f64,
+) -> Result<PhotonTable<'a>, DetectError> {
+    let mut info = map.info().clone();
+    info.state = State::Detected;
+    let mut parameters = serde_json::to_value(p).unwrap_or_default();
+    for (e, s) in info.emitters.iter_mut().zip(&d.spectral_scales) {
+        if let Some(s) = s {
+            *e = e.with_spectral_scale(*s as f64);
+            parameters["spectral_scale"] = serde_json::json!(p.spectral_scale);
+        }
+    }
+    let mut rec = StageRecord::now("detect", parameters);
+    let s = &d.summary;
+    rec.report = serde_json::json!({
+        "seconds": crate::format::meta::reported_seconds(seconds),
+        "photons": s.photons,
+        "constrained_fraction": s.constrained_fraction(),
+        "mean_factor": s.mean_factor,
+        "measured": s.measured,
+        "too_few_neighbours": s.too_few,
+        "coincident": s.coincident,
+        "parameter_space": d.r_param.is_some(),
+    });
+    info.history.push(rec);
+    let mut table = PhotonTable::carrying(map, info);
+    for column in [name::BASIS_U, name::BASIS_V, name::LAMBDA2, name::R_PARAM] {
+        table.remove(column);
+    }
+    table.set(name::BASIS_U, &d.basis_u)?;
+    table.set(name::BASIS_V, &d.basis_v)?;
+    table.set(name::LAMBDA2, &d.lambda2)?;
+    if let Some(r) = &d.r_param {
+        table.set(name::R_PARAM, r)?;
+    }
+    Ok(table)
+}

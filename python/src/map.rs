@@ -22,8 +22,9 @@ use crate::{options, run};
 
 /// Where a map's photons are.
 pub enum Source {
-    /// A PHM file, memory-mapped and validated.
-    File(format::PhotonMap),
+    /// A PHM file, memory-mapped and validated (boxed: its header is large, and a map is
+    /// made once per stage).
+    File(Box<format::PhotonMap>),
     /// A stage's result kept in memory (every column owned).
     Memory(PhotonTable<'static>),
 }
@@ -91,8 +92,12 @@ fn array<'py>(owner: &Bound<'py, PhotonMap>, spec: &ColumnSpec, bytes: &[u8]) ->
     }
 }
 
-/// A JSON value as the Python object `json.loads` makes of it.
-pub fn to_python<'py>(py: Python<'py>, value: &Value) -> PyResult<Bound<'py, PyAny>> {
+/// `value` as the Python object `json.loads` makes of its JSON (serialised directly, so f32
+/// values keep their shortest text, as in a file's header).
+pub fn to_python<'py, T: serde::Serialize + ?Sized>(
+    py: Python<'py>,
+    value: &T,
+) -> PyResult<Bound<'py, PyAny>> {
     let text = serde_json::to_string(value).map_err(|e| Failure::runtime(e.to_string()))?;
     py.import("json")?.call_method1("loads", (text,))
 }
@@ -103,27 +108,57 @@ pub fn from_python(what: &str, value: &Bound<'_, PyAny>) -> PyResult<Value> {
     serde_json::from_str(&text).map_err(|e| Failure::value(format!("{what}: {e}")).into())
 }
 
+/// A column's row of the header of a map in memory.
+#[derive(serde::Serialize)]
+struct ColumnRow {
+    name: String,
+    dtype: DType,
+    components: u32,
+}
+
 /// The header of a map in memory, as a file would hold it but for what only writing fixes
 /// (column offsets and checksums, the bounding box).
-fn memory_header(view: &MapView) -> Value {
-    let info = view.info();
-    let columns: Vec<Value> = view
-        .columns()
-        .iter()
-        .map(|(s, _)| json!({ "name": s.name, "dtype": s.dtype, "components": s.components }))
-        .collect();
-    let mut header = json!({
-        "photon_count": view.len(),
-        "columns": columns,
-        "emitters": info.emitters,
-        "units": info.units,
-        "state": info.state,
-        "history": info.history,
-    });
-    if let Some(h) = header.as_object_mut() {
-        h.extend(info.extra.iter().map(|(k, v)| (k.clone(), v.clone())));
+#[derive(serde::Serialize)]
+struct MemoryHeader<'a> {
+    photon_count: usize,
+    columns: Vec<ColumnRow>,
+    emitters: &'a [Emitter],
+    units: &'a Units,
+    state: State,
+    history: &'a [StageRecord],
+    #[serde(flatten)]
+    extra: &'a serde_json::Map<String, Value>,
+}
+
+impl<'a> MemoryHeader<'a> {
+    fn of(view: &MapView<'a>) -> Self {
+        let info = view.info();
+        MemoryHeader {
+            photon_count: view.len(),
+            columns: view
+                .columns()
+                .iter()
+                .map(|(s, _)| ColumnRow { name: s.name.clone(), dtype: s.dtype, components: s.components })
+                .collect(),
+            emitters: &info.emitters,
+            units: &info.units,
+            state: info.state,
+            history: &info.history,
+            extra: &info.extra,
+        }
     }
-    header
+}
+
+/// A file's JSON header as it is written in the file (between the preamble and the columns).
+fn file_header(m: &format::PhotonMap) -> &str {
+    let bytes = m.bytes();
+    let len = bytes
+        .first_chunk::<{ format::preamble::PREAMBLE_LEN }>()
+        .and_then(format::preamble::Preamble::from_bytes)
+        .map_or(0, |p| p.metadata_len as usize);
+    let start = format::preamble::PREAMBLE_LEN;
+    // Validated on open: the region is in the file and UTF-8.
+    std::str::from_utf8(&bytes[start..start + len]).unwrap_or("{}")
 }
 
 #[pymethods]
@@ -186,17 +221,19 @@ impl PhotonMap {
     /// history, …). A map in memory has no offsets, checksums or bounding box until written.
     #[getter]
     fn metadata<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let header = match &self.source {
-            Source::File(m) => serde_json::to_value(m.meta()).map_err(|e| Failure::runtime(e.to_string()))?,
-            Source::Memory(t) => memory_header(&t.view()),
-        };
-        to_python(py, &header)
+        match &self.source {
+            Source::File(m) => py.import("json")?.call_method1("loads", (file_header(m),)),
+            Source::Memory(t) => to_python(py, &MemoryHeader::of(&t.view())),
+        }
     }
 
     /// The emitters, as dicts (the header's `emitters`).
     #[getter]
     fn emitters<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_python(py, &json!(self.view().info().emitters))
+        match &self.source {
+            Source::File(_) => self.metadata(py)?.get_item("emitters"),
+            Source::Memory(t) => to_python(py, &t.info.emitters),
+        }
     }
 
     /// Where the map is in the pipeline: "traced", "detected" or "collapsed".
@@ -209,7 +246,10 @@ impl PhotonMap {
     /// parameters, report).
     #[getter]
     fn history<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        to_python(py, &json!(self.view().info().history))
+        match &self.source {
+            Source::File(_) => self.metadata(py)?.get_item("history"),
+            Source::Memory(t) => to_python(py, &t.info.history),
+        }
     }
 
     /// The file's path, or None for a map in memory.
@@ -289,7 +329,7 @@ pub fn write_view(table: &PhotonTable, path: PathBuf, context: Option<&str>) -> 
         }
         f
     })?;
-    Ok(Source::File(format::PhotonMap::open_path(&path)?))
+    Ok(Source::File(Box::new(format::PhotonMap::open_path(&path)?)))
 }
 
 /// Opens a PHM file: validates its header and verifies every column's checksum, then maps it
@@ -298,7 +338,7 @@ pub fn write_view(table: &PhotonTable, path: PathBuf, context: Option<&str>) -> 
 pub fn open(py: Python<'_>, path: &Bound<'_, PyAny>) -> PyResult<PhotonMap> {
     let path = options::path(path)?;
     let map = run(py, None, || Ok(format::PhotonMap::open_path(&path)?))?;
-    Ok(PhotonMap { source: Source::File(map) })
+    Ok(PhotonMap { source: Source::File(Box::new(map)) })
 }
 
 /// A map argument: a PhotonMap, or the path of a PHM file to open.
@@ -468,7 +508,7 @@ pub fn write(
             None => vec![external_emitter(table.view().flux())],
         };
         table.write(Output::Path(path.clone())).map_err(value)?;
-        Ok(Source::File(format::PhotonMap::open_path(&path)?))
+        Ok(Source::File(Box::new(format::PhotonMap::open_path(&path)?)))
     })?;
     Ok(PhotonMap { source })
 }

@@ -152,7 +152,7 @@ pub fn trace(
                     photonkit::trace::record_scene_location(&mut info, scene_file, &p);
                 }
                 traced.write(Output::Path(p.clone()), info)?;
-                Source::File(format::PhotonMap::open_path(&p)?)
+                Source::File(Box::new(format::PhotonMap::open_path(&p)?))
             }
             None => Source::Memory(traced_table(&traced, info)?),
         };
@@ -487,7 +487,7 @@ pub fn pipeline(
         let outcome = photonkit::pipeline::run(&view, scene.as_ref(), &params, &mut on_stage, &progress)?;
         told.extend(stage_notes.into_inner());
         let source = match last {
-            Some(file) => Source::File(format::PhotonMap::open_path(&file)?),
+            Some(file) => Source::File(Box::new(format::PhotonMap::open_path(&file)?)),
             None => Source::Memory(outcome.map),
         };
         Ok((source, told))

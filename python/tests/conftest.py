@@ -17,11 +17,11 @@ def find_cli():
     given = os.environ.get("PHOTONKIT_CLI")
     if given:
         assert Path(given).is_file(), f"PHOTONKIT_CLI={given} is not a file"
-        return Path(given)
+        return Path(given).resolve()
     target = Path(os.environ.get("CARGO_TARGET_DIR", REPO / "target"))
     for build in ("release", "debug"):
         if (target / build / "photonkit").is_file():
-            return target / build / "photonkit"
+            return (target / build / "photonkit").resolve()
     found = shutil.which("photonkit")
     return Path(found) if found else None
 

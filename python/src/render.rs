@@ -97,7 +97,7 @@ pub fn render<'py>(
     if png.is_some() && no_png {
         return Err(Failure::value("png and no_png cannot be given together".into()).into());
     }
-    if rect.is_some() && plane.is_none() || plane_tolerance != 1e-3 && plane.is_none() {
+    if plane.is_none() && (rect.is_some() || plane_tolerance != 1e-3) {
         return Err(Failure::value("rect and plane_tolerance need plane".into()).into());
     }
     if fov.is_some() && ortho.is_some() {

@@ -1,0 +1,159 @@
+"""Each stage called from Python writes the file the command line writes (byte for byte, with
+SOURCE_DATE_EPOCH set for both), and a map kept in memory is the same map."""
+
+import filecmp
+import threading
+import time
+
+import numpy as np
+import photonkit
+import pytest
+
+from conftest import SAMPLES
+
+PHOTONS = 20_000
+
+
+def same(a, b):
+    return filecmp.cmp(a, b, shallow=False)
+
+
+def exr_parts(path):
+    """An OpenEXR file as (its header's attributes as a dict, every byte after the header).
+    The header's attributes are compared as a set: their order in a file varies from run to run
+    of the command line itself (the exr crate keeps them in a hash map)."""
+    data = path.read_bytes()
+    assert data[:4] == b"\x76\x2f\x31\x01", "not an OpenEXR file"
+    at, attributes = 8, {}
+    while data[at] != 0:
+        name_end = data.index(b"\0", at)
+        type_end = data.index(b"\0", name_end + 1)
+        size = int.from_bytes(data[type_end + 1 : type_end + 5], "little")
+        value_at = type_end + 5
+        attributes[data[at:name_end]] = (data[name_end + 1 : type_end], data[value_at : value_at + size])
+        at = value_at + size
+    return attributes, data[at:]
+
+
+@pytest.fixture
+def traced(tmp_path, run_cli, reproducible):
+    """A map traced by the command line from the embedded default scene."""
+    run_cli("trace", "--photons", PHOTONS, "-o", "cli-traced.phm")
+    return tmp_path / "cli-traced.phm"
+
+
+def test_trace_writes_the_file_the_command_line_writes(tmp_path, traced, run_cli):
+    m = photonkit.trace(photons=PHOTONS, output=tmp_path / "py-traced.phm")
+    assert same(traced, tmp_path / "py-traced.phm")
+    assert m.path == str(tmp_path / "py-traced.phm") and len(m) > 1000
+    # Kept in memory, then written: the same file again.
+    photonkit.trace(photons=float(PHOTONS)).write(tmp_path / "memory.phm")
+    assert same(traced, tmp_path / "memory.phm")
+
+
+def test_trace_of_a_scene_file_with_options(tmp_path, run_cli, reproducible):
+    scene = SAMPLES / "scenes" / "prism.toml"
+    args = dict(stored=3000, seed=7, store="direct", max_bounces=8)
+    run_cli("trace", scene, "--stored", 3000, "--seed", 7, "--store", "direct", "--max-bounces", 8, "-o", "cli.phm")
+    photonkit.trace(scene, tmp_path / "py.phm", **args)
+    assert same(tmp_path / "cli.phm", tmp_path / "py.phm")
+    run_cli("trace", scene, "--photons", 4000, "--shard", "1/3", "-o", "cli-shard.phm")
+    photonkit.trace(str(scene), str(tmp_path / "py-shard.phm"), photons=4000, shard="1/3", threads=1)
+    assert same(tmp_path / "cli-shard.phm", tmp_path / "py-shard.phm")
+
+
+def test_detect_relax_collapse_write_the_command_lines_files(tmp_path, traced, run_cli):
+    cli = lambda *a: run_cli(*a)  # noqa: E731
+    cli("detect", traced, "-o", "cli-detected.phm", "--kc", 30, "--beta", 2.5, "--growths", 1)
+    cli("relax", "cli-detected.phm", "-o", "cli-relaxed.phm", "-R", 3, "--kf", 12, "--step-limit", 0.4)
+    cli("collapse", "cli-relaxed.phm", "-o", "cli-collapsed.phm")
+    cli("relax", "cli-collapsed.phm", "-o", "cli-final.phm", "-R", 2)
+
+    d = photonkit.detect(traced, tmp_path / "py-detected.phm", kc=30, beta=2.5, growths=1)
+    r = photonkit.relax(d, tmp_path / "py-relaxed.phm", iterations=3, kf=12, step_limit=0.4)
+    c = photonkit.collapse(r, tmp_path / "py-collapsed.phm")
+    photonkit.relax(c, tmp_path / "py-final.phm", iterations=2)
+    for stage in ["detected", "relaxed", "collapsed", "final"]:
+        assert same(tmp_path / f"cli-{stage}.phm", tmp_path / f"py-{stage}.phm"), stage
+
+    # The same chain in memory (each map named after the file it started from), written at the end.
+    m = photonkit.open(traced)
+    m = photonkit.detect(m, kc=30, beta=2.5, growths=1)
+    m = photonkit.relax(m, iterations=3, kf=12, step_limit=0.4)
+    m = photonkit.relax(photonkit.collapse(m), iterations=2)
+    assert m.path is None
+    m.write(tmp_path / "memory-final.phm")
+    assert same(tmp_path / "cli-final.phm", tmp_path / "memory-final.phm")
+
+
+def test_detect_with_the_other_methods(tmp_path, traced, run_cli):
+    run_cli("detect", traced, "-o", "cli.phm", "--method", "gradient", "--gain", 0.8, "--mu-sigma", "paper")
+    photonkit.detect(traced, tmp_path / "py.phm", method="gradient", gain=0.8, mu_sigma="paper")
+    assert same(tmp_path / "cli.phm", tmp_path / "py.phm")
+
+
+def test_pipeline_writes_the_maps_photonkit_pipeline_writes(tmp_path, run_cli, reproducible):
+    run_cli("pipeline", "--photons", PHOTONS, "-R", 2, "--kc", 30, "--out-dir", "cli", "--", "--width", 16)
+    (tmp_path / "py").mkdir()
+    traced = photonkit.trace(photons=PHOTONS, output=tmp_path / "py" / "traced.phm")
+    relaxed = photonkit.pipeline(traced, tmp_path / "py", iterations=2, kc=30)
+    assert relaxed.path == str(tmp_path / "py" / "relaxed.phm")
+    for name in ["traced", "detected", "relaxed-params", "collapsed", "relaxed"]:
+        assert same(tmp_path / "cli" / f"{name}.phm", tmp_path / "py" / f"{name}.phm"), name
+    in_memory = photonkit.pipeline(traced, iterations=2, kc=30)
+    assert in_memory.path is None
+    assert in_memory["position"].tobytes() == relaxed["position"].tobytes()
+
+
+def test_render_writes_the_command_lines_images(tmp_path, traced, run_cli):
+    args = ["--width", 48, "--height", 32, "--spp", 1, "-k", 10, "--exposure", 1]
+    run_cli("render", traced, "-o", "cli.exr", *args)
+    image = photonkit.render(traced, tmp_path / "py.exr", width=48, height=32, spp=1, k=10, exposure=1)
+    assert exr_parts(tmp_path / "cli.exr") == exr_parts(tmp_path / "py.exr")
+    assert same(tmp_path / "cli.png", tmp_path / "py.png")
+    assert image.shape == (32, 48, 3) and image.dtype == np.float32
+    assert np.isfinite(image).all() and image.max() > 0
+    # Without an output nothing is written, and the pixels are the same.
+    again = photonkit.render(photonkit.open(traced), width=48, height=32, spp=1, k=10)
+    assert np.array_equal(image, again)
+    # A scene-less view of the floor: irradiance, W/m².
+    top = photonkit.render(traced, plane="z=0", rect=(-1, -1, 1, 1), width=20)
+    assert top.shape == (20, 20, 3)
+    run_cli("render", traced, "-o", "plane.exr", "--plane", "z=0", "--rect=-1,-1,1,1", "--width", 20, "--no-png")
+    photonkit.render(traced, tmp_path / "py-plane.exr", plane="z=0", rect=(-1, -1, 1, 1), width=20, no_png=True)
+    assert exr_parts(tmp_path / "plane.exr") == exr_parts(tmp_path / "py-plane.exr")
+    assert not (tmp_path / "py-plane.png").exists()
+
+
+def test_stages_release_the_interpreter(traced):
+    """Python threads run while a stage does: a counter in this thread advances meanwhile."""
+    m = photonkit.detect(traced)
+    done = threading.Event()
+    ticks = 0
+
+    def stage():
+        photonkit.relax(m, iterations=10)
+        done.set()
+
+    t = threading.Thread(target=stage)
+    start = time.perf_counter()
+    t.start()
+    while not done.is_set():
+        ticks += 1
+    t.join()
+    seconds = time.perf_counter() - start
+    assert seconds > 0.05, "the stage was too short to tell"
+    assert ticks > 10_000 * seconds, f"{ticks} ticks in {seconds:.2f} s: the stage held the interpreter"
+
+
+def test_compare_reports_every_method_against_the_truth(tmp_path):
+    result = photonkit.compare(
+        out_dir=tmp_path / "cmp", photons=20_000, methods=["pm", "ours"], pm_k=[15], seeds=1, cells=16, spp=1,
+        fast_truth=True, iterations=2,
+    )
+    assert (tmp_path / "cmp" / "report.md").is_file() and result["report"] == str(tmp_path / "cmp" / "report.md")
+    rows = result["rows"]
+    assert {r["method"] for r in rows} == {"pm", "ours"}
+    whole = [r for r in rows if r["region"] == "all"]
+    assert all(r["nrmse"] > 0 and r["photons"] > 0 for r in whole)
+    assert "Our method" in result["table"]

@@ -18,10 +18,9 @@ use crate::map::input;
 use crate::stages::{load_scene, notes, refuse_input_as_output};
 use crate::{options, run};
 
-/// The scene's own camera. The one place the bindings read a field of a built scene: it
-/// becomes `scene.camera()` when the scene's fields turn private behind accessors.
+/// The scene's own camera.
 fn scene_camera(scene: &Scene) -> Option<&Camera> {
-    scene.camera.as_ref()
+    scene.camera()
 }
 
 /// "x=VALUE", "y=VALUE" or "z=VALUE", as `render --plane` reads it.

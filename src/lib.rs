@@ -26,6 +26,7 @@ pub mod format;
 pub mod import;
 pub mod inspect;
 pub mod pipeline;
+pub mod refine;
 pub mod relax;
 pub mod render;
 pub mod sampling;

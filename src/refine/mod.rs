@@ -1,0 +1,300 @@
+//! Progressive refinement of a relaxed photon map (issue 24; after Spencer & Jones,
+//! "Progressive Photon Relaxation", ACM TOG 32(1), 2013, whose abstract states the idea:
+//! successive passes of fresh photons estimate the flux local to each *primal* photon, and a
+//! relaxation step works toward a constant per-photon flux). docs/progressive.md says what is
+//! adopted from it and what differs.
+//!
+//! Each pass:
+//! 1. traces M fresh photons, continuing the emission sequence where the map's trace (or the
+//!    last pass) stopped ([`crate::trace::trace_range`]);
+//! 2. gathers them to every primal photon within its radius R_i and updates the photon's
+//!    progressive statistics by the rule of stochastic progressive photon mapping (Hachisuka
+//!    & Jensen 2009) — N' = N + αM_i, R'² = R²·N'/(N + M_i), τ' = (τ + Φ_i)·R'²/R² — so the
+//!    irradiance estimate E_i = τ_i / (π R_i² P_i) (P_i passes) converges at the photon;
+//! 3. moves the primal photons toward a constant per-photon flux: photon i's flux is
+//!    φ_i = E_i·A_i, A_i = π r_i²/Kf its share of the area (r_i the distance to its Kf-th
+//!    neighbour), and the repulsion of Eq. 8 takes the pairwise rest length
+//!    s_ij = (s_i + s_j)/2 with s_i = r_i·sqrt(φ̄/φ_i), so photons carrying more than the mean
+//!    flux draw their neighbours in; the step is projected onto the constraint basis (Eq. 9)
+//!    so edges stay sharp, and a photon that moves keeps only the share 1 − |δ|/R_i of its
+//!    statistics, which were gathered where it was;
+//! 4. sets every primal photon's flux to φ_i, scaled so the map's total flux per channel is
+//!    the total it had (energy is conserved exactly, whatever the estimates' noise).
+
+mod pass;
+#[cfg(test)]
+mod tests;
+
+use serde::{Deserialize, Serialize};
+
+pub use pass::{PassMeasure, Primal, Statistics, gather, relax_toward_flux, set_flux};
+
+use crate::format::{FormatError, MapView, PhotonTable, StageRecord, name};
+use crate::scene::Scene;
+use crate::trace::{self, StorePolicy, TraceError, TraceOptions};
+
+/// Settings of a refinement.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RefineParams {
+    /// Passes in all (a resumed run goes on up to this count).
+    pub passes: u64,
+    /// Photons emitted per pass; `None`: as many as the map's trace emitted.
+    pub photons_per_pass: Option<u64>,
+    /// α of the radius reduction, in (0, 1) (SPPM's 2/3).
+    pub alpha: f64,
+    /// The initial gather radius R_i is the distance to the primal photon's `gather_k`-th
+    /// nearest primal neighbour.
+    pub gather_k: usize,
+    /// Relaxation iterations toward constant flux after each pass (0: the photons stay put
+    /// and only their flux is refined).
+    pub iterations: usize,
+    /// Kf: neighbours of the repulsion (Eq. 8).
+    pub kf: usize,
+    /// Largest step, as a fraction of the local photon spacing.
+    pub step_limit: f32,
+}
+
+impl Default for RefineParams {
+    fn default() -> Self {
+        RefineParams {
+            passes: 8,
+            photons_per_pass: None,
+            alpha: 2.0 / 3.0,
+            gather_k: 16,
+            iterations: 1,
+            kf: 16,
+            step_limit: 0.25,
+        }
+    }
+}
+
+/// What can stop a refinement.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum RefineError {
+    #[error(transparent)]
+    Format(#[from] FormatError),
+    #[error(transparent)]
+    Trace(#[from] TraceError),
+    #[error("{file}: {message}")]
+    Input { file: String, message: String },
+    #[error("{0}")]
+    Invalid(String),
+}
+
+/// Column names of the progressive statistics a refined map carries (so a run resumes).
+pub mod column {
+    /// Gather radius R_i, metres. f32×1.
+    pub const RADIUS: &str = "refine_radius";
+    /// Accumulated photon count N_i. f32×1.
+    pub const COUNT: &str = "refine_count";
+    /// Accumulated flux τ_i, watts per RGB channel (summed over passes). f32×3.
+    pub const TAU: &str = "refine_tau";
+    /// Passes the statistics hold, P_i (fewer than the run's after the photon moved). f32×1.
+    pub const PASSES: &str = "refine_passes";
+}
+
+/// The record a refinement adds to the map's history (one per run; a resumed run adds one).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct RefineRecord {
+    pub params: RefineParams,
+    /// Photons emitted per pass (the resolved `photons_per_pass`).
+    pub photons_per_pass: u64,
+    /// Passes done in all after this run.
+    pub passes_done: u64,
+    /// The next emission number a pass would trace.
+    pub next_emission: u64,
+    /// Fresh photons stored over all passes.
+    pub fresh_stored: u64,
+    /// The map's total flux before the first pass, W per channel: every pass keeps it.
+    pub total_flux: [f64; 3],
+    /// Per pass of this run: its measures.
+    pub measures: Vec<PassMeasure>,
+}
+
+impl RefineRecord {
+    /// The last refine record of a map's history.
+    pub fn of(map: &MapView) -> Option<RefineRecord> {
+        let rec = map.info().history.iter().rev().find(|r| r.stage == "refine")?;
+        serde_json::from_value(rec.report.clone()).ok()
+    }
+}
+
+/// Where a run starts: the primal photons, their statistics, and the emission counter.
+struct Start {
+    primal: Primal,
+    stats: Statistics,
+    passes_done: u64,
+    next_emission: u64,
+    fresh_stored: u64,
+    total: [f64; 3],
+}
+
+fn start(map: &MapView, p: &RefineParams, per_pass: u64) -> Result<Start, RefineError> {
+    let file = map.file_name();
+    let input = |message: String| RefineError::Input { file: file.to_string(), message };
+    let primal = Primal::from_map(map)?;
+    if primal.len() < 2 {
+        return Err(input("refinement needs at least two primal photons".into()));
+    }
+    if let Some(rec) = RefineRecord::of(map) {
+        if rec.photons_per_pass != per_pass
+            || rec.params.alpha != p.alpha
+            || rec.params.gather_k != p.gather_k
+        {
+            return Err(input(format!(
+                "refined before with other settings ({} photons per pass, α {}, gather k {}): resume with those",
+                rec.photons_per_pass, rec.params.alpha, rec.params.gather_k
+            )));
+        }
+        let stats = Statistics::from_map(map)?
+            .ok_or_else(|| input("has a refine record but not its statistics columns".into()))?;
+        return Ok(Start {
+            primal,
+            stats,
+            passes_done: rec.passes_done,
+            next_emission: rec.next_emission,
+            fresh_stored: rec.fresh_stored,
+            total: rec.total_flux,
+        });
+    }
+    let trace = map
+        .info()
+        .trace_record()
+        .ok_or_else(|| input("names no trace: refinement continues the trace's emission sequence".into()))?;
+    let next_emission = trace.report.emission_range.map_or(trace.report.emitted, |r| r[1]);
+    let stats = Statistics::start(&primal.positions, p.gather_k);
+    let total = primal.total_flux();
+    Ok(Start { primal, stats, passes_done: 0, next_emission, fresh_stored: 0, total })
+}
+
+/// Refines `map` (its primal photons, with their constraint bases where it has them) in
+/// passes of fresh photons traced from `scene`, up to `p.passes` passes in all. After each
+/// pass `after_pass(table)` sees the refined map (to write it, so an interrupted run
+/// resumes from the last pass written); it returns `false` to stop.
+pub fn refine<'a>(
+    map: &MapView<'a>,
+    scene: &Scene,
+    p: &RefineParams,
+    after_pass: &mut dyn FnMut(&PassMeasure, &PhotonTable<'a>) -> Result<bool, RefineError>,
+) -> Result<PhotonTable<'a>, RefineError> {
+    if !(p.alpha > 0.0 && p.alpha < 1.0) {
+        return Err(RefineError::Invalid(format!("α = {}: must lie in (0, 1)", p.alpha)));
+    }
+    if p.gather_k == 0 || p.kf == 0 {
+        return Err(RefineError::Invalid("the gather and the repulsion need at least one neighbour".into()));
+    }
+    if !(p.step_limit >= 0.0 && p.step_limit.is_finite()) {
+        return Err(RefineError::Invalid("the step limit must be a non-negative number".into()));
+    }
+    let trace = map.info().trace_record();
+    let per_pass = match p.photons_per_pass {
+        Some(0) => return Err(RefineError::Invalid("a pass needs at least one photon".into())),
+        Some(n) => n,
+        None => trace.as_ref().map(|t| t.report.emitted).filter(|&n| n > 0).ok_or_else(|| {
+            RefineError::Invalid("the map names no emitted count: give the photons per pass".into())
+        })?,
+    };
+    let Start { mut primal, mut stats, mut passes_done, mut next_emission, mut fresh_stored, total } =
+        start(map, p, per_pass)?;
+    let topts = TraceOptions {
+        seed: trace.as_ref().map_or(1, |t| t.parameters.seed),
+        store: match trace.as_ref().map(|t| t.parameters.store.as_str()) {
+            Some("direct") => StorePolicy::Direct,
+            _ => StorePolicy::Caustic,
+        },
+        max_bounces: trace.as_ref().map_or(64, |t| t.parameters.max_bounces),
+        ..TraceOptions::default()
+    };
+    let mut measures = Vec::new();
+    let counters = |passes_done, next_emission, fresh_stored| Counters {
+        per_pass,
+        passes_done,
+        next_emission,
+        fresh_stored,
+        total,
+    };
+    let mut table =
+        make_table(map, &primal, &stats, p, counters(passes_done, next_emission, fresh_stored), &measures)?;
+    while passes_done < p.passes {
+        let t = std::time::Instant::now();
+        let range = next_emission
+            ..next_emission.checked_add(per_pass).ok_or_else(|| {
+                RefineError::Invalid("the emission numbers overflow: too many passes".into())
+            })?;
+        let fresh = trace::trace_range(scene, &topts, range.clone(), &|_, _| {})?.photons()?;
+        next_emission = range.end;
+        fresh_stored += fresh.len() as u64;
+        let gathered = gather(&mut stats, &primal, &fresh, p.alpha);
+        passes_done += 1;
+        let mut moved = 0.0;
+        for _ in 0..p.iterations {
+            moved += relax_toward_flux(&mut primal, &mut stats, p);
+        }
+        let spread = set_flux(&mut primal, &stats, p.kf, total);
+        let m = PassMeasure {
+            pass: passes_done,
+            fresh_stored: fresh.len() as u64,
+            gathered_per_photon: gathered,
+            mean_step: moved / p.iterations.max(1) as f64,
+            flux_cv: spread,
+            seconds: crate::format::meta::reported_seconds(t.elapsed().as_secs_f64()).as_f64(),
+        };
+        measures.push(m);
+        table = make_table(
+            map,
+            &primal,
+            &stats,
+            p,
+            counters(passes_done, next_emission, fresh_stored),
+            &measures,
+        )?;
+        if !after_pass(&m, &table)? {
+            break;
+        }
+    }
+    Ok(table)
+}
+
+/// A run's counters, for its record.
+#[derive(Clone, Copy)]
+struct Counters {
+    per_pass: u64,
+    passes_done: u64,
+    next_emission: u64,
+    fresh_stored: u64,
+    total: [f64; 3],
+}
+
+/// `map` with the primal photons' positions, flux and statistics replaced, and this run's
+/// refine record last in its history.
+fn make_table<'a>(
+    map: &MapView<'a>,
+    primal: &Primal,
+    stats: &Statistics,
+    p: &RefineParams,
+    c: Counters,
+    measures: &[PassMeasure],
+) -> Result<PhotonTable<'a>, RefineError> {
+    let mut info = map.info().clone();
+    let record = RefineRecord {
+        params: *p,
+        photons_per_pass: c.per_pass,
+        passes_done: c.passes_done,
+        next_emission: c.next_emission,
+        fresh_stored: c.fresh_stored,
+        total_flux: c.total,
+        measures: measures.to_vec(),
+    };
+    let mut rec = StageRecord::now("refine", serde_json::to_value(p).unwrap_or_default());
+    rec.report = serde_json::to_value(&record).unwrap_or_default();
+    info.history.push(rec);
+    let mut table = PhotonTable::carrying(map, info);
+    table.set(name::POSITION, &primal.positions)?;
+    table.set(name::FLUX, &primal.flux)?;
+    table.set(column::RADIUS, &stats.radius)?;
+    table.set(column::COUNT, &stats.count)?;
+    table.set(column::TAU, &stats.tau)?;
+    table.set(column::PASSES, &stats.passes)?;
+    Ok(table)
+}

@@ -1,0 +1,279 @@
+//! One pass of progressive refinement: the gather of fresh photons into the primal photons'
+//! statistics, the relaxation toward constant flux, and the flux it assigns.
+
+use glam::Vec3;
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use super::{RefineError, RefineParams, column};
+use crate::format::{MapView, name};
+use crate::relax::{clamp_step, project_on_basis, project_on_tangent};
+use crate::spatial::{BoxTree, Neighbours};
+use crate::trace::Photons;
+
+/// The primal photons: the map's photons that refinement moves and re-weights.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Primal {
+    pub positions: Vec<[f32; 3]>,
+    /// Watts per RGB channel.
+    pub flux: Vec<[f32; 3]>,
+    /// Unit normals (gather only from fresh photons on the same side; move in the tangent
+    /// plane when there is no basis).
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// The constraint basis (u_b, v_b) of Eq. 7, when the map was detected.
+    pub basis: Option<(Vec<[f32; 3]>, Vec<[f32; 3]>)>,
+}
+
+impl Primal {
+    /// The photons of `map`.
+    pub fn from_map(map: &MapView) -> Result<Primal, RefineError> {
+        let u = map.column::<[f32; 3]>(name::BASIS_U)?;
+        let v = map.column::<[f32; 3]>(name::BASIS_V)?;
+        Ok(Primal {
+            positions: map.positions().to_vec(),
+            flux: map.flux().to_vec(),
+            normals: map.column::<[f32; 3]>(name::NORMAL)?.map(<[_]>::to_vec),
+            basis: u.zip(v).map(|(u, v)| (u.to_vec(), v.to_vec())),
+        })
+    }
+
+    /// Number of primal photons.
+    pub fn len(&self) -> usize {
+        self.positions.len()
+    }
+
+    /// Whether there are none.
+    pub fn is_empty(&self) -> bool {
+        self.positions.is_empty()
+    }
+
+    /// Total flux per channel, W (summed in f64).
+    pub fn total_flux(&self) -> [f64; 3] {
+        self.flux.iter().fold([0.0; 3], |s, f| [s[0] + f[0] as f64, s[1] + f[1] as f64, s[2] + f[2] as f64])
+    }
+}
+
+/// Each primal photon's progressive statistics (SPPM's N, R, τ) and the passes they hold.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Statistics {
+    /// Gather radius R_i, metres.
+    pub radius: Vec<f32>,
+    /// Accumulated count N_i.
+    pub count: Vec<f32>,
+    /// Accumulated flux τ_i, W per channel, summed over passes.
+    pub tau: Vec<[f32; 3]>,
+    /// Passes P_i the statistics stand for.
+    pub passes: Vec<f32>,
+}
+
+impl Statistics {
+    /// Fresh statistics: R_i the distance to the photon's `k`-th nearest primal neighbour.
+    pub fn start(positions: &[[f32; 3]], k: usize) -> Statistics {
+        let tree = BoxTree::build(positions);
+        let k = k.min(positions.len().saturating_sub(1)).max(1);
+        let radius = positions
+            .par_iter()
+            .map_init(
+                || Neighbours::with_capacity(k + 1),
+                |nb, &x| {
+                    tree.knn(x, k + 1, f32::INFINITY, nb);
+                    nb.max_dist2().unwrap_or(0.0).sqrt()
+                },
+            )
+            .collect();
+        let n = positions.len();
+        Statistics { radius, count: vec![0.0; n], tau: vec![[0.0; 3]; n], passes: vec![0.0; n] }
+    }
+
+    /// The statistics a refined map carries, if it has them.
+    pub fn from_map(map: &MapView) -> Result<Option<Statistics>, RefineError> {
+        let (Some(radius), Some(count), Some(tau), Some(passes)) = (
+            map.column::<f32>(column::RADIUS)?,
+            map.column::<f32>(column::COUNT)?,
+            map.column::<[f32; 3]>(column::TAU)?,
+            map.column::<f32>(column::PASSES)?,
+        ) else {
+            return Ok(None);
+        };
+        Ok(Some(Statistics {
+            radius: radius.to_vec(),
+            count: count.to_vec(),
+            tau: tau.to_vec(),
+            passes: passes.to_vec(),
+        }))
+    }
+
+    /// Irradiance estimate at primal photon i, W/m² per channel: E_i = τ_i / (π R_i² P_i)
+    /// (zero before any pass).
+    pub fn irradiance(&self, i: usize) -> Vec3 {
+        let area = std::f32::consts::PI * self.radius[i] * self.radius[i] * self.passes[i];
+        if area > 0.0 { Vec3::from(self.tau[i]) / area } else { Vec3::ZERO }
+    }
+}
+
+/// The measures of one pass (kept in the refine record).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize, Deserialize)]
+pub struct PassMeasure {
+    /// Passes done in all.
+    pub pass: u64,
+    /// Fresh photons this pass stored.
+    pub fresh_stored: u64,
+    /// Mean number of fresh photons a primal photon gathered.
+    pub gathered_per_photon: f64,
+    /// Mean step of the relaxation, metres (per iteration).
+    pub mean_step: f64,
+    /// Coefficient of variation of the primal photons' flux (luminance) after the pass: 0 when
+    /// every photon carries the same flux, the goal of the relaxation.
+    pub flux_cv: f64,
+    /// Seconds (absent under SOURCE_DATE_EPOCH).
+    pub seconds: Option<f64>,
+}
+
+/// Step 2 of a pass: gathers `fresh` into every primal photon's statistics by the SPPM rule
+/// N' = N + αM, R'² = R²·(N + αM)/(N + M), τ' = (τ + Φ_M)·R'²/R², Φ_M the flux of the M
+/// fresh photons within R on the photon's side of the surface. Returns the mean M.
+pub fn gather(stats: &mut Statistics, primal: &Primal, fresh: &Photons, alpha: f64) -> f64 {
+    let tree = BoxTree::build(&fresh.position);
+    let normals = primal.normals.as_deref();
+    let total: u64 = stats
+        .radius
+        .par_iter_mut()
+        .zip(stats.count.par_iter_mut())
+        .zip(stats.tau.par_iter_mut())
+        .zip(stats.passes.par_iter_mut())
+        .enumerate()
+        .map(|(i, (((r, n), tau), passes))| {
+            let (mut m, mut phi) = (0u64, Vec3::ZERO);
+            let normal = normals.map(|n| Vec3::from(n[i]));
+            tree.within(primal.positions[i], *r * *r, &mut |j, _| {
+                let j = j as usize;
+                if normal.is_none_or(|n| n.dot(Vec3::from(fresh.normal[j])) > 0.5) {
+                    m += 1;
+                    phi += Vec3::from(fresh.flux[j]);
+                }
+            });
+            let (count, mf) = (*n as f64, m as f64);
+            let grown = count + alpha * mf;
+            let shrink2 = if count + mf > 0.0 { grown / (count + mf) } else { 1.0 };
+            *tau = ((Vec3::from(*tau) + phi) * shrink2 as f32).into();
+            *r *= shrink2.sqrt() as f32;
+            *n = grown as f32;
+            *passes += 1.0;
+            m
+        })
+        .sum();
+    total as f64 / stats.radius.len().max(1) as f64
+}
+
+/// Each primal photon's area share π r_i² (r_i the distance to its Kf-th neighbour) and its
+/// neighbours, from one tree over the current positions.
+fn neighbourhoods(positions: &[[f32; 3]], kf: usize) -> (Vec<f32>, Vec<Vec<u32>>) {
+    let tree = BoxTree::build(positions);
+    let k = kf.min(positions.len().saturating_sub(1)).max(1);
+    positions
+        .par_iter()
+        .enumerate()
+        .map_init(
+            || Neighbours::with_capacity(k + 1),
+            |nb, (i, &x)| {
+                tree.knn(x, k + 1, f32::INFINITY, nb);
+                let ids: Vec<u32> = nb.indices().filter(|&j| j as usize != i).take(k).collect();
+                let r2 = ids
+                    .iter()
+                    .map(|&j| Vec3::from(positions[j as usize]).distance_squared(x.into()))
+                    .fold(0.0, f32::max);
+                (r2, ids)
+            },
+        )
+        .unzip()
+}
+
+fn luminance(v: Vec3) -> f32 {
+    0.2126 * v.x + 0.7152 * v.y + 0.0722 * v.z
+}
+
+/// Step 3 of a pass, one iteration: Eq. 8's repulsion over the Kf nearest primal photons
+/// with the pairwise rest length s_ij = (s_i + s_j)/2, s_i = r_i·sqrt(φ̄/φ_i) (φ_i = E_i·π r_i²,
+/// luminance, bounded to [½, 2]·r_i), projected onto the constraint basis (Eq. 9) or the
+/// tangent plane, the step at most `step_limit` of the local spacing. A photon that moves by
+/// δ keeps the share max(0, 1 − |δ|/R_i) of its statistics. Returns the mean step, metres.
+pub fn relax_toward_flux(primal: &mut Primal, stats: &mut Statistics, p: &RefineParams) -> f64 {
+    let n = primal.len();
+    let (r2, ids) = neighbourhoods(&primal.positions, p.kf);
+    let phi: Vec<f32> = (0..n).map(|i| luminance(stats.irradiance(i)) * r2[i]).collect();
+    let mean = phi.iter().map(|&f| f as f64).sum::<f64>() / n.max(1) as f64;
+    if mean <= 0.0 {
+        return 0.0;
+    }
+    let rest: Vec<f32> = (0..n)
+        .map(|i| {
+            let r = r2[i].sqrt();
+            let ratio = if phi[i] > 0.0 { (mean as f32 / phi[i]).sqrt() } else { 2.0 };
+            r * ratio.clamp(0.5, 2.0)
+        })
+        .collect();
+    let snapshot = &primal.positions;
+    let steps: Vec<Vec3> = (0..n)
+        .into_par_iter()
+        .map(|i| {
+            let xi = Vec3::from(snapshot[i]);
+            let nb = &ids[i];
+            if nb.is_empty() || r2[i] <= 0.0 {
+                return Vec3::ZERO;
+            }
+            // Eq. 8 with each pair's own rest length in place of r_K.
+            let f = nb
+                .iter()
+                .map(|&j| {
+                    let d = xi - Vec3::from(snapshot[j as usize]);
+                    let l = d.length();
+                    let s = 0.5 * (rest[i] + rest[j as usize]);
+                    if l > 0.0 { d * (s / (l + 1e-3 * s) - 1.0) } else { Vec3::ZERO }
+                })
+                .sum::<Vec3>()
+                / nb.len() as f32;
+            let fb = match (&primal.basis, &primal.normals) {
+                (Some((u, v)), _) => project_on_basis(f, u[i].into(), v[i].into()),
+                (None, Some(normal)) => project_on_tangent(f, normal[i].into()),
+                (None, None) => f,
+            };
+            let spacing = r2[i].sqrt() * (std::f32::consts::PI / nb.len() as f32).sqrt();
+            clamp_step(fb, p.step_limit * spacing)
+        })
+        .collect();
+    let mut sum = 0.0f64;
+    for (i, s) in steps.iter().enumerate() {
+        let l = s.length();
+        sum += l as f64;
+        primal.positions[i] = (Vec3::from(primal.positions[i]) + *s).into();
+        let keep = if stats.radius[i] > 0.0 { (1.0 - l / stats.radius[i]).max(0.0) } else { 1.0 };
+        stats.count[i] *= keep;
+        stats.passes[i] *= keep;
+        stats.tau[i] = (Vec3::from(stats.tau[i]) * keep).into();
+    }
+    sum / n.max(1) as f64
+}
+
+/// Step 4 of a pass: each primal photon's flux φ_i = E_i·π r_i² (r_i to its Kf-th
+/// neighbour), scaled per channel so the total is `total` (a channel with no estimate keeps
+/// its flux). Returns the coefficient of variation of the photons' flux luminance.
+pub fn set_flux(primal: &mut Primal, stats: &Statistics, kf: usize, total: [f64; 3]) -> f64 {
+    let (r2, _) = neighbourhoods(&primal.positions, kf);
+    let raw: Vec<Vec3> = (0..primal.len()).map(|i| stats.irradiance(i) * r2[i]).collect();
+    let sums = raw.iter().fold([0.0f64; 3], |s, f| [s[0] + f.x as f64, s[1] + f.y as f64, s[2] + f.z as f64]);
+    for c in 0..3 {
+        if sums[c] > 0.0 {
+            let scale = total[c] / sums[c];
+            for (f, r) in primal.flux.iter_mut().zip(&raw) {
+                f[c] = (r[c] as f64 * scale) as f32;
+            }
+        }
+    }
+    let lum: Vec<f64> = primal.flux.iter().map(|f| luminance(Vec3::from(*f)) as f64).collect();
+    let mean = lum.iter().sum::<f64>() / lum.len().max(1) as f64;
+    if mean <= 0.0 {
+        return 0.0;
+    }
+    let var = lum.iter().map(|l| (l - mean).powi(2)).sum::<f64>() / lum.len() as f64;
+    var.sqrt() / mean
+}

@@ -11,6 +11,9 @@ use crate::relax::{clamp_step, project_on_basis, project_on_tangent};
 use crate::spatial::{BoxTree, Neighbours};
 use crate::trace::Photons;
 
+/// The constraint basis vectors (u_b, v_b) of Eq. 7, one pair per photon.
+pub type Basis = (Vec<[f32; 3]>, Vec<[f32; 3]>);
+
 /// The primal photons: the map's photons that refinement moves and re-weights.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Primal {
@@ -21,7 +24,7 @@ pub struct Primal {
     /// plane when there is no basis).
     pub normals: Option<Vec<[f32; 3]>>,
     /// The constraint basis (u_b, v_b) of Eq. 7, when the map was detected.
-    pub basis: Option<(Vec<[f32; 3]>, Vec<[f32; 3]>)>,
+    pub basis: Option<Basis>,
 }
 
 impl Primal {

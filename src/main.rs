@@ -39,6 +39,8 @@ enum Command {
     Relax(cli::relax::Args),
     /// Drop the parameter dimensions from the neighbour search.
     Collapse(cli::relax::CollapseArgs),
+    /// Refine a relaxed map progressively: fresh photons each pass, flux toward constant per photon.
+    Refine(cli::refine::Args),
     /// Render radiance or irradiance from a photon map to OpenEXR and PNG.
     Render(cli::render::Args),
     /// Render a reference image by progressive photon mapping (traces its own photons).
@@ -72,6 +74,7 @@ fn main() -> ExitCode {
         Command::Detect(a) => cli::detect::run(a),
         Command::Relax(a) => cli::relax::run(a),
         Command::Collapse(a) => cli::relax::collapse(a),
+        Command::Refine(a) => cli::refine::run(a),
         Command::Render(a) => cli::render::run(a),
         Command::Reference(a) => cli::render::reference(a),
         Command::Compare(a) => cli::compare::run(a),

@@ -64,6 +64,7 @@ pub mod inspect;
 pub mod merge;
 pub mod params;
 pub mod pipeline;
+pub mod refine;
 pub mod relax;
 pub mod render;
 pub mod trace;

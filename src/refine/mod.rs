@@ -82,7 +82,8 @@ pub enum RefineError {
     Invalid(String),
 }
 
-/// Column names of the progressive statistics a refined map carries (so a run resumes).
+/// Column names of the progressive statistics a refined map carries (so a run resumes;
+/// format-spec/phm-v1.md §4.2).
 pub mod column {
     /// Gather radius R_i, metres. f32×1.
     pub const RADIUS: &str = "refine_radius";
@@ -171,11 +172,14 @@ fn start(map: &MapView, p: &RefineParams, per_pass: u64) -> Result<Start, Refine
 /// Refines `map` (its primal photons, with their constraint bases where it has them) in
 /// passes of fresh photons traced from `scene`, up to `p.passes` passes in all. After each
 /// pass `after_pass(table)` sees the refined map (to write it, so an interrupted run
-/// resumes from the last pass written); it returns `false` to stop.
+/// resumes from the last pass written); it returns `false` to stop. With `bounces`, only the
+/// fresh photons of these specular bounce counts are gathered (as the map's were chosen:
+/// [`crate::trace::Traced::retain_bounces`]).
 pub fn refine<'a>(
     map: &MapView<'a>,
     scene: &Scene,
     p: &RefineParams,
+    bounces: Option<&[u8]>,
     after_pass: &mut dyn FnMut(&PassMeasure, &PhotonTable<'a>) -> Result<bool, RefineError>,
 ) -> Result<PhotonTable<'a>, RefineError> {
     if !(p.alpha > 0.0 && p.alpha < 1.0) {
@@ -222,7 +226,11 @@ pub fn refine<'a>(
             ..next_emission.checked_add(per_pass).ok_or_else(|| {
                 RefineError::Invalid("the emission numbers overflow: too many passes".into())
             })?;
-        let fresh = trace::trace_range(scene, &topts, range.clone(), &|_, _| {})?.photons()?;
+        let mut traced = trace::trace_range(scene, &topts, range.clone(), &|_, _| {})?;
+        if let Some(keep) = bounces {
+            traced.retain_bounces(keep)?;
+        }
+        let fresh = traced.photons()?;
         next_emission = range.end;
         fresh_stored += fresh.len() as u64;
         let gathered = gather(&mut stats, &primal, &fresh, p.alpha);

@@ -146,7 +146,7 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let total = Primal::from_map(&map.view()).unwrap().total_flux();
     let p = RefineParams { passes: 3, photons_per_pass: Some(30_000), ..RefineParams::default() };
     let mut seen = Vec::new();
-    let whole = refine(&map.view(), &scene, &p, &mut |m, t| {
+    let whole = refine(&map.view(), &scene, &p, None, &mut |m, t| {
         let got = Primal::from_map(&t.view()).unwrap().total_flux();
         for c in 0..3 {
             assert!((got[c] / total[c] - 1.0).abs() < 1e-5, "pass {}: {got:?} against {total:?}", m.pass);
@@ -161,11 +161,11 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     assert!(rec.measures.iter().all(|m| m.gathered_per_photon > 1.0), "{:?}", rec.measures);
 
     // One pass, written; then the rest from the file.
-    let first = refine(&map.view(), &scene, &RefineParams { passes: 1, ..p }, &mut |_, _| Ok(true)).unwrap();
+    let first = refine(&map.view(), &scene, &RefineParams { passes: 1, ..p }, None, &mut |_, _| Ok(true)).unwrap();
     let path = dir.path().join("one.phm");
     first.write(Output::Path(path.clone())).unwrap();
     let one = PhotonMap::open_path(&path).unwrap();
-    let resumed = refine(&one.view(), &scene, &p, &mut |_, _| Ok(true)).unwrap();
+    let resumed = refine(&one.view(), &scene, &p, None, &mut |_, _| Ok(true)).unwrap();
     for column in [name::POSITION, name::FLUX, column::RADIUS, column::TAU] {
         assert_eq!(
             resumed.view().column_bytes(column),
@@ -175,6 +175,6 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     }
     // Other settings do not resume.
     let other = RefineParams { photons_per_pass: Some(10_000), ..p };
-    let e = refine(&one.view(), &scene, &other, &mut |_, _| Ok(true)).unwrap_err();
+    let e = refine(&one.view(), &scene, &other, None, &mut |_, _| Ok(true)).unwrap_err();
     assert!(e.to_string().contains("other settings"), "{e}");
 }

@@ -1,0 +1,132 @@
+//! `photonkit refine`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::{Context, bail};
+use indicatif::{ProgressBar, ProgressStyle};
+use photonkit::format::{Output, PhotonMap, PhotonTable};
+use photonkit::refine::{self, RefineParams, RefineRecord};
+
+/// Refine a relaxed map progressively: passes of fresh photons estimate the flux at every
+/// primal photon, and the photons relax toward a constant per-photon flux (after Spencer &
+/// Jones 2013, "Progressive Photon Relaxation"; docs/progressive.md).
+///
+/// Each pass traces --photons-per-pass new photons (emission numbers continuing the map's
+/// trace), gathers them to every photon within its own shrinking radius (the rule of
+/// stochastic progressive photon mapping), moves the photons within their constraint bases
+/// toward equal flux, and sets each photon's flux from its estimate, the map's total kept
+/// exactly. The output is written after every pass; --resume continues it up to --passes.
+#[derive(clap::Args)]
+#[command(after_help = "Examples:\n  \
+    photonkit refine out/relaxed.phm -o refined.phm --passes 8\n  \
+    photonkit refine out/relaxed.phm -o refined.phm --passes 32 --resume   # 24 more")]
+pub struct Args {
+    /// Input photon map: the primal photons (a relaxed map, with its constraint basis).
+    input: String,
+    /// Output photon map, written after every pass.
+    #[arg(short, long, value_name = "FILE")]
+    output: PathBuf,
+    /// Passes in all.
+    #[arg(long, value_name = "N", default_value_t = RefineParams::default().passes)]
+    passes: u64,
+    /// Photons emitted per pass (default: as many as the map's trace emitted).
+    #[arg(long, value_name = "N")]
+    photons_per_pass: Option<u64>,
+    /// Continue the refinement saved in the output (its passes count toward --passes).
+    #[arg(long)]
+    resume: bool,
+    /// α of the radius reduction, in (0, 1).
+    #[arg(value_parser = super::finite_f64, long, default_value_t = RefineParams::default().alpha)]
+    alpha: f64,
+    /// Initial gather radius: the distance to this many-th nearest primal photon.
+    #[arg(long, value_name = "K", default_value_t = RefineParams::default().gather_k)]
+    gather_k: usize,
+    /// Relaxation iterations toward constant flux per pass (0: only the flux is refined).
+    #[arg(long, value_name = "N", default_value_t = RefineParams::default().iterations)]
+    iterations: usize,
+    /// Kf: neighbours of the repulsion (Eq. 8).
+    #[arg(long, value_name = "N", default_value_t = RefineParams::default().kf)]
+    kf: usize,
+    /// Largest step per iteration as a fraction of the local photon spacing.
+    #[arg(value_parser = super::finite_f32, long, default_value_t = RefineParams::default().step_limit)]
+    step_limit: f32,
+    /// Scene the map was traced from (default: the one its trace record names).
+    #[arg(long, value_name = "FILE")]
+    scene: Option<PathBuf>,
+}
+
+pub fn run(a: Args) -> anyhow::Result<ExitCode> {
+    if a.output.as_os_str() == "-" {
+        bail!("refine writes its output after every pass: give a file, not standard output");
+    }
+    let input = PhotonMap::open(&a.input)?;
+    let resumed = if a.resume && a.output.exists() {
+        let saved = PhotonMap::open_path(&a.output)
+            .with_context(|| format!("--resume: reading {}", a.output.display()))?;
+        if RefineRecord::of(&saved.view()).is_none() {
+            bail!("--resume: {} holds no refinement to continue", a.output.display());
+        }
+        // Read whole, so the file can be replaced after each pass.
+        let table = PhotonTable::carrying(&saved.view(), saved.view().info().clone()).into_owned();
+        Some(table)
+    } else {
+        None
+    };
+    super::refuse_input_as_output(&a.output.to_string_lossy())?;
+    let map_view = match &resumed {
+        Some(t) => t.view(),
+        None => input.view(),
+    };
+    let r = photonkit::scene::for_map(Some(&input.view()), a.scene.as_deref())?;
+    for note in &r.notes {
+        super::note!("photonkit refine: note: {note}");
+    }
+    let p = RefineParams {
+        passes: a.passes,
+        photons_per_pass: a.photons_per_pass,
+        alpha: a.alpha,
+        gather_k: a.gather_k,
+        iterations: a.iterations,
+        kf: a.kf,
+        step_limit: a.step_limit,
+    };
+    let done = RefineRecord::of(&map_view).map_or(0, |r| r.passes_done);
+    if done >= a.passes {
+        super::note!("photonkit refine: {} already holds {done} passes", a.output.display());
+        return Ok(ExitCode::SUCCESS);
+    }
+    let bar = ProgressBar::with_draw_target(Some(a.passes - done), super::draw_target()).with_style(
+        ProgressStyle::with_template("refine {bar:30} {pos}/{len} passes {elapsed} (eta {eta}) {msg}")
+            .expect("valid template"),
+    );
+    let t = Instant::now();
+    let result = refine::refine(&map_view, &r.scene, &p, None, &mut |m, table| {
+        table.write(Output::Path(a.output.clone()))?;
+        bar.inc(1);
+        bar.suspend(|| {
+            super::note!(
+                "pass {:>3}: {} fresh photons, {:.1} per primal photon, mean step {:.3e} m, flux spread {:.4}",
+                m.pass,
+                m.fresh_stored,
+                m.gathered_per_photon,
+                m.mean_step,
+                m.flux_cv
+            )
+        });
+        Ok(true)
+    });
+    bar.finish_and_clear();
+    result?;
+    let secs = t.elapsed().as_secs_f64();
+    super::note!(
+        "refined {} photons, passes {}..{} in {secs:.2} s; written to {}",
+        map_view.len(),
+        done + 1,
+        a.passes,
+        a.output.display()
+    );
+    super::print_record(&a.output.to_string_lossy())?;
+    Ok(ExitCode::SUCCESS)
+}

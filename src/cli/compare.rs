@@ -46,7 +46,8 @@ pub struct Args {
     /// Seed of the emission sequence.
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Methods to run, comma-separated: pm, relax2009, diffusion, ours, ppm.
+    /// Methods to run, comma-separated: pm, relax2009, diffusion, ours, ppm, ours-progressive
+    /// (this method's map refined progressively: `photonkit refine`).
     #[arg(long, value_delimiter = ',', default_value = "pm,relax2009,diffusion,ours,ppm")]
     methods: Vec<String>,
     /// K of the k-NN radiance estimate of the relaxed maps (2009 relaxation, ours).
@@ -78,6 +79,9 @@ pub struct Args {
     /// Pass counts at which progressive photon mapping is measured.
     #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
     ppm_passes: Vec<u64>,
+    /// Pass counts at which ours-progressive is measured (--photons emitted per pass).
+    #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
+    refine_passes: Vec<u64>,
     /// Photons per progressive pass (default: --photons).
     #[arg(long, value_name = "N", value_parser = super::trace::parse_count)]
     ppm_photons: Option<u64>,
@@ -198,6 +202,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         diffusion_k: a.diffusion_k,
         diffusion_q: a.diffusion_q,
         ppm_passes: a.ppm_passes.clone(),
+        refine_passes: a.refine_passes.clone(),
         ppm_photons_per_pass: a.ppm_photons,
         ppm_k: a.ppm_k,
         spp: a.spp,

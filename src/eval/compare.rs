@@ -24,6 +24,7 @@ use crate::detect::{DetectParams, Method};
 use crate::eval::reference::{Progressive, ReferenceOptions, ReferenceState};
 use crate::format::{Output, PhotonMap, PhotonTable};
 use crate::pipeline::{self, PipelineError, PipelineParams, Stage, StageDone};
+use crate::refine::RefineParams;
 use crate::relax::RelaxParams;
 use crate::render::{
     Estimator, EyeOptions, Image, Kernel, Mode, PhotonData, PhotonLookup, RenderOptions, Renderer, View,
@@ -50,6 +51,8 @@ pub enum CompareError {
     #[error(transparent)]
     Reference(#[from] crate::eval::reference::ReferenceError),
     #[error(transparent)]
+    Refine(#[from] crate::refine::RefineError),
+    #[error(transparent)]
     Truth(#[from] truth::TruthError),
     #[error("{path}: {source}")]
     Io { path: String, source: std::io::Error },
@@ -70,15 +73,18 @@ pub enum MethodKind {
     Ours,
     /// Progressive photon mapping (memoryless, Knaus & Zwicker 2011).
     Progressive,
+    /// This method's relaxed map refined progressively ([`crate::refine`], issue 24).
+    OursProgressive,
 }
 
 impl MethodKind {
-    pub const ALL: [MethodKind; 5] = [
+    pub const ALL: [MethodKind; 6] = [
         MethodKind::StandardPm,
         MethodKind::Relaxation2009,
         MethodKind::DiffusionPm,
         MethodKind::Ours,
         MethodKind::Progressive,
+        MethodKind::OursProgressive,
     ];
 
     /// The column name of the paper's Table I.
@@ -89,6 +95,7 @@ impl MethodKind {
             MethodKind::DiffusionPm => "Diff-Based PM",
             MethodKind::Ours => "Our method",
             MethodKind::Progressive => "Progressive PM",
+            MethodKind::OursProgressive => "Ours, refined",
         }
     }
 
@@ -100,6 +107,7 @@ impl MethodKind {
             MethodKind::DiffusionPm => "diffusion",
             MethodKind::Ours => "ours",
             MethodKind::Progressive => "ppm",
+            MethodKind::OursProgressive => "ours-progressive",
         }
     }
 
@@ -143,6 +151,9 @@ pub struct CompareOptions {
     pub diffusion_q: f32,
     /// Progressive photon mapping: the pass counts at which its image is measured.
     pub ppm_passes: Vec<u64>,
+    /// Pass counts at which this method's map refined progressively is measured (photons per
+    /// pass: `photons`).
+    pub refine_passes: Vec<u64>,
     /// Photons per progressive pass (default: `photons`).
     pub ppm_photons_per_pass: Option<u64>,
     /// k of progressive photon mapping's initial radius at each point: the distance to the
@@ -179,11 +190,13 @@ impl Default for CompareOptions {
             diffusion_k: 500,
             diffusion_q: 0.02,
             ppm_passes: vec![1, 4, 16],
+            refine_passes: vec![1, 4, 16],
             ppm_photons_per_pass: None,
             ppm_k: 30,
             spp: 16,
             seeds: 4,
-            methods: MethodKind::ALL.to_vec(),
+            // Every method but the refined map, which is asked for by name (it adds passes).
+            methods: MethodKind::ALL.into_iter().filter(|&m| m != MethodKind::OursProgressive).collect(),
         }
     }
 }
@@ -648,6 +661,44 @@ fn run_seed(
             times,
             img,
         );
+    }
+    if wants(MethodKind::OursProgressive) && !o.refine_passes.is_empty() {
+        log(Progress::Started(MethodKind::OursProgressive.label()));
+        let (map, det, rel, method) = relax_photons("refine", None, [o.iterations, o.iterations])?;
+        let mut passes = o.refine_passes.clone();
+        passes.sort_unstable();
+        passes.dedup();
+        let p = RefineParams {
+            passes: *passes.last().expect("not empty"),
+            photons_per_pass: Some(o.photons),
+            kf: o.kf,
+            ..RefineParams::default()
+        };
+        let start = Instant::now();
+        // The clock stops while a snapshot is written.
+        let (mut paused, mut snapshots) = (0.0, Vec::new());
+        crate::refine::refine(&map.view(), scene, &p, target.bounces.as_deref(), &mut |m, table| {
+            if passes.contains(&m.pass) {
+                let t = Instant::now();
+                table.write(Output::Path(file(&format!("refined-{}.phm", m.pass))))?;
+                snapshots.push((m.pass, start.elapsed().as_secs_f64() - paused));
+                paused += t.elapsed().as_secs_f64();
+            }
+            Ok(true)
+        })?;
+        for (n, secs) in snapshots {
+            let refined = PhotonMap::open_path(&file(&format!("refined-{n}.phm")))?;
+            let (img, render_secs) = render(&refined, knn)?;
+            let times = StageTimes::of(trace_secs, Some(det), Some(rel + secs), render_secs);
+            push(
+                MethodKind::OursProgressive,
+                format!("{}, then {n} passes of {}, {}", method.name(), o.photons, k_label(o.k)),
+                &refined,
+                o.k,
+                times,
+                img,
+            );
+        }
     }
     if wants(MethodKind::Progressive) && !o.ppm_passes.is_empty() {
         log(Progress::Started(MethodKind::Progressive.label()));

@@ -46,6 +46,7 @@ fn colour(m: MethodKind) -> RGBColor {
         MethodKind::DiffusionPm => RGBColor(44, 160, 44),
         MethodKind::Ours => RGBColor(214, 39, 40),
         MethodKind::Progressive => RGBColor(148, 103, 189),
+        MethodKind::OursProgressive => RGBColor(140, 86, 75),
     }
 }
 

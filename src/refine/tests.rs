@@ -161,7 +161,8 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     assert!(rec.measures.iter().all(|m| m.gathered_per_photon > 1.0), "{:?}", rec.measures);
 
     // One pass, written; then the rest from the file.
-    let first = refine(&map.view(), &scene, &RefineParams { passes: 1, ..p }, None, &mut |_, _| Ok(true)).unwrap();
+    let first =
+        refine(&map.view(), &scene, &RefineParams { passes: 1, ..p }, None, &mut |_, _| Ok(true)).unwrap();
     let path = dir.path().join("one.phm");
     first.write(Output::Path(path.clone())).unwrap();
     let one = PhotonMap::open_path(&path).unwrap();

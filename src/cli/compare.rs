@@ -82,6 +82,10 @@ pub struct Args {
     /// Pass counts at which ours-progressive is measured (--photons emitted per pass).
     #[arg(long, value_delimiter = ',', default_value = "1,4,16")]
     refine_passes: Vec<u64>,
+    /// Relaxation iterations toward constant flux per pass of ours-progressive (0: only the
+    /// photons' flux is refined).
+    #[arg(long, value_name = "N", default_value_t = photonkit::refine::RefineParams::default().iterations)]
+    refine_iterations: usize,
     /// Photons per progressive pass (default: --photons).
     #[arg(long, value_name = "N", value_parser = super::trace::parse_count)]
     ppm_photons: Option<u64>,
@@ -203,6 +207,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         diffusion_q: a.diffusion_q,
         ppm_passes: a.ppm_passes.clone(),
         refine_passes: a.refine_passes.clone(),
+        refine_iterations: a.refine_iterations,
         ppm_photons_per_pass: a.ppm_photons,
         ppm_k: a.ppm_k,
         spp: a.spp,

@@ -14,10 +14,10 @@ use photonkit::refine::{self, RefineParams, RefineRecord};
 /// Jones 2013, "Progressive Photon Relaxation"; docs/progressive.md).
 ///
 /// Each pass traces --photons-per-pass new photons (emission numbers continuing the map's
-/// trace), gathers them to every photon within its own shrinking radius (the rule of
-/// stochastic progressive photon mapping), moves the photons within their constraint bases
-/// toward equal flux, and sets each photon's flux from its estimate, the map's total kept
-/// exactly. The output is written after every pass; --resume continues it up to --passes.
+/// trace), gives each one's flux to the map photon nearest to it (so every photon learns the
+/// flux of its own cell, more exactly with every pass), moves the photons within their
+/// constraint bases toward equal flux, and sets each photon's flux to its cell's estimate,
+/// the map's total kept exactly. The output is written after every pass; --resume continues it up to --passes.
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
     photonkit refine out/relaxed.phm -o refined.phm --passes 8\n  \
@@ -37,12 +37,6 @@ pub struct Args {
     /// Continue the refinement saved in the output (its passes count toward --passes).
     #[arg(long)]
     resume: bool,
-    /// α of the radius reduction, in (0, 1).
-    #[arg(value_parser = super::finite_f64, long, default_value_t = RefineParams::default().alpha)]
-    alpha: f64,
-    /// Initial gather radius: the distance to this many-th nearest primal photon.
-    #[arg(long, value_name = "K", default_value_t = RefineParams::default().gather_k)]
-    gather_k: usize,
     /// Relaxation iterations toward constant flux per pass (0: only the flux is refined).
     #[arg(long, value_name = "N", default_value_t = RefineParams::default().iterations)]
     iterations: usize,
@@ -86,8 +80,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let p = RefineParams {
         passes: a.passes,
         photons_per_pass: a.photons_per_pass,
-        alpha: a.alpha,
-        gather_k: a.gather_k,
         iterations: a.iterations,
         kf: a.kf,
         step_limit: a.step_limit,

@@ -154,6 +154,8 @@ pub struct CompareOptions {
     /// Pass counts at which this method's map refined progressively is measured (photons per
     /// pass: `photons`).
     pub refine_passes: Vec<u64>,
+    /// Relaxation iterations toward constant flux per refinement pass.
+    pub refine_iterations: usize,
     /// Photons per progressive pass (default: `photons`).
     pub ppm_photons_per_pass: Option<u64>,
     /// k of progressive photon mapping's initial radius at each point: the distance to the
@@ -191,6 +193,7 @@ impl Default for CompareOptions {
             diffusion_q: 0.02,
             ppm_passes: vec![1, 4, 16],
             refine_passes: vec![1, 4, 16],
+            refine_iterations: RefineParams::default().iterations,
             ppm_photons_per_pass: None,
             ppm_k: 30,
             spp: 16,
@@ -671,6 +674,7 @@ fn run_seed(
         let p = RefineParams {
             passes: *passes.last().expect("not empty"),
             photons_per_pass: Some(o.photons),
+            iterations: o.refine_iterations,
             kf: o.kf,
             ..RefineParams::default()
         };
@@ -692,7 +696,13 @@ fn run_seed(
             let times = StageTimes::of(trace_secs, Some(det), Some(rel + secs), render_secs);
             push(
                 MethodKind::OursProgressive,
-                format!("{}, then {n} passes of {}, {}", method.name(), o.photons, k_label(o.k)),
+                format!(
+                    "{}, then {n} passes of {} ({} iterations each), {}",
+                    method.name(),
+                    o.photons,
+                    o.refine_iterations,
+                    k_label(o.k)
+                ),
                 &refined,
                 o.k,
                 times,

@@ -7,19 +7,17 @@
 //! Each pass:
 //! 1. traces M fresh photons, continuing the emission sequence where the map's trace (or the
 //!    last pass) stopped ([`crate::trace::trace_range`]);
-//! 2. gathers them to every primal photon within its radius R_i and updates the photon's
-//!    progressive statistics by the rule of stochastic progressive photon mapping (Hachisuka
-//!    & Jensen 2009) — N' = N + αM_i, R'² = R²·N'/(N + M_i), τ' = (τ + Φ_i)·R'²/R² — so the
-//!    irradiance estimate E_i = τ_i / (π R_i² P_i) (P_i passes) converges at the photon;
-//! 3. moves the primal photons toward a constant per-photon flux: photon i's flux is
-//!    φ_i = E_i·A_i, A_i = π r_i²/Kf its share of the area (r_i the distance to its Kf-th
-//!    neighbour), and the repulsion of Eq. 8 takes the pairwise rest length
-//!    s_ij = (s_i + s_j)/2 with s_i = r_i·sqrt(φ̄/φ_i), so photons carrying more than the mean
-//!    flux draw their neighbours in; the step is projected onto the constraint basis (Eq. 9)
-//!    so edges stay sharp, and a photon that moves keeps only the share 1 − |δ|/R_i of its
-//!    statistics, which were gathered where it was;
-//! 4. sets every primal photon's flux to φ_i, scaled so the map's total flux per channel is
-//!    the total it had (energy is conserved exactly, whatever the estimates' noise).
+//! 2. gives every fresh photon's flux to the primal photon nearest to it (on its side of the
+//!    surface): each primal photon accumulates the flux that fell in its Voronoi cell, and
+//!    the mean over passes, τ_i / P_i, converges to the cell's exact flux;
+//! 3. moves the primal photons toward a constant per-photon flux: the repulsion of Eq. 8 takes
+//!    the pairwise rest length s_ij = (s_i + s_j)/2 with s_i = r_i·sqrt(φ̄/φ_i) (r_i the
+//!    distance to the Kf-th neighbour, φ_i the cell flux), so photons whose cells hold more
+//!    than the mean flux draw their neighbours in; the step is projected onto the constraint
+//!    basis (Eq. 9) so edges stay sharp, and a photon that moves keeps only the share of its
+//!    statistics its cell keeps;
+//! 4. sets every primal photon's flux to its cell's estimate, scaled so the map's total flux
+//!    per channel is the total it had (energy is conserved exactly).
 
 mod pass;
 #[cfg(test)]
@@ -40,11 +38,6 @@ pub struct RefineParams {
     pub passes: u64,
     /// Photons emitted per pass; `None`: as many as the map's trace emitted.
     pub photons_per_pass: Option<u64>,
-    /// α of the radius reduction, in (0, 1) (SPPM's 2/3).
-    pub alpha: f64,
-    /// The initial gather radius R_i is the distance to the primal photon's `gather_k`-th
-    /// nearest primal neighbour.
-    pub gather_k: usize,
     /// Relaxation iterations toward constant flux after each pass (0: the photons stay put
     /// and only their flux is refined).
     pub iterations: usize,
@@ -56,15 +49,7 @@ pub struct RefineParams {
 
 impl Default for RefineParams {
     fn default() -> Self {
-        RefineParams {
-            passes: 8,
-            photons_per_pass: None,
-            alpha: 2.0 / 3.0,
-            gather_k: 16,
-            iterations: 1,
-            kf: 16,
-            step_limit: 0.25,
-        }
+        RefineParams { passes: 8, photons_per_pass: None, iterations: 1, kf: 16, step_limit: 0.25 }
     }
 }
 
@@ -85,11 +70,7 @@ pub enum RefineError {
 /// Column names of the progressive statistics a refined map carries (so a run resumes;
 /// format-spec/phm-v1.md §4.2).
 pub mod column {
-    /// Gather radius R_i, metres. f32×1.
-    pub const RADIUS: &str = "refine_radius";
-    /// Accumulated photon count N_i. f32×1.
-    pub const COUNT: &str = "refine_count";
-    /// Accumulated flux τ_i, watts per RGB channel (summed over passes). f32×3.
+    /// Accumulated flux τ_i of the photon's cell, watts per RGB channel, summed over passes. f32×3.
     pub const TAU: &str = "refine_tau";
     /// Passes the statistics hold, P_i (fewer than the run's after the photon moved). f32×1.
     pub const PASSES: &str = "refine_passes";
@@ -131,7 +112,7 @@ struct Start {
     total: [f64; 3],
 }
 
-fn start(map: &MapView, p: &RefineParams, per_pass: u64) -> Result<Start, RefineError> {
+fn start(map: &MapView, per_pass: u64) -> Result<Start, RefineError> {
     let file = map.file_name();
     let input = |message: String| RefineError::Input { file: file.to_string(), message };
     let primal = Primal::from_map(map)?;
@@ -139,13 +120,10 @@ fn start(map: &MapView, p: &RefineParams, per_pass: u64) -> Result<Start, Refine
         return Err(input("refinement needs at least two primal photons".into()));
     }
     if let Some(rec) = RefineRecord::of(map) {
-        if rec.photons_per_pass != per_pass
-            || rec.params.alpha != p.alpha
-            || rec.params.gather_k != p.gather_k
-        {
+        if rec.photons_per_pass != per_pass {
             return Err(input(format!(
-                "refined before with other settings ({} photons per pass, α {}, gather k {}): resume with those",
-                rec.photons_per_pass, rec.params.alpha, rec.params.gather_k
+                "refined before with other settings ({} photons per pass): resume with those",
+                rec.photons_per_pass
             )));
         }
         let stats = Statistics::from_map(map)?
@@ -164,7 +142,7 @@ fn start(map: &MapView, p: &RefineParams, per_pass: u64) -> Result<Start, Refine
         .trace_record()
         .ok_or_else(|| input("names no trace: refinement continues the trace's emission sequence".into()))?;
     let next_emission = trace.report.emission_range.map_or(trace.report.emitted, |r| r[1]);
-    let stats = Statistics::start(&primal.positions, p.gather_k);
+    let stats = Statistics::start(primal.len());
     let total = primal.total_flux();
     Ok(Start { primal, stats, passes_done: 0, next_emission, fresh_stored: 0, total })
 }
@@ -182,11 +160,8 @@ pub fn refine<'a>(
     bounces: Option<&[u8]>,
     after_pass: &mut dyn FnMut(&PassMeasure, &PhotonTable<'a>) -> Result<bool, RefineError>,
 ) -> Result<PhotonTable<'a>, RefineError> {
-    if !(p.alpha > 0.0 && p.alpha < 1.0) {
-        return Err(RefineError::Invalid(format!("α = {}: must lie in (0, 1)", p.alpha)));
-    }
-    if p.gather_k == 0 || p.kf == 0 {
-        return Err(RefineError::Invalid("the gather and the repulsion need at least one neighbour".into()));
+    if p.kf == 0 {
+        return Err(RefineError::Invalid("the repulsion needs at least one neighbour".into()));
     }
     if !(p.step_limit >= 0.0 && p.step_limit.is_finite()) {
         return Err(RefineError::Invalid("the step limit must be a non-negative number".into()));
@@ -200,7 +175,7 @@ pub fn refine<'a>(
         })?,
     };
     let Start { mut primal, mut stats, mut passes_done, mut next_emission, mut fresh_stored, total } =
-        start(map, p, per_pass)?;
+        start(map, per_pass)?;
     let topts = TraceOptions {
         seed: trace.as_ref().map_or(1, |t| t.parameters.seed),
         store: match trace.as_ref().map(|t| t.parameters.store.as_str()) {
@@ -233,13 +208,13 @@ pub fn refine<'a>(
         let fresh = traced.photons()?;
         next_emission = range.end;
         fresh_stored += fresh.len() as u64;
-        let gathered = gather(&mut stats, &primal, &fresh, p.alpha);
+        let gathered = gather(&mut stats, &primal, &fresh);
         passes_done += 1;
         let mut moved = 0.0;
         for _ in 0..p.iterations {
             moved += relax_toward_flux(&mut primal, &mut stats, p);
         }
-        let spread = set_flux(&mut primal, &stats, p.kf, total);
+        let spread = set_flux(&mut primal, &stats, total);
         let m = PassMeasure {
             pass: passes_done,
             fresh_stored: fresh.len() as u64,
@@ -300,8 +275,6 @@ fn make_table<'a>(
     let mut table = PhotonTable::carrying(map, info);
     table.set(name::POSITION, &primal.positions)?;
     table.set(name::FLUX, &primal.flux)?;
-    table.set(column::RADIUS, &stats.radius)?;
-    table.set(column::COUNT, &stats.count)?;
     table.set(column::TAU, &stats.tau)?;
     table.set(column::PASSES, &stats.passes)?;
     Ok(table)

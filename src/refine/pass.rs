@@ -56,61 +56,36 @@ impl Primal {
     }
 }
 
-/// Each primal photon's progressive statistics (SPPM's N, R, τ) and the passes they hold.
+/// Each primal photon's accumulated statistics: the flux of the fresh photons that fell in its
+/// cell, and the passes that flux stands for.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Statistics {
-    /// Gather radius R_i, metres.
-    pub radius: Vec<f32>,
-    /// Accumulated count N_i.
-    pub count: Vec<f32>,
     /// Accumulated flux τ_i, W per channel, summed over passes.
     pub tau: Vec<[f32; 3]>,
-    /// Passes P_i the statistics stand for.
+    /// Passes P_i the flux stands for (fewer than the run's after the photon moved).
     pub passes: Vec<f32>,
 }
 
 impl Statistics {
-    /// Fresh statistics: R_i the distance to the photon's `k`-th nearest primal neighbour.
-    pub fn start(positions: &[[f32; 3]], k: usize) -> Statistics {
-        let tree = BoxTree::build(positions);
-        let k = k.min(positions.len().saturating_sub(1)).max(1);
-        let radius = positions
-            .par_iter()
-            .map_init(
-                || Neighbours::with_capacity(k + 1),
-                |nb, &x| {
-                    tree.knn(x, k + 1, f32::INFINITY, nb);
-                    nb.max_dist2().unwrap_or(0.0).sqrt()
-                },
-            )
-            .collect();
-        let n = positions.len();
-        Statistics { radius, count: vec![0.0; n], tau: vec![[0.0; 3]; n], passes: vec![0.0; n] }
+    /// Empty statistics for `n` photons.
+    pub fn start(n: usize) -> Statistics {
+        Statistics { tau: vec![[0.0; 3]; n], passes: vec![0.0; n] }
     }
 
     /// The statistics a refined map carries, if it has them.
     pub fn from_map(map: &MapView) -> Result<Option<Statistics>, RefineError> {
-        let (Some(radius), Some(count), Some(tau), Some(passes)) = (
-            map.column::<f32>(column::RADIUS)?,
-            map.column::<f32>(column::COUNT)?,
-            map.column::<[f32; 3]>(column::TAU)?,
-            map.column::<f32>(column::PASSES)?,
-        ) else {
+        let (Some(tau), Some(passes)) =
+            (map.column::<[f32; 3]>(column::TAU)?, map.column::<f32>(column::PASSES)?)
+        else {
             return Ok(None);
         };
-        Ok(Some(Statistics {
-            radius: radius.to_vec(),
-            count: count.to_vec(),
-            tau: tau.to_vec(),
-            passes: passes.to_vec(),
-        }))
+        Ok(Some(Statistics { tau: tau.to_vec(), passes: passes.to_vec() }))
     }
 
-    /// Irradiance estimate at primal photon i, W/m² per channel: E_i = τ_i / (π R_i² P_i)
-    /// (zero before any pass).
-    pub fn irradiance(&self, i: usize) -> Vec3 {
-        let area = std::f32::consts::PI * self.radius[i] * self.radius[i] * self.passes[i];
-        if area > 0.0 { Vec3::from(self.tau[i]) / area } else { Vec3::ZERO }
+    /// The flux estimate of primal photon i's cell, W per channel: τ_i / P_i (zero before any
+    /// pass).
+    pub fn cell_flux(&self, i: usize) -> Vec3 {
+        if self.passes[i] > 0.0 { Vec3::from(self.tau[i]) / self.passes[i] } else { Vec3::ZERO }
     }
 }
 
@@ -132,45 +107,57 @@ pub struct PassMeasure {
     pub seconds: Option<f64>,
 }
 
-/// Step 2 of a pass: gathers `fresh` into every primal photon's statistics by the SPPM rule
-/// N' = N + αM, R'² = R²·(N + αM)/(N + M), τ' = (τ + Φ_M)·R'²/R², Φ_M the flux of the M
-/// fresh photons within R on the photon's side of the surface. Returns the mean M.
-pub fn gather(stats: &mut Statistics, primal: &Primal, fresh: &Photons, alpha: f64) -> f64 {
-    let tree = BoxTree::build(&fresh.position);
+/// Neighbours a fresh photon's nearest-primal search looks at for one on its side of the
+/// surface.
+const SIDE_SEARCH: usize = 8;
+
+/// Step 2 of a pass: every fresh photon adds its flux to the primal photon nearest to it (among
+/// the [`SIDE_SEARCH`] nearest, the first on its side of the surface): each primal photon
+/// gathers the flux that fell in its Voronoi cell, whose mean over passes converges to the
+/// cell's exact flux ∫ E dA. Returns the mean number of fresh photons a primal photon gathered.
+pub fn gather(stats: &mut Statistics, primal: &Primal, fresh: &Photons) -> f64 {
+    let tree = BoxTree::build(&primal.positions);
     let normals = primal.normals.as_deref();
-    let total: u64 = stats
-        .radius
-        .par_iter_mut()
-        .zip(stats.count.par_iter_mut())
-        .zip(stats.tau.par_iter_mut())
-        .zip(stats.passes.par_iter_mut())
-        .enumerate()
-        .map(|(i, (((r, n), tau), passes))| {
-            let (mut m, mut phi) = (0u64, Vec3::ZERO);
-            let normal = normals.map(|n| Vec3::from(n[i]));
-            tree.within(primal.positions[i], *r * *r, &mut |j, _| {
-                let j = j as usize;
-                if normal.is_none_or(|n| n.dot(Vec3::from(fresh.normal[j])) > 0.5) {
-                    m += 1;
-                    phi += Vec3::from(fresh.flux[j]);
-                }
-            });
-            let (count, mf) = (*n as f64, m as f64);
-            let grown = count + alpha * mf;
-            let shrink2 = if count + mf > 0.0 { grown / (count + mf) } else { 1.0 };
-            *tau = ((Vec3::from(*tau) + phi) * shrink2 as f32).into();
-            *r *= shrink2.sqrt() as f32;
-            *n = grown as f32;
-            *passes += 1.0;
-            m
-        })
-        .sum();
-    total as f64 / stats.radius.len().max(1) as f64
+    let n = primal.len();
+    let owner: Vec<Option<u32>> = (0..fresh.len())
+        .into_par_iter()
+        .map_init(
+            || Neighbours::with_capacity(SIDE_SEARCH),
+            |nb, j| {
+                tree.knn(fresh.position[j], SIDE_SEARCH, f32::INFINITY, nb);
+                let side = Vec3::from(fresh.normal[j]);
+                nb.as_slice()
+                    .iter()
+                    .map(|c| c.index)
+                    .find(|&i| normals.is_none_or(|nm| Vec3::from(nm[i as usize]).dot(side) > 0.5))
+            },
+        )
+        .collect();
+    let mut sum = vec![[0.0f64; 3]; n];
+    let mut gathered = 0u64;
+    for (j, o) in owner.iter().enumerate() {
+        if let Some(i) = o {
+            let f = fresh.flux[j];
+            let s = &mut sum[*i as usize];
+            for c in 0..3 {
+                s[c] += f[c] as f64;
+            }
+            gathered += 1;
+        }
+    }
+    for i in 0..n {
+        let t = &mut stats.tau[i];
+        for c in 0..3 {
+            t[c] = (t[c] as f64 + sum[i][c]) as f32;
+        }
+        stats.passes[i] += 1.0;
+    }
+    gathered as f64 / n.max(1) as f64
 }
 
-/// Each primal photon's area share π r_i² (r_i the distance to its Kf-th neighbour) and its
-/// neighbours, from one tree over the current positions.
-fn neighbourhoods(positions: &[[f32; 3]], kf: usize) -> (Vec<f32>, Vec<Vec<u32>>) {
+/// Each primal photon's squared distance to its Kf-th neighbour, and its neighbours, from one
+/// tree over the current positions.
+pub(super) fn neighbourhoods(positions: &[[f32; 3]], kf: usize) -> (Vec<f32>, Vec<Vec<u32>>) {
     let tree = BoxTree::build(positions);
     let k = kf.min(positions.len().saturating_sub(1)).max(1);
     positions
@@ -196,14 +183,15 @@ fn luminance(v: Vec3) -> f32 {
 }
 
 /// Step 3 of a pass, one iteration: Eq. 8's repulsion over the Kf nearest primal photons
-/// with the pairwise rest length s_ij = (s_i + s_j)/2, s_i = r_i·sqrt(φ̄/φ_i) (φ_i = E_i·π r_i²,
-/// luminance, bounded to [½, 2]·r_i), projected onto the constraint basis (Eq. 9) or the
-/// tangent plane, the step at most `step_limit` of the local spacing. A photon that moves by
-/// δ keeps the share max(0, 1 − |δ|/R_i) of its statistics. Returns the mean step, metres.
+/// with the pairwise rest length s_ij = (s_i + s_j)/2, s_i = r_i·sqrt(φ̄/φ_i) (φ_i the cell
+/// flux's luminance, r_i the distance to the Kf-th neighbour, s_i bounded to [½, 2]·r_i),
+/// projected onto the constraint basis (Eq. 9) or the tangent plane, the step at most
+/// `step_limit` of the local spacing. A photon that moves by δ keeps the share
+/// max(0, 1 − |δ|/spacing) of its statistics. Returns the mean step, metres.
 pub fn relax_toward_flux(primal: &mut Primal, stats: &mut Statistics, p: &RefineParams) -> f64 {
     let n = primal.len();
     let (r2, ids) = neighbourhoods(&primal.positions, p.kf);
-    let phi: Vec<f32> = (0..n).map(|i| luminance(stats.irradiance(i)) * r2[i]).collect();
+    let phi: Vec<f32> = (0..n).map(|i| luminance(stats.cell_flux(i))).collect();
     let mean = phi.iter().map(|&f| f as f64).sum::<f64>() / n.max(1) as f64;
     if mean <= 0.0 {
         return 0.0;
@@ -249,20 +237,20 @@ pub fn relax_toward_flux(primal: &mut Primal, stats: &mut Statistics, p: &Refine
         let l = s.length();
         sum += l as f64;
         primal.positions[i] = (Vec3::from(primal.positions[i]) + *s).into();
-        let keep = if stats.radius[i] > 0.0 { (1.0 - l / stats.radius[i]).max(0.0) } else { 1.0 };
-        stats.count[i] *= keep;
+        // The cell moved by l; about l/(spacing) of its area is another's now.
+        let spacing = r2[i].sqrt() * (std::f32::consts::PI / p.kf as f32).sqrt();
+        let keep = if spacing > 0.0 { (1.0 - l / spacing).max(0.0) } else { 1.0 };
         stats.passes[i] *= keep;
         stats.tau[i] = (Vec3::from(stats.tau[i]) * keep).into();
     }
     sum / n.max(1) as f64
 }
 
-/// Step 4 of a pass: each primal photon's flux φ_i = E_i·π r_i² (r_i to its Kf-th
-/// neighbour), scaled per channel so the total is `total` (a channel with no estimate keeps
-/// its flux). Returns the coefficient of variation of the photons' flux luminance.
-pub fn set_flux(primal: &mut Primal, stats: &Statistics, kf: usize, total: [f64; 3]) -> f64 {
-    let (r2, _) = neighbourhoods(&primal.positions, kf);
-    let raw: Vec<Vec3> = (0..primal.len()).map(|i| stats.irradiance(i) * r2[i]).collect();
+/// Step 4 of a pass: each primal photon's flux is its cell's estimate τ_i / P_i, scaled per
+/// channel so the total is `total` (a channel with no estimate keeps its flux). Returns the
+/// coefficient of variation of the photons' flux luminance.
+pub fn set_flux(primal: &mut Primal, stats: &Statistics, total: [f64; 3]) -> f64 {
+    let raw: Vec<Vec3> = (0..primal.len()).map(|i| stats.cell_flux(i)).collect();
     let sums = raw.iter().fold([0.0f64; 3], |s, f| [s[0] + f.x as f64, s[1] + f.y as f64, s[2] + f.z as f64]);
     for c in 0..3 {
         if sums[c] > 0.0 {

@@ -145,12 +145,11 @@ pub fn gather(stats: &mut Statistics, primal: &Primal, fresh: &Photons) -> f64 {
             gathered += 1;
         }
     }
-    for i in 0..n {
-        let t = &mut stats.tau[i];
+    for ((t, s), passes) in stats.tau.iter_mut().zip(&sum).zip(&mut stats.passes) {
         for c in 0..3 {
-            t[c] = (t[c] as f64 + sum[i][c]) as f32;
+            t[c] = (t[c] as f64 + s[c]) as f32;
         }
-        stats.passes[i] += 1.0;
+        *passes += 1.0;
     }
     gathered as f64 / n.max(1) as f64
 }

@@ -50,13 +50,8 @@ fn gather_gives_each_fresh_photon_to_its_nearest_primal_photon() {
             .unwrap();
         want[nearest] += fresh.flux[j][0] as f64;
     }
-    for i in 0..primal.len() {
-        assert!(
-            (stats.tau[i][0] as f64 - want[i]).abs() < 1e-6,
-            "photon {i}: {} against {}",
-            stats.tau[i][0],
-            want[i]
-        );
+    for (i, w) in want.iter().enumerate() {
+        assert!((stats.tau[i][0] as f64 - w).abs() < 1e-6, "photon {i}: {} against {w}", stats.tau[i][0]);
         assert_eq!(stats.passes[i], 1.0);
     }
     assert!((gathered - 4950.0 / 400.0).abs() < 1e-9, "{gathered}");

@@ -227,7 +227,7 @@ def compare(
     *,
     photons: Optional[float] = None,
     seed: int = 1,
-    methods: Optional[Sequence[Literal["pm", "relax2009", "diffusion", "ours", "ppm"]]] = None,
+    methods: Optional[Sequence[Literal["pm", "relax2009", "diffusion", "ours", "ppm", "ours-progressive"]]] = None,
     k: int = 15,
     pm_k: Optional[Sequence[int]] = None,
     estimator: Literal["knn", "variable"] = "knn",

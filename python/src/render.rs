@@ -299,7 +299,7 @@ pub fn compare<'py>(
             .map(|m| {
                 MethodKind::from_slug(m.trim()).ok_or_else(|| {
                     Failure::value(format!(
-                        "--methods: unknown method '{m}' (pm, relax2009, diffusion, ours, ppm)"
+                        "--methods: unknown method '{m}' (pm, relax2009, diffusion, ours, ppm, ours-progressive)"
                     ))
                 })
             })
@@ -325,6 +325,9 @@ pub fn compare<'py>(
         ppm_passes: ppm_passes.unwrap_or(defaults.ppm_passes),
         ppm_photons_per_pass: ppm_photons.map(options::count).transpose()?,
         ppm_k,
+        // ours-progressive runs at the library's pass counts (1, 4, 16).
+        refine_passes: defaults.refine_passes.clone(),
+        refine_iterations: defaults.refine_iterations,
         spp,
         seeds,
         methods,

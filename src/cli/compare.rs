@@ -182,7 +182,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         .iter()
         .map(|m| {
             MethodKind::from_slug(m.trim()).with_context(|| {
-                format!("--methods: unknown method '{m}' (pm, relax2009, diffusion, ours, ppm)")
+                format!(
+                    "--methods: unknown method '{m}' (pm, relax2009, diffusion, ours, ppm, ours-progressive)"
+                )
             })
         })
         .collect::<anyhow::Result<Vec<_>>>()?;

@@ -38,8 +38,9 @@ pub struct RefineParams {
     pub passes: u64,
     /// Photons emitted per pass; `None`: as many as the map's trace emitted.
     pub photons_per_pass: Option<u64>,
-    /// Relaxation iterations toward constant flux after each pass (0: the photons stay put
-    /// and only their flux is refined).
+    /// Relaxation iterations toward constant flux after each pass; 0 (the default): the
+    /// photons stay put and only their flux is refined, which measured better on the truth
+    /// scenes (docs/progressive.md).
     pub iterations: usize,
     /// Kf: neighbours of the repulsion (Eq. 8).
     pub kf: usize,
@@ -49,7 +50,7 @@ pub struct RefineParams {
 
 impl Default for RefineParams {
     fn default() -> Self {
-        RefineParams { passes: 8, photons_per_pass: None, iterations: 1, kf: 16, step_limit: 0.25 }
+        RefineParams { passes: 8, photons_per_pass: None, iterations: 0, kf: 16, step_limit: 0.25 }
     }
 }
 

@@ -176,7 +176,8 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let dir = tempfile::tempdir().unwrap();
     let (map, scene) = traced_map(dir.path());
     let total = Primal::from_map(&map.view()).unwrap().total_flux();
-    let p = RefineParams { passes: 3, photons_per_pass: Some(30_000), ..RefineParams::default() };
+    let p =
+        RefineParams { passes: 3, photons_per_pass: Some(30_000), iterations: 1, ..RefineParams::default() };
     let mut seen = Vec::new();
     let whole = refine(&map.view(), &scene, &p, None, &mut |m, t| {
         let got = Primal::from_map(&t.view()).unwrap().total_flux();

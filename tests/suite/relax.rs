@@ -340,3 +340,81 @@ fn pipeline_traces_until_the_stored_count() {
     let o = photonkit(&["pipeline", "--stored", "10", "--photons", "10", "--out-dir", out.to_str().unwrap()]);
     assert_eq!(o.status.code(), Some(2), "{}", stderr(&o));
 }
+
+#[test]
+fn refine_writes_every_pass_resumes_and_refuses_its_input_as_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    run_ok(&["-q", "trace", "--photons", "40000", "-o", &p("traced.phm")]);
+    let o = photonkit(&["-q", "refine", &p("traced.phm"), "-o", &p("traced.phm"), "--passes", "1"]);
+    assert!(!o.status.success(), "refine over its own input must be refused");
+    run_ok(&[
+        "-q",
+        "refine",
+        &p("traced.phm"),
+        "-o",
+        &p("r.phm"),
+        "--passes",
+        "2",
+        "--photons-per-pass",
+        "20000",
+    ]);
+    run_ok(&[
+        "-q",
+        "refine",
+        &p("traced.phm"),
+        "-o",
+        &p("r.phm"),
+        "--passes",
+        "3",
+        "--photons-per-pass",
+        "20000",
+        "--resume",
+    ]);
+    run_ok(&[
+        "-q",
+        "refine",
+        &p("traced.phm"),
+        "-o",
+        &p("s.phm"),
+        "--passes",
+        "3",
+        "--photons-per-pass",
+        "20000",
+    ]);
+    let (r, s) = (
+        PhotonMap::open_path(Path::new(&p("r.phm"))).unwrap(),
+        PhotonMap::open_path(Path::new(&p("s.phm"))).unwrap(),
+    );
+    assert_eq!(r.column_bytes(name::FLUX), s.column_bytes(name::FLUX), "2 + 1 passes differ from 3");
+    let traced = PhotonMap::open_path(Path::new(&p("traced.phm"))).unwrap();
+    let total =
+        |m: &PhotonMap| m.flux().iter().map(|f| f.iter().map(|&x| x as f64).sum::<f64>()).sum::<f64>();
+    assert!((total(&r) / total(&traced) - 1.0).abs() < 1e-5, "the refined map keeps the traced flux");
+    let o = photonkit(&[
+        "-q",
+        "refine",
+        &p("traced.phm"),
+        "-o",
+        &p("r.phm"),
+        "--passes",
+        "3",
+        "--photons-per-pass",
+        "5000",
+        "--resume",
+    ]);
+    assert!(o.status.success(), "already done: {}", stderr(&o));
+    let o = photonkit(&[
+        "-q",
+        "refine",
+        &p("traced.phm"),
+        "-o",
+        &p("r.phm"),
+        "--passes",
+        "4",
+        "--photons-per-pass",
+        "5000",
+        "--resume",
+    ]);
+    assert!(!o.status.success() && stderr(&o).contains("other settings"), "{}", stderr(&o));
+}

@@ -29,6 +29,7 @@ pub use pass::{PassMeasure, Primal, Statistics, gather, relax_toward_flux, set_f
 
 use crate::format::{FormatError, MapView, PhotonTable, StageRecord, name};
 use crate::scene::Scene;
+use crate::spatial::BoxTree;
 use crate::trace::{self, StorePolicy, TraceError, TraceOptions};
 
 /// Settings of a refinement.
@@ -194,8 +195,9 @@ pub fn refine<'a>(
         fresh_stored,
         total,
     };
-    let mut table =
-        make_table(map, &primal, &stats, p, counters(passes_done, next_emission, fresh_stored), &measures)?;
+    // The primal photons' index: rebuilt only when relaxation moves them.
+    let mut tree = BoxTree::build(&primal.positions);
+    let mut table = None;
     while passes_done < p.passes {
         let t = std::time::Instant::now();
         let range = next_emission
@@ -209,11 +211,14 @@ pub fn refine<'a>(
         let fresh = traced.photons()?;
         next_emission = range.end;
         fresh_stored += fresh.len() as u64;
-        let gathered = gather(&mut stats, &primal, &fresh);
+        let gathered = gather(&mut stats, &primal, &tree, &fresh);
         passes_done += 1;
         let mut moved = 0.0;
         for _ in 0..p.iterations {
             moved += relax_toward_flux(&mut primal, &mut stats, p);
+        }
+        if p.iterations > 0 {
+            tree = BoxTree::build(&primal.positions);
         }
         let spread = set_flux(&mut primal, &stats, total);
         let m = PassMeasure {
@@ -225,7 +230,7 @@ pub fn refine<'a>(
             seconds: crate::format::meta::reported_seconds(t.elapsed().as_secs_f64()).as_f64(),
         };
         measures.push(m);
-        table = make_table(
+        let done = make_table(
             map,
             &primal,
             &stats,
@@ -233,11 +238,19 @@ pub fn refine<'a>(
             counters(passes_done, next_emission, fresh_stored),
             &measures,
         )?;
-        if !after_pass(&m, &table)? {
+        let go_on = after_pass(&m, &done)?;
+        table = Some(done);
+        if !go_on {
             break;
         }
     }
-    Ok(table)
+    // No pass to run (the map already holds `p.passes`): the map as it is, with this run's record.
+    match table {
+        Some(t) => Ok(t),
+        None => {
+            make_table(map, &primal, &stats, p, counters(passes_done, next_emission, fresh_stored), &measures)
+        }
+    }
 }
 
 /// A run's counters, for its record.

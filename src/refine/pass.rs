@@ -114,9 +114,9 @@ const SIDE_SEARCH: usize = 8;
 /// Step 2 of a pass: every fresh photon adds its flux to the primal photon nearest to it (among
 /// the [`SIDE_SEARCH`] nearest, the first on its side of the surface): each primal photon
 /// gathers the flux that fell in its Voronoi cell, whose mean over passes converges to the
-/// cell's exact flux ∫ E dA. Returns the mean number of fresh photons a primal photon gathered.
-pub fn gather(stats: &mut Statistics, primal: &Primal, fresh: &Photons) -> f64 {
-    let tree = BoxTree::build(&primal.positions);
+/// cell's exact flux ∫ E dA. `tree` indexes `primal.positions` (built once, and again only
+/// after the photons move). Returns the mean number of fresh photons a primal photon gathered.
+pub fn gather(stats: &mut Statistics, primal: &Primal, tree: &BoxTree, fresh: &Photons) -> f64 {
     let normals = primal.normals.as_deref();
     let n = primal.len();
     let owner: Vec<Option<u32>> = (0..fresh.len())

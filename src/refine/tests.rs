@@ -3,6 +3,7 @@ use glam::Vec3;
 use super::*;
 use crate::format::{Output, PhotonMap};
 use crate::sampling::halton::PhotonRng;
+use crate::spatial::BoxTree;
 
 /// `n` fresh photons uniform on the unit square of the floor, facing up, `watts` in all.
 fn uniform_fresh(n: usize, seed: u64, watts: f32) -> crate::trace::Photons {
@@ -38,7 +39,7 @@ fn gather_gives_each_fresh_photon_to_its_nearest_primal_photon() {
     for j in 0..50 {
         fresh.normal[j] = [0.0, 0.0, -1.0];
     }
-    let gathered = gather(&mut stats, &primal, &fresh);
+    let gathered = gather(&mut stats, &primal, &BoxTree::build(&primal.positions), &fresh);
     let mut want = vec![0.0f64; primal.len()];
     for j in 50..fresh.len() {
         let x = Vec3::from(fresh.position[j]);
@@ -63,6 +64,7 @@ fn the_cell_flux_converges_to_the_closed_form() {
     // (1/3)/576 W per channel. The error of the estimate falls as passes accumulate.
     let primal = grid_primal(24);
     let mut stats = Statistics::start(primal.len());
+    let tree = BoxTree::build(&primal.positions);
     let exact = 1.0 / 3.0 / 576.0;
     let rms = |s: &Statistics| {
         let e2: f64 = (0..primal.len()).map(|i| (s.cell_flux(i).x as f64 / exact - 1.0).powi(2)).sum::<f64>()
@@ -71,7 +73,7 @@ fn the_cell_flux_converges_to_the_closed_form() {
     };
     let mut errors = Vec::new();
     for pass in 0..64 {
-        gather(&mut stats, &primal, &uniform_fresh(5000, 100 + pass, 1.0));
+        gather(&mut stats, &primal, &tree, &uniform_fresh(5000, 100 + pass, 1.0));
         if [0, 7, 63].contains(&pass) {
             errors.push(rms(&stats));
         }
@@ -104,7 +106,12 @@ fn relaxation_draws_photons_toward_the_brighter_side_and_evens_their_flux() {
         let p = RefineParams { iterations, ..RefineParams::default() };
         let mut cv = 0.0;
         for pass in 0..24 {
-            gather(&mut stats, &primal, &two_level_fresh(20_000, 300 + pass));
+            gather(
+                &mut stats,
+                &primal,
+                &BoxTree::build(&primal.positions),
+                &two_level_fresh(20_000, 300 + pass),
+            );
             for _ in 0..p.iterations {
                 relax_toward_flux(&mut primal, &mut stats, &p);
             }

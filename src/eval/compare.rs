@@ -651,6 +651,8 @@ fn run_seed(
             img,
         );
     }
+    // This method's relaxed map, made once for ours and ours-progressive (which refines it).
+    let mut ours = None;
     if wants(MethodKind::Ours) {
         log(Progress::Started(MethodKind::Ours.label()));
         let (map, det, rel, method) = relax_photons("ours", None, [o.iterations, o.iterations])?;
@@ -664,10 +666,14 @@ fn run_seed(
             times,
             img,
         );
+        ours = Some((map, det, rel, method));
     }
     if wants(MethodKind::OursProgressive) && !o.refine_passes.is_empty() {
         log(Progress::Started(MethodKind::OursProgressive.label()));
-        let (map, det, rel, method) = relax_photons("refine", None, [o.iterations, o.iterations])?;
+        let (map, det, rel, method) = match ours.take() {
+            Some(made) => made,
+            None => relax_photons("ours", None, [o.iterations, o.iterations])?,
+        };
         let mut passes = o.refine_passes.clone();
         passes.sort_unstable();
         passes.dedup();

@@ -345,43 +345,23 @@ fn pipeline_traces_until_the_stored_count() {
 fn refine_writes_every_pass_resumes_and_refuses_its_input_as_output() {
     let dir = tempfile::tempdir().unwrap();
     let p = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
+    // `photonkit refine traced.phm -o OUT --passes N --photons-per-pass M [--resume]`.
+    let refine = |out: &str, passes: &str, per_pass: &str, resume: bool| {
+        let (input, out) = (p("traced.phm"), p(out));
+        let mut args =
+            vec!["-q", "refine", &input, "-o", &out, "--passes", passes, "--photons-per-pass", per_pass];
+        if resume {
+            args.push("--resume");
+        }
+        photonkit(&args)
+    };
     run_ok(&["-q", "trace", "--photons", "40000", "-o", &p("traced.phm")]);
-    let o = photonkit(&["-q", "refine", &p("traced.phm"), "-o", &p("traced.phm"), "--passes", "1"]);
+    let o = refine("traced.phm", "1", "20000", false);
     assert!(!o.status.success(), "refine over its own input must be refused");
-    run_ok(&[
-        "-q",
-        "refine",
-        &p("traced.phm"),
-        "-o",
-        &p("r.phm"),
-        "--passes",
-        "2",
-        "--photons-per-pass",
-        "20000",
-    ]);
-    run_ok(&[
-        "-q",
-        "refine",
-        &p("traced.phm"),
-        "-o",
-        &p("r.phm"),
-        "--passes",
-        "3",
-        "--photons-per-pass",
-        "20000",
-        "--resume",
-    ]);
-    run_ok(&[
-        "-q",
-        "refine",
-        &p("traced.phm"),
-        "-o",
-        &p("s.phm"),
-        "--passes",
-        "3",
-        "--photons-per-pass",
-        "20000",
-    ]);
+    for (out, passes, resume) in [("r.phm", "2", false), ("r.phm", "3", true), ("s.phm", "3", false)] {
+        let o = refine(out, passes, "20000", resume);
+        assert!(o.status.success(), "refine -o {out} --passes {passes} failed: {}", stderr(&o));
+    }
     let (r, s) = (
         PhotonMap::open_path(Path::new(&p("r.phm"))).unwrap(),
         PhotonMap::open_path(Path::new(&p("s.phm"))).unwrap(),
@@ -391,30 +371,8 @@ fn refine_writes_every_pass_resumes_and_refuses_its_input_as_output() {
     let total =
         |m: &PhotonMap| m.flux().iter().map(|f| f.iter().map(|&x| x as f64).sum::<f64>()).sum::<f64>();
     assert!((total(&r) / total(&traced) - 1.0).abs() < 1e-5, "the refined map keeps the traced flux");
-    let o = photonkit(&[
-        "-q",
-        "refine",
-        &p("traced.phm"),
-        "-o",
-        &p("r.phm"),
-        "--passes",
-        "3",
-        "--photons-per-pass",
-        "5000",
-        "--resume",
-    ]);
+    let o = refine("r.phm", "3", "5000", true);
     assert!(o.status.success(), "already done: {}", stderr(&o));
-    let o = photonkit(&[
-        "-q",
-        "refine",
-        &p("traced.phm"),
-        "-o",
-        &p("r.phm"),
-        "--passes",
-        "4",
-        "--photons-per-pass",
-        "5000",
-        "--resume",
-    ]);
+    let o = refine("r.phm", "4", "5000", true);
     assert!(!o.status.success() && stderr(&o).contains("other settings"), "{}", stderr(&o));
 }

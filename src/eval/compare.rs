@@ -35,24 +35,39 @@ use crate::trace::{self, Budget, TraceOptions};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum CompareError {
+    /// A photon map could not be written or read back.
     #[error(transparent)]
     Format(#[from] crate::format::FormatError),
+    /// Tracing the shared map failed.
     #[error(transparent)]
     Trace(#[from] crate::trace::TraceError),
+    /// Feature detection failed.
     #[error(transparent)]
     Detect(#[from] crate::detect::DetectError),
+    /// Relaxation failed.
     #[error(transparent)]
     Relax(#[from] crate::relax::RelaxError),
+    /// A relaxed method's pipeline failed.
     #[error(transparent)]
     Pipeline(#[from] crate::pipeline::PipelineError),
+    /// Rendering an image failed.
     #[error(transparent)]
     Render(#[from] crate::render::RenderError),
+    /// Progressive photon mapping (a method or the reference truth) failed.
     #[error(transparent)]
     Reference(#[from] crate::eval::reference::ReferenceError),
+    /// The closed-form truth could not be computed.
     #[error(transparent)]
     Truth(#[from] truth::TruthError),
+    /// Creating the work directory (or a report file) failed.
     #[error("{path}: {source}")]
-    Io { path: String, source: std::io::Error },
+    Io {
+        /// The directory or file.
+        path: String,
+        /// The operating system's error.
+        source: std::io::Error,
+    },
+    /// Settings out of range (no seed, no photon, a grid without square cells).
     #[error("{0}")]
     Invalid(String),
 }
@@ -73,6 +88,7 @@ pub enum MethodKind {
 }
 
 impl MethodKind {
+    /// Every method, in the order of the paper's Table I.
     pub const ALL: [MethodKind; 5] = [
         MethodKind::StandardPm,
         MethodKind::Relaxation2009,
@@ -103,6 +119,7 @@ impl MethodKind {
         }
     }
 
+    /// The method named `s` by [`Self::slug`].
     pub fn from_slug(s: &str) -> Option<MethodKind> {
         MethodKind::ALL.into_iter().find(|m| m.slug() == s)
     }
@@ -113,6 +130,7 @@ impl MethodKind {
 pub struct CompareOptions {
     /// Photons emitted for the shared map.
     pub photons: u64,
+    /// The first run's seed (run i, from 0, uses `seed + i`).
     pub seed: u64,
     /// K of the radiance estimate (2009 relaxation, ours).
     pub k: usize,
@@ -123,8 +141,9 @@ pub struct CompareOptions {
     /// ([`Estimator::Variable`]: each photon's radius its own K-NN distance) instead of the
     /// paper's k-NN estimate.
     pub variable_kernel: bool,
-    /// Kc and β of feature detection.
+    /// Kc of feature detection: neighbours in the PCA.
     pub kc: usize,
+    /// β of Eq. 1: the parameter-space radius ([`DetectParams::beta`]).
     pub beta: f32,
     /// k of the parameter-space density ρ (Eq. 1); `None` means Kc.
     pub k_density: Option<usize>,
@@ -138,8 +157,9 @@ pub struct CompareOptions {
     pub iterations: usize,
     /// World-space iterations of the 2009 relaxation.
     pub iterations_2009: usize,
-    /// Neighbours and the control q of diffusion-based photon mapping.
+    /// Neighbours of diffusion-based photon mapping.
     pub diffusion_k: usize,
+    /// The control q of diffusion-based photon mapping's diffusivity.
     pub diffusion_q: f32,
     /// Progressive photon mapping: the pass counts at which its image is measured.
     pub ppm_passes: Vec<u64>,
@@ -156,6 +176,7 @@ pub struct CompareOptions {
     /// Independent runs of every method (seeds `seed`, `seed + 1`, …), for the bias and
     /// variance of each ([`metrics::region_errors`]); times and errors are their means.
     pub seeds: u32,
+    /// The methods run.
     pub methods: Vec<MethodKind>,
 }
 
@@ -191,7 +212,9 @@ impl Default for CompareOptions {
 /// What the images are measured against: a view, a mode and the truth's image in that view.
 #[derive(Clone, Debug)]
 pub struct Target {
+    /// The view: its resolution is the images'.
     pub camera: Camera,
+    /// What the images hold (irradiance for the closed-form floor truths).
     pub mode: Mode,
     /// The truth, row-major, `camera.resolution` pixels.
     pub truth: Vec<[f64; 3]>,
@@ -302,10 +325,12 @@ impl Target {
         })
     }
 
+    /// Image width, pixels.
     pub fn width(&self) -> usize {
         self.camera.resolution[0] as usize
     }
 
+    /// Image height, pixels.
     pub fn height(&self) -> usize {
         self.camera.resolution[1] as usize
     }
@@ -319,11 +344,15 @@ pub fn pixels(img: &Image) -> Vec<[f64; 3]> {
 /// Seconds spent in each stage of one method (`None`: the method has no such stage).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct StageTimes {
+    /// Tracing the shared map.
     pub trace: Option<f64>,
+    /// Feature detection.
     pub detect: Option<f64>,
     /// Relaxation, including the collapse.
     pub relax: Option<f64>,
+    /// Rendering the image.
     pub render: Option<f64>,
+    /// The method's whole time: its stages' sum, or the progressive run's clock.
     pub total: f64,
 }
 
@@ -338,11 +367,13 @@ impl StageTimes {
 /// One method's result.
 #[derive(Clone, Debug)]
 pub struct Row {
+    /// The method.
     pub method: MethodKind,
     /// The method's settings in a few words (K, iterations, passes).
     pub setting: String,
-    /// Photons emitted, and photons in the map the estimate used (all passes for progressive).
+    /// Photons emitted (all passes for progressive).
     pub emitted: u64,
+    /// Photons in the map the estimate used (0 for progressive), mean over the seeds.
     pub photons: u64,
     /// K of the radiance estimate (0 for the progressive radius estimate).
     pub radiance_k: usize,
@@ -350,9 +381,10 @@ pub struct Row {
     pub times: StageTimes,
     /// The whole-image measures, mean over the seeds.
     pub errors: Errors,
-    /// Seeds run, and the measures over them for the whole image and each region class
-    /// ([`metrics::region_errors`]; empty until every seed has run).
+    /// Seeds run.
     pub seeds: u32,
+    /// The measures over the seeds for the whole image and each region class
+    /// ([`metrics::region_errors`]; empty until every seed has run).
     pub regions: Vec<RegionErrors>,
     /// The image of the first seed, in the target's view.
     pub image: Image,

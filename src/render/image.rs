@@ -22,8 +22,12 @@ pub const MAX_PIXELS: u64 = 1 << 26;
 /// A linear RGB image, rows from the top.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
+    /// Linear RGB, row-major from the top-left (index `y * width + x`); units as the render
+    /// mode says ([`super::Mode::unit`]).
     pub pixels: Vec<Vec3>,
     /// The pixels the automatic exposure meters, when not all: a render with a background
     /// meters those that see a surface, so the sky does not set the exposure of the caustics.
@@ -35,6 +39,7 @@ pub struct Image {
 }
 
 impl Image {
+    /// A black image.
     pub fn new(width: u32, height: u32) -> Image {
         Image {
             width,
@@ -45,6 +50,7 @@ impl Image {
         }
     }
 
+    /// The pixel at column `x`, row `y` (from the top).
     pub fn get(&self, x: u32, y: u32) -> Vec3 {
         self.pixels[y as usize * self.width as usize + x as usize]
     }
@@ -133,7 +139,9 @@ pub fn srgb8(v: f32) -> u8 {
 /// Where the outputs go: an EXR and/or a PNG preview.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Outputs {
+    /// The linear float RGB image (OpenEXR, ZIP compression), with the header notes.
     pub exr: Option<PathBuf>,
+    /// The 8-bit sRGB preview, exposed and tone-mapped.
     pub png: Option<PathBuf>,
     /// The preview's exposure in stops: added to the automatic exposure, or with
     /// `fixed_exposure` the whole of it (pixel values multiplied by 2^exposure).

@@ -34,18 +34,45 @@ use crate::scene::{Camera, Scene, SceneError};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum RenderError {
+    /// Reading the photon map's columns failed.
     #[error(transparent)]
     Format(#[from] FormatError),
+    /// The scene could not be used.
     #[error(transparent)]
     Scene(#[from] SceneError),
+    /// The map (or the part of it a view keeps) holds no photon.
     #[error("{file}: the photon map holds no photons: nothing to render")]
-    EmptyMap { file: String },
+    EmptyMap {
+        /// The map as named to the user.
+        file: String,
+    },
+    /// A photon's position, flux or normal is infinite or NaN.
     #[error("{file}: photon {index} has a non-finite {column}")]
-    NonFinite { file: String, column: String, index: u64 },
+    NonFinite {
+        /// The map as named to the user.
+        file: String,
+        /// `position`, `flux` or `normal`.
+        column: String,
+        /// The photon's index in the map.
+        index: u64,
+    },
+    /// An image file could not be encoded or decoded (EXR, PNG).
     #[error("{file}: {message}")]
-    Image { file: String, message: String },
+    Image {
+        /// The image file.
+        file: String,
+        /// The encoder's or decoder's message.
+        message: String,
+    },
+    /// Creating, writing or renaming an image file failed.
     #[error("{file}: {source}")]
-    Io { file: String, source: std::io::Error },
+    Io {
+        /// The image file.
+        file: String,
+        /// The operating system's error.
+        source: std::io::Error,
+    },
+    /// A request out of range (image size, samples, estimator, mode without a photon map).
     #[error("{0}")]
     Invalid(String),
 }
@@ -65,6 +92,7 @@ pub enum Mode {
 }
 
 impl Mode {
+    /// The mode's name on the command line and in image headers.
     pub fn name(self) -> &'static str {
         match self {
             Mode::Full => "full",
@@ -90,12 +118,17 @@ impl Mode {
 /// Image size, sampling and shading choices.
 #[derive(Clone, Debug, PartialEq)]
 pub struct RenderOptions {
+    /// Image width, pixels.
     pub width: u32,
+    /// Image height, pixels.
     pub height: u32,
     /// Samples per pixel, stratified (a jittered grid when a perfect square).
     pub spp: u32,
+    /// What each pixel shows.
     pub mode: Mode,
+    /// How irradiance is estimated from the photons at a diffuse hit.
     pub estimator: Estimator,
+    /// How eye paths continue through specular surfaces.
     pub eye: EyeOptions,
     /// Seeds the sub-pixel jitter and sampled Fresnel choices.
     pub seed: u64,
@@ -125,8 +158,11 @@ impl Default for RenderOptions {
 /// looks at `origin + (x/width)·right + (y/height)·down`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PlaneView {
+    /// The point seen at the image's top-left corner, metres.
     pub origin: Vec3,
+    /// The image's width as a vector in the plane, metres.
     pub right: Vec3,
+    /// The image's height as a vector in the plane, pointing down the image, metres.
     pub down: Vec3,
     /// Unit normal of the plane (the side irradiance is measured on).
     pub normal: Vec3,
@@ -182,7 +218,12 @@ impl PlaneView {
 #[derive(Clone, Debug)]
 pub enum View<'a> {
     /// A scene through a camera (its resolution is replaced by the options').
-    Scene { scene: &'a Scene, camera: Camera },
+    Scene {
+        /// The scene.
+        scene: &'a Scene,
+        /// The camera.
+        camera: Camera,
+    },
     /// A rectangle of a plane, orthographically, without a scene: irradiance only.
     Plane(PlaneView),
 }
@@ -204,10 +245,13 @@ pub const TILE: u32 = 16;
 
 /// A view, its photons and the options: everything an image is made from.
 pub struct Renderer<'a> {
+    /// What the camera looks at.
     pub view: View<'a>,
+    /// The photons to estimate from; `None` for [`Mode::Direct`] only.
     pub photons: Option<&'a PhotonLookup<'a>>,
     /// Colour photons for a diagnostic view instead of estimating radiance.
     pub diagnostic: Option<&'a Diagnostics>,
+    /// Image size, sampling and shading.
     pub opts: RenderOptions,
 }
 

@@ -13,23 +13,19 @@
 //! it — the closed-form floor irradiance of [`crate::eval::truth`] through an orthographic
 //! top-down camera, or a long progressive run where there is no closed form.
 
-use std::path::{Path, PathBuf};
-use std::time::Instant;
+use std::path::Path;
 
-use glam::Vec3;
-
-use super::metrics::{self, Errors, Region, RegionErrors};
-use super::truth::{self, FloorGrid, Quality};
-use crate::detect::{DetectParams, Method};
-use crate::eval::reference::{Progressive, ReferenceOptions, ReferenceState};
-use crate::format::{Output, PhotonMap, PhotonTable};
-use crate::pipeline::{self, PipelineError, PipelineParams, Stage, StageDone};
+use super::metrics::{self, Errors, RegionErrors};
+use super::truth;
+use crate::detect::DetectParams;
 use crate::relax::RelaxParams;
-use crate::render::{
-    Estimator, EyeOptions, Image, Kernel, Mode, PhotonData, PhotonLookup, RenderOptions, Renderer, View,
-};
-use crate::scene::{Camera, Projection, Scene};
-use crate::trace::{self, Budget, TraceOptions};
+use crate::render::Image;
+use crate::scene::Scene;
+
+mod methods;
+mod target;
+
+pub use target::{EDGE_BAND, Target, floor_camera, pixels};
 
 /// Everything that can go wrong in a comparison.
 #[derive(Debug, thiserror::Error)]
@@ -138,8 +134,8 @@ pub struct CompareOptions {
     /// not only at the relaxed maps' K: more neighbours trade its noise for blur).
     pub pm_ks: Vec<usize>,
     /// Whether the fixed-K estimates (standard PM, the relaxed maps) use the variable kernel
-    /// ([`Estimator::Variable`]: each photon's radius its own K-NN distance) instead of the
-    /// paper's k-NN estimate.
+    /// ([`crate::render::Estimator::Variable`]: each photon's radius its own K-NN distance)
+    /// instead of the paper's k-NN estimate.
     pub variable_kernel: bool,
     /// Kc of feature detection: neighbours in the PCA.
     pub kc: usize,
@@ -207,138 +203,6 @@ impl Default for CompareOptions {
             methods: MethodKind::ALL.to_vec(),
         }
     }
-}
-
-/// What the images are measured against: a view, a mode and the truth's image in that view.
-#[derive(Clone, Debug)]
-pub struct Target {
-    /// The view: its resolution is the images'.
-    pub camera: Camera,
-    /// What the images hold (irradiance for the closed-form floor truths).
-    pub mode: Mode,
-    /// The truth, row-major, `camera.resolution` pixels.
-    pub truth: Vec<[f64; 3]>,
-    /// The band around the truth's caustic edges ([`metrics::edge_band`]).
-    pub edges: Vec<bool>,
-    /// The region class of every pixel ([`metrics::regions`]).
-    pub regions: Vec<Region>,
-    /// Where filaments overlap, if the truth knows.
-    pub overlap: Option<Vec<bool>>,
-    /// Keep only photons with these bounce counts (the path families the truth accounts for).
-    pub bounces: Option<Vec<u8>>,
-    /// What the truth is, for the report.
-    pub description: String,
-    /// The floor grid whose cells are the pixels (closed-form truths).
-    pub grid: Option<FloorGrid>,
-}
-
-/// Width of the edge band on each side of an edge, pixels.
-pub const EDGE_BAND: usize = 2;
-
-/// The orthographic top-down camera whose pixels are the cells of `grid`.
-pub fn floor_camera(grid: &FloorGrid) -> Result<Camera, CompareError> {
-    let (w, h) = (grid.max[0] - grid.min[0], grid.max[1] - grid.min[1]);
-    let centre = Vec3::new(
-        (0.5 * (grid.min[0] + grid.max[0])) as f32,
-        (0.5 * (grid.min[1] + grid.max[1])) as f32,
-        grid.z as f32,
-    );
-    let cells = [grid.cells[0] as u32, grid.cells[1] as u32];
-    let square = (w / cells[0] as f64) / (h / cells[1] as f64);
-    if !(w > 0.0 && h > 0.0 && (square - 1.0).abs() < 1e-3) {
-        return Err(CompareError::Invalid(format!(
-            "the floor grid {w} × {h} m in {} × {} cells does not have square cells",
-            cells[0], cells[1]
-        )));
-    }
-    let eye = centre + Vec3::Z * (10.0 * w.max(h)) as f32;
-    Camera::look_at(Projection::Orthographic { height_m: h as f32 }, eye, centre, Vec3::Y, cells)
-        .ok_or_else(|| CompareError::Invalid("degenerate floor camera".into()))
-}
-
-impl Target {
-    /// The closed-form floor irradiance of a scene [`truth::floor_truth`] knows, on its default
-    /// grid of `cells` columns.
-    pub fn closed_form(scene: &Scene, cells: usize, quality: Quality) -> Result<Target, CompareError> {
-        let grid = truth::default_grid(scene, cells)?;
-        let t = truth::floor_truth(scene, &grid, quality)?;
-        let camera = floor_camera(&t.grid)?;
-        let (w, h) = (t.grid.cells[0], t.grid.cells[1]);
-        let edges = metrics::edge_band(&t.irradiance, w, h, EDGE_BAND);
-        Ok(Target {
-            camera,
-            mode: Mode::Irradiance,
-            regions: metrics::regions(&t.irradiance, w, h, &edges),
-            edges,
-            overlap: Some(t.overlap),
-            bounces: Some(t.bounces),
-            description: format!("closed-form floor irradiance: {}", t.method),
-            truth: t.irradiance,
-            grid: Some(t.grid),
-        })
-    }
-
-    /// A long progressive photon mapping run in `camera`'s view with `mode`, as the truth of a
-    /// scene without a closed form: `passes` passes of `photons_per_pass`, seeds far from the
-    /// compared runs'.
-    pub fn progressive_reference(
-        scene: &Scene,
-        camera: Camera,
-        mode: Mode,
-        passes: u64,
-        photons_per_pass: u64,
-        spp: u32,
-        progress: &dyn Fn(u64),
-    ) -> Result<Target, CompareError> {
-        let [w, h] = camera.resolution;
-        let render =
-            RenderOptions { width: w, height: h, spp, mode, seed: 0x5EED, ..RenderOptions::default() };
-        let p = Progressive {
-            scene,
-            camera: camera.clone(),
-            render,
-            kernel: Kernel::Epanechnikov,
-            bounces: None,
-        };
-        let options =
-            ReferenceOptions { photons_per_pass, seed: 1_000_000_007, ..ReferenceOptions::default() };
-        let mut state = ReferenceState::start(options, serde_json::Value::Null);
-        let mut image = Image::new(w, h);
-        p.run(&mut image, &mut state, passes, &mut |s, _| {
-            progress(s.passes);
-            Ok(true)
-        })?;
-        let truth = pixels(&image);
-        let edges = metrics::edge_band(&truth, w as usize, h as usize, EDGE_BAND);
-        Ok(Target {
-            camera,
-            mode,
-            regions: metrics::regions(&truth, w as usize, h as usize, &edges),
-            truth,
-            edges,
-            overlap: None,
-            bounces: None,
-            description: format!(
-                "progressive photon mapping reference: {passes} passes of {photons_per_pass} photons"
-            ),
-            grid: None,
-        })
-    }
-
-    /// Image width, pixels.
-    pub fn width(&self) -> usize {
-        self.camera.resolution[0] as usize
-    }
-
-    /// Image height, pixels.
-    pub fn height(&self) -> usize {
-        self.camera.resolution[1] as usize
-    }
-}
-
-/// An image's pixels as f64 RGB.
-pub fn pixels(img: &Image) -> Vec<[f64; 3]> {
-    img.pixels.iter().map(|p| p.as_dvec3().to_array()).collect()
 }
 
 /// Seconds spent in each stage of one method (`None`: the method has no such stage).
@@ -422,7 +286,7 @@ pub fn run(
             log(Progress::Finished(&format!("seed {} ({} of {})", o.seed + s as u64, s + 1, o.seeds)));
         }
         let os = CompareOptions { seed: o.seed + s as u64, ..o.clone() };
-        let these = run_seed(scene, scene_label, scene_text, target, &os, work_dir, log)?;
+        let these = methods::run_seed(scene, scene_label, scene_text, target, &os, work_dir, log)?;
         if s == 0 {
             images = these.iter().map(|r| vec![pixels(&r.image)]).collect();
             rows = these;
@@ -481,298 +345,9 @@ impl Row {
     }
 }
 
-/// [`run`] for one seed.
-fn run_seed(
-    scene: &Scene,
-    scene_label: &str,
-    scene_text: &str,
-    target: &Target,
-    o: &CompareOptions,
-    work_dir: &Path,
-    log: &dyn Fn(Progress),
-) -> Result<Vec<Row>, CompareError> {
-    if o.photons == 0 {
-        return Err(CompareError::Invalid("the comparison needs at least one photon".into()));
-    }
-    std::fs::create_dir_all(work_dir)
-        .map_err(|e| CompareError::Io { path: work_dir.display().to_string(), source: e })?;
-    let file = |name: &str| -> PathBuf { work_dir.join(name) };
-    let mut rows = Vec::new();
-    let wants = |m: MethodKind| o.methods.contains(&m);
-    let (w, h) = (target.width(), target.height());
-    let measure = |img: &Image| {
-        metrics::measure(&pixels(img), &target.truth, w, h, &target.edges, target.overlap.as_deref())
-    };
-
-    // Trace once for every map-based method.
-    let map_based = o.methods.iter().any(|&m| m != MethodKind::Progressive);
-    let mut trace_secs = 0.0;
-    if map_based {
-        let topts =
-            TraceOptions { seed: o.seed, budget: Budget::Emitted(o.photons), ..TraceOptions::default() };
-        log(Progress::Started("trace"));
-        let t = Instant::now();
-        let mut traced = trace::trace(scene, &topts, &|_, _| {})?;
-        if let Some(keep) = &target.bounces {
-            traced.retain_bounces(keep)?;
-        }
-        trace_secs = t.elapsed().as_secs_f64();
-        if traced.stored == 0 {
-            return Err(CompareError::Invalid(format!(
-                "no photon of the kind the truth accounts for was stored from {} emitted",
-                o.photons
-            )));
-        }
-        let info = trace::map_info(scene, &topts, &traced, scene_label, scene_text);
-        traced.write(Output::Path(file("traced.phm")), info)?;
-        log(Progress::Finished(&format!("trace: {:.2} s, {} photons stored", trace_secs, traced.stored)));
-    }
-
-    let render = |map: &PhotonMap, estimator: Estimator| -> Result<(Image, f64), CompareError> {
-        let t = Instant::now();
-        let normals = map.column::<[f32; 3]>(crate::format::name::NORMAL)?;
-        let data = PhotonData { positions: map.positions(), flux: map.flux(), normals };
-        let lookup = PhotonLookup::new(map.file_name(), data)?.prepared_for(&estimator);
-        let renderer = Renderer {
-            view: View::Scene { scene, camera: target.camera.clone() },
-            photons: Some(&lookup),
-            diagnostic: None,
-            opts: RenderOptions {
-                width: w as u32,
-                height: h as u32,
-                spp: o.spp,
-                mode: target.mode,
-                estimator,
-                eye: EyeOptions::default(),
-                seed: 0,
-                keep_samples: false,
-            },
-        };
-        let (img, _) = renderer.render(&|_| {})?;
-        Ok((img, t.elapsed().as_secs_f64()))
-    };
-    let fixed_k = |k: usize| match o.variable_kernel {
-        false => Estimator::Knn { k, kernel: Kernel::Epanechnikov, max_radius: None },
-        true => Estimator::Variable { k, kernel: Kernel::Epanechnikov },
-    };
-    let knn = fixed_k(o.k);
-    // How a setting names its estimate's K (and the variable kernel, when chosen).
-    let k_label = |k: usize| match o.variable_kernel {
-        false => format!("K = {k}"),
-        true => format!("K = {k}, variable kernel"),
-    };
-
-    // Algorithm 1 on the traced map ([`pipeline::run`]), each stage's map written as
-    // `{prefix}-{stage}.phm`; the relaxed map and the detect and relax seconds (the collapse
-    // counted with relaxation).
-    let relax_photons = |prefix: &str, method: Option<Method>, iterations: [usize; 2]| {
-        let traced = PhotonMap::open_path(&file("traced.phm"))?;
-        let params = PipelineParams {
-            detect: DetectParams {
-                kc: o.kc,
-                beta: o.beta,
-                k_density: o.k_density,
-                growths: o.growths,
-                spectral_scale: o.spectral_scale,
-                ..DetectParams::default()
-            },
-            method,
-            relax: RelaxParams { kf: o.kf, ..RelaxParams::default() },
-            iterations,
-        };
-        let (mut detect_secs, mut relax_secs) = (0.0, 0.0);
-        let mut on_stage = |done: &StageDone, table: &PhotonTable| -> Result<(), PipelineError> {
-            let stage = match done.stage {
-                Stage::Detect => "detected",
-                Stage::RelaxParams => "relaxed-params",
-                Stage::Collapse => "collapsed",
-                Stage::RelaxWorld => "relaxed",
-            };
-            let t = Instant::now();
-            table.write(Output::Path(file(&format!("{prefix}-{stage}.phm"))))?;
-            match done.stage {
-                Stage::Detect => detect_secs = done.seconds,
-                Stage::Collapse => relax_secs += done.seconds + t.elapsed().as_secs_f64(),
-                _ => relax_secs += done.seconds,
-            }
-            Ok(())
-        };
-        let done = pipeline::run(&traced.view(), Some(scene), &params, &mut on_stage, &|_| {})?;
-        let map = PhotonMap::open_path(&file(&format!("{prefix}-relaxed.phm")))?;
-        Ok::<_, CompareError>((map, detect_secs, relax_secs, done.method))
-    };
-
-    let mut push = |method: MethodKind,
-                    setting: String,
-                    map: &PhotonMap,
-                    radiance_k,
-                    times: StageTimes,
-                    image: Image| {
-        let errors = measure(&image);
-        log(Progress::Finished(&format!(
-            "{}: {:.2} s, NRMSE {:.4}, SSIM {:.4}",
-            method.label(),
-            times.total,
-            errors.nrmse,
-            errors.ssim
-        )));
-        rows.push(Row {
-            method,
-            setting,
-            emitted: o.photons,
-            photons: map.len() as u64,
-            radiance_k,
-            times,
-            errors,
-            seeds: 1,
-            regions: Vec::new(),
-            image,
-        });
-    };
-
-    if wants(MethodKind::StandardPm) {
-        log(Progress::Started(MethodKind::StandardPm.label()));
-        let map = PhotonMap::open_path(&file("traced.phm"))?;
-        for &k in &o.pm_ks {
-            let (img, secs) = render(&map, fixed_k(k))?;
-            let times = StageTimes::of(trace_secs, None, None, secs);
-            push(MethodKind::StandardPm, k_label(k), &map, k, times, img);
-        }
-    }
-    if wants(MethodKind::DiffusionPm) {
-        log(Progress::Started(MethodKind::DiffusionPm.label()));
-        let map = PhotonMap::open_path(&file("traced.phm"))?;
-        let (img, secs) = render(&map, Estimator::Diffusion { k: o.diffusion_k, q: o.diffusion_q })?;
-        let times = StageTimes::of(trace_secs, None, None, secs);
-        push(
-            MethodKind::DiffusionPm,
-            format!("{} neighbours, q = {}", o.diffusion_k, o.diffusion_q),
-            &map,
-            o.diffusion_k,
-            times,
-            img,
-        );
-    }
-    if wants(MethodKind::Relaxation2009) {
-        log(Progress::Started(MethodKind::Relaxation2009.label()));
-        let (map, det, rel, _) = relax_photons("relax2009", Some(Method::Gradient), [0, o.iterations_2009])?;
-        let (img, secs) = render(&map, knn)?;
-        let times = StageTimes::of(trace_secs, Some(det), Some(rel), secs);
-        push(
-            MethodKind::Relaxation2009,
-            format!("gradient, {} world iterations, {}", o.iterations_2009, k_label(o.k)),
-            &map,
-            o.k,
-            times,
-            img,
-        );
-    }
-    if wants(MethodKind::Ours) {
-        log(Progress::Started(MethodKind::Ours.label()));
-        let (map, det, rel, method) = relax_photons("ours", None, [o.iterations, o.iterations])?;
-        let (img, secs) = render(&map, knn)?;
-        let times = StageTimes::of(trace_secs, Some(det), Some(rel), secs);
-        push(
-            MethodKind::Ours,
-            format!("{}, {} + {} iterations, {}", method.name(), o.iterations, o.iterations, k_label(o.k)),
-            &map,
-            o.k,
-            times,
-            img,
-        );
-    }
-    if wants(MethodKind::Progressive) && !o.ppm_passes.is_empty() {
-        log(Progress::Started(MethodKind::Progressive.label()));
-        let per_pass = o.ppm_photons_per_pass.unwrap_or(o.photons);
-        let mut passes = o.ppm_passes.clone();
-        passes.sort_unstable();
-        passes.dedup();
-        let last = *passes.last().expect("not empty");
-        let p = Progressive {
-            scene,
-            camera: target.camera.clone(),
-            render: RenderOptions {
-                width: w as u32,
-                height: h as u32,
-                spp: o.spp,
-                mode: target.mode,
-                ..RenderOptions::default()
-            },
-            kernel: Kernel::Epanechnikov,
-            bounces: target.bounces.as_deref(),
-        };
-        let options = ReferenceOptions {
-            photons_per_pass: per_pass,
-            seed: o.seed,
-            local_k: (o.ppm_k > 0).then_some(o.ppm_k),
-            ..ReferenceOptions::default()
-        };
-        let mut state = ReferenceState::start(options, serde_json::Value::Null);
-        let mut image = Image::new(w as u32, h as u32);
-        let start = Instant::now();
-        let mut snapshots = Vec::new();
-        // The clock stops while a snapshot is measured.
-        let mut paused = 0.0;
-        p.run(&mut image, &mut state, last, &mut |s, img| {
-            if passes.contains(&s.passes) {
-                let t = Instant::now();
-                snapshots.push((s.passes, start.elapsed().as_secs_f64() - paused, img.clone()));
-                paused += t.elapsed().as_secs_f64();
-            }
-            Ok(true)
-        })?;
-        for (n, secs, img) in snapshots {
-            let errors = measure(&img);
-            log(Progress::Finished(&format!(
-                "{} ({n} passes): {:.2} s, NRMSE {:.4}, SSIM {:.4}",
-                MethodKind::Progressive.label(),
-                secs,
-                errors.nrmse,
-                errors.ssim
-            )));
-            rows.push(Row {
-                method: MethodKind::Progressive,
-                setting: if o.ppm_k > 0 {
-                    format!("{n} passes of {per_pass}, r₁ = {}-NN distance, α = 2/3", o.ppm_k)
-                } else {
-                    format!("{n} passes of {per_pass}, one r₁, α = 2/3")
-                },
-                emitted: n * per_pass,
-                photons: 0,
-                radiance_k: 0,
-                times: StageTimes { total: secs, ..Default::default() },
-                errors,
-                seeds: 1,
-                regions: Vec::new(),
-                image: img,
-            });
-        }
-    }
-    // The paper's column order.
-    rows.sort_by_key(|r| MethodKind::ALL.iter().position(|&m| m == r.method));
-    Ok(rows)
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn the_floor_camera_looks_at_each_cells_centre_from_above() {
-        let grid = FloorGrid { min: [-1.0, 0.5], max: [1.0, 1.5], cells: [40, 20], z: 0.25 };
-        let cam = floor_camera(&grid).unwrap();
-        for (col, row) in [(0usize, 0usize), (39, 0), (0, 19), (17, 11)] {
-            let ray = cam.ray(col as f32 + 0.5, row as f32 + 0.5);
-            assert!((ray.dir - Vec3::NEG_Z).length() < 1e-6);
-            let t = (grid.z as f32 - ray.origin.z) / ray.dir.z;
-            let hit = ray.origin + ray.dir * t;
-            // Column 0 is the smallest x, row 0 the largest y; cells 0.05 m square.
-            let want = (-1.0 + 0.05 * (col as f32 + 0.5), 1.5 - 0.05 * (row as f32 + 0.5));
-            assert!((hit.x - want.0).abs() < 1e-5 && (hit.y - want.1).abs() < 1e-5, "{col},{row}: {hit}");
-        }
-        let bad = FloorGrid { cells: [40, 40], ..grid };
-        assert!(floor_camera(&bad).is_err(), "cells must be square");
-    }
 
     #[test]
     fn method_slugs_round_trip() {

@@ -18,6 +18,7 @@
 //! (ground truth, error metrics and the comparison of every method); beneath the scene,
 //! [`accel`] (the BVH and convex hulls that rays are cast against); and [`sampling`] (the
 //! Halton emission sequence and per-photon random streams).
+#![warn(missing_docs)]
 pub mod accel;
 pub mod detect;
 pub mod eval;

@@ -17,10 +17,12 @@ use crate::scene::Scene;
 /// A stage of [`run`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Stage {
+    /// Feature detection: each photon's constraint basis (Eq. 1–7).
     Detect,
     /// Relaxation before the collapse (in world + parameter space when the map has
     /// trajectory parameters).
     RelaxParams,
+    /// The trajectory parameters dropped: the map back to world space.
     Collapse,
     /// Relaxation after the collapse, in world space.
     RelaxWorld,
@@ -42,6 +44,7 @@ impl Stage {
 /// Kc = 50, β = 3, Kf = 16, 7 + 7 iterations).
 #[derive(Clone, Debug)]
 pub struct PipelineParams {
+    /// Feature detection's settings.
     pub detect: DetectParams,
     /// The detection method; `None` chooses ([`detect::choose_method`]), overriding
     /// `detect.method`.
@@ -69,8 +72,11 @@ impl Default for PipelineParams {
 /// What a stage did, for the caller's table.
 #[derive(Clone, Debug)]
 pub struct StageDone {
+    /// The stage.
     pub stage: Stage,
+    /// Wall-clock time of the stage, seconds.
     pub seconds: f64,
+    /// Photons in the stage's map.
     pub photons: usize,
     /// A short description of the result (method and constrained share, the spread of
     /// nearest-neighbour distances before and after), empty for the collapse.
@@ -80,13 +86,16 @@ pub struct StageDone {
 /// What [`run`] made: the relaxed map, and the detection method it chose.
 #[derive(Debug)]
 pub struct Outcome {
+    /// The map after the last stage run.
     pub map: PhotonTable<'static>,
+    /// The detection method used.
     pub method: Method,
 }
 
 /// What [`run`] reports as it goes.
 #[derive(Debug)]
 pub enum Progress<'a> {
+    /// A stage has begun.
     Started(Stage),
     /// A relaxation iteration finished (0-based).
     Iteration(Stage, &'a IterationMeasure),
@@ -94,13 +103,17 @@ pub enum Progress<'a> {
     Note(&'a str),
 }
 
+/// Everything that can go wrong in [`run`].
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum PipelineError {
+    /// Feature detection failed.
     #[error(transparent)]
     Detect(#[from] DetectError),
+    /// Relaxation or the collapse failed.
     #[error(transparent)]
     Relax(#[from] RelaxError),
+    /// A map could not be read or built.
     #[error(transparent)]
     Format(#[from] FormatError),
     /// The caller's `on_stage` failed (e.g. writing the stage's map).

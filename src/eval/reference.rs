@@ -32,15 +32,23 @@ use crate::trace::{self, Budget, StorePolicy, TraceError, TraceOptions};
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum ReferenceError {
+    /// A pass could not be rendered, or the image written.
     #[error(transparent)]
     Render(#[from] RenderError),
+    /// A pass could not be traced.
     #[error(transparent)]
     Trace(#[from] TraceError),
+    /// Settings out of range, or a first pass too sparse to choose r₁.
     #[error("{0}")]
     Invalid(String),
     /// The saved run to resume is missing, unreadable or saved with other settings.
     #[error("{file}: {message}")]
-    Saved { file: String, message: String },
+    Saved {
+        /// The saved run's EXR.
+        file: String,
+        /// What is wrong with it.
+        message: String,
+    },
 }
 
 /// The paper's and Knaus & Zwicker's α.
@@ -51,11 +59,13 @@ pub const ALPHA: f64 = 2.0 / 3.0;
 pub struct ReferenceOptions {
     /// Photons emitted per pass.
     pub photons_per_pass: u64,
+    /// α of the radius schedule, in (0, 1) (the module docs).
     pub alpha: f64,
     /// r₁ in metres; `None` chooses it from the first pass's photons ([`initial_radius`]).
     pub initial_radius: Option<f32>,
     /// The tracer's base seed (pass i uses seed + i − 1).
     pub seed: u64,
+    /// Specular bounces after which the tracer drops a photon ([`TraceOptions::max_bounces`]).
     pub max_bounces: u32,
     /// With `Some(k)`, the radius varies over the image with the photon density: at a point
     /// x, pass i gathers within r_i(x) = r_k(x) · r_i / r₁, r_k(x) the distance from x to the
@@ -88,6 +98,7 @@ pub struct ReferenceState {
     pub initial_radius: f32,
     /// r² of the next pass, m².
     pub next_radius2: f64,
+    /// The run's settings.
     pub options: ReferenceOptions,
     /// Free-form description of the image settings (scene, camera, size, mode) that a resumed
     /// run must match.
@@ -168,7 +179,9 @@ pub fn settings(
 pub struct SavedRun {
     /// The EXR (and the PNG preview, if any).
     pub outputs: Outputs,
+    /// The render mode, for the header's units.
     pub mode: Mode,
+    /// The gather kernel, for the header's description.
     pub kernel: Kernel,
     /// The scene's name for the header.
     pub scene_name: String,
@@ -245,11 +258,14 @@ impl SavedRun {
 
 /// A progressive photon mapping run over one scene and camera.
 pub struct Progressive<'a> {
+    /// The scene traced and seen.
     pub scene: &'a Scene,
+    /// The camera (its resolution is replaced by the options').
     pub camera: Camera,
     /// Image options; the estimator's kernel is used with each pass's radius, `seed` is
     /// advanced per pass so the sub-pixel jitter differs.
     pub render: RenderOptions,
+    /// The gather kernel of every pass.
     pub kernel: Kernel,
     /// Keep only the photons with these specular bounce counts (`None`: every caustic
     /// photon), as [`crate::trace::Traced::retain_bounces`].

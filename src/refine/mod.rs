@@ -59,12 +59,21 @@ impl Default for RefineParams {
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum RefineError {
+    /// Reading the map or writing a pass's table failed.
     #[error(transparent)]
     Format(#[from] FormatError),
+    /// Tracing a pass's fresh photons failed.
     #[error(transparent)]
     Trace(#[from] TraceError),
+    /// The map cannot be refined (no trace record, a column missing or of the wrong shape).
     #[error("{file}: {message}")]
-    Input { file: String, message: String },
+    Input {
+        /// The map's file name.
+        file: String,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// Parameters out of range (no neighbour, a negative step limit, no photon per pass).
     #[error("{0}")]
     Invalid(String),
 }
@@ -81,6 +90,7 @@ pub mod column {
 /// The record a refinement adds to the map's history (one per run; a resumed run adds one).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct RefineRecord {
+    /// The parameters of this run.
     pub params: RefineParams,
     /// Photons emitted per pass (the resolved `photons_per_pass`).
     pub photons_per_pass: u64,

@@ -17,6 +17,7 @@ pub type Basis = (Vec<[f32; 3]>, Vec<[f32; 3]>);
 /// The primal photons: the map's photons that refinement moves and re-weights.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Primal {
+    /// World-space positions, metres.
     pub positions: Vec<[f32; 3]>,
     /// Watts per RGB channel.
     pub flux: Vec<[f32; 3]>,
@@ -112,7 +113,7 @@ pub struct PassMeasure {
 const SIDE_SEARCH: usize = 8;
 
 /// Step 2 of a pass: every fresh photon adds its flux to the primal photon nearest to it (among
-/// the [`SIDE_SEARCH`] nearest, the first on its side of the surface): each primal photon
+/// the 8 nearest, the first on its side of the surface): each primal photon
 /// gathers the flux that fell in its Voronoi cell, whose mean over passes converges to the
 /// cell's exact flux ∫ E dA. `tree` indexes `primal.positions` (built once, and again only
 /// after the photons move). Returns the mean number of fresh photons a primal photon gathered.

@@ -29,6 +29,7 @@ pub enum Diagnostic {
 }
 
 impl Diagnostic {
+    /// The view's name on the command line (`--diagnostic`) and in image headers.
     pub fn name(self) -> &'static str {
         match self {
             Diagnostic::Params => "params",
@@ -133,7 +134,7 @@ impl Diagnostics {
         Ok(Diagnostics { colours, dot_radius, max_dot: None })
     }
 
-    /// Caps the dots sized by the local spacing at [`MAX_DOT`] times the typical dot: the
+    /// Caps the dots sized by the local spacing at four times the typical dot, 0.4 × the
     /// median, over up to 4096 photons spread through the map, of each one's own spacing.
     pub fn bounded(mut self, photons: &PhotonLookup) -> Self {
         let positions = photons.data.positions;

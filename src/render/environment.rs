@@ -13,10 +13,13 @@ use crate::scene::Background;
 /// A loaded background.
 #[derive(Clone, Debug)]
 pub enum Environment {
+    /// The same radiance in every direction, W/(m²·sr) per RGB channel.
     Uniform(Vec3),
-    /// Pixels already multiplied by the strength; `turn` is the rotation about z in radians.
+    /// An equirectangular image ([`Environment::radiance`] maps directions to pixels).
     Equirect {
+        /// Radiance per pixel, already multiplied by the strength.
         image: Image,
+        /// The rotation about z, radians.
         turn: f32,
     },
 }

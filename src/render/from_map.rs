@@ -17,7 +17,9 @@ use crate::scene::{Camera, Projection, Scene};
 /// Changes to a scene's camera; every field left `None` keeps the scene's.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct CameraChanges {
+    /// The eye's position, metres.
     pub eye: Option<Vec3>,
+    /// The point looked at, metres.
     pub look_at: Option<Vec3>,
     /// Roughly up in the image (default: the scene camera's, else +z).
     pub up: Option<Vec3>,
@@ -25,8 +27,9 @@ pub struct CameraChanges {
     pub fov_deg: Option<f32>,
     /// An orthographic camera showing this height, metres.
     pub ortho_height_m: Option<f32>,
-    /// Image size in pixels; one alone keeps the camera's aspect.
+    /// Image width in pixels; alone, the height follows the camera's aspect.
     pub width: Option<u32>,
+    /// Image height in pixels; alone, the width follows the camera's aspect.
     pub height: Option<u32>,
 }
 
@@ -74,17 +77,29 @@ impl CameraChanges {
 #[derive(Clone, Debug)]
 pub enum Framing<'s> {
     /// A scene through a camera (whose resolution is the image's); `name` goes to the header.
-    Scene { scene: &'s Scene, camera: Camera, name: String },
+    Scene {
+        /// The scene.
+        scene: &'s Scene,
+        /// The camera.
+        camera: Camera,
+        /// The scene's name for the header.
+        name: String,
+    },
     /// No scene: the photons within `tolerance_m` of the plane `axis` = `offset` (axis 0, 1, 2
     /// for x, y, z), seen orthographically from its positive side; irradiance only.
     Plane {
+        /// The plane's normal axis: 0, 1, 2 for x, y, z.
         axis: usize,
+        /// The plane's coordinate on `axis`, metres.
         offset: f32,
+        /// How far from the plane a photon may lie and count, metres.
         tolerance_m: f32,
         /// [u0, v0, u1, v1] in the plane's other two coordinates (default: the photons' frame).
         rect: Option<[f32; 4]>,
-        /// Image size; one alone follows the rectangle's aspect, neither gives 600 on the longer side.
+        /// Image width in pixels; alone, the height follows the rectangle's aspect; with
+        /// neither, the longer side is 600.
         width: Option<u32>,
+        /// Image height in pixels (as `width`).
         height: Option<u32>,
     },
 }
@@ -92,6 +107,7 @@ pub enum Framing<'s> {
 /// A diagnostic view: photons as dots coloured by a property, instead of radiance.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DiagnosticView {
+    /// The property that colours the photons.
     pub which: Diagnostic,
     /// Constraint factor |basis_v| below which [`Diagnostic::Constrained`] paints a photon red.
     pub threshold: f32,
@@ -102,13 +118,17 @@ pub struct DiagnosticView {
 /// Everything [`render_map`] needs besides the map.
 #[derive(Clone, Debug)]
 pub struct MapRender<'s> {
+    /// What the image looks at.
     pub framing: Framing<'s>,
     /// What to render; `None`: full radiance, or irradiance for a plane.
     pub mode: Option<Mode>,
+    /// How irradiance is estimated from the photons.
     pub estimator: Estimator,
+    /// Photons as coloured dots instead of radiance.
     pub diagnostic: Option<DiagnosticView>,
     /// Samples per pixel (the paper: 4).
     pub spp: u32,
+    /// How eye paths continue through specular surfaces.
     pub eye: EyeOptions,
     /// Seeds the sub-pixel jitter and sampled Fresnel choices.
     pub seed: u64,
@@ -137,14 +157,21 @@ impl<'s> MapRender<'s> {
 /// Progress of [`render_map`]: the number of tiles once known, then tiles as they finish.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Progress {
-    Start { tiles: u64 },
+    /// Rendering begins.
+    Start {
+        /// Tiles in the image ([`super::TILE`] pixels square).
+        tiles: u64,
+    },
+    /// This many more tiles are done.
     Tiles(u64),
 }
 
 /// What [`render_map`] made.
 #[derive(Debug)]
 pub struct Rendered {
+    /// The image, linear.
     pub image: Image,
+    /// Samples traced and lookups made.
     pub stats: RenderStats,
     /// The EXR header's notes: units, mode, estimator, photon map, scene, samples per pixel.
     pub notes: Notes,

@@ -2,7 +2,8 @@
 //! preview, and reading an EXR back (the reference renderer resumes from one).
 //!
 //! Files are written to a temporary file beside the target and renamed into place only when
-//! complete, so a failed run never leaves a damaged or partial image.
+//! complete, so a failed run never leaves a damaged or partial image. The same image and notes
+//! give the same bytes in every run (the EXR header's notes in the order given).
 
 use std::path::{Path, PathBuf};
 
@@ -22,8 +23,12 @@ pub const MAX_PIXELS: u64 = 1 << 26;
 /// A linear RGB image, rows from the top.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
+    /// Width, pixels.
     pub width: u32,
+    /// Height, pixels.
     pub height: u32,
+    /// Linear RGB, row-major from the top-left (index `y * width + x`); units as the render
+    /// mode says ([`super::Mode::unit`]).
     pub pixels: Vec<Vec3>,
     /// The pixels the automatic exposure meters, when not all: a render with a background
     /// meters those that see a surface, so the sky does not set the exposure of the caustics.
@@ -35,6 +40,7 @@ pub struct Image {
 }
 
 impl Image {
+    /// A black image.
     pub fn new(width: u32, height: u32) -> Image {
         Image {
             width,
@@ -45,6 +51,7 @@ impl Image {
         }
     }
 
+    /// The pixel at column `x`, row `y` (from the top).
     pub fn get(&self, x: u32, y: u32) -> Vec3 {
         self.pixels[y as usize * self.width as usize + x as usize]
     }
@@ -56,7 +63,8 @@ impl Image {
     }
 }
 
-/// Text attributes stored in the EXR header (units, estimator, …), as (name, value).
+/// Text attributes stored in the EXR header (units, estimator, …), as (name, value), written
+/// in this order.
 pub type Notes = Vec<(String, String)>;
 
 fn image_err(path: &Path, message: impl std::fmt::Display) -> RenderError {
@@ -89,9 +97,69 @@ fn exr_temp(path: &Path, img: &Image, notes: &Notes) -> Result<tempfile::NamedTe
     Image_::from_layer(layer)
         .write()
         .non_parallel()
-        .to_buffered(std::io::BufWriter::new(file))
+        .to_buffered(std::io::BufWriter::new(&mut *file))
         .map_err(|e| image_err(path, e))?;
+    order_notes(file, notes).map_err(|e| image_err(path, e))?;
     Ok(tmp)
+}
+
+/// Puts the header attributes holding `notes` in the order of `notes`, in place, so that the
+/// same image gives the same bytes in every run. The exr crate keeps custom attributes in a
+/// `HashMap` (`LayerAttributes::other`, with the standard library's randomly seeded hasher)
+/// and writes them in its iteration order; it offers no ordered alternative. Only the order of
+/// the attribute records changes, not the header's length, so the chunk offsets after it stay
+/// valid.
+fn order_notes(file: &mut std::fs::File, notes: &Notes) -> std::io::Result<()> {
+    use std::io::{BufRead, BufReader, Read, Seek, SeekFrom, Write};
+    let invalid = |m: &str| std::io::Error::new(std::io::ErrorKind::InvalidData, m.to_string());
+    file.seek(SeekFrom::Start(0))?;
+    let mut r = BufReader::new(&mut *file);
+    let mut start = [0u8; 8];
+    r.read_exact(&mut start)?;
+    // The magic number, then the version field, whose bit 12 marks a multi-part file (a header
+    // per part); one layer is written as a single part.
+    let flags = u32::from_le_bytes([start[4], start[5], start[6], start[7]]);
+    if start[..4] != [0x76, 0x2f, 0x31, 0x01] || flags & 0x1000 != 0 {
+        return Err(invalid("not a single-part OpenEXR file"));
+    }
+    // Each attribute is `name\0type\0`, its size (i32, little-endian) and its value; an empty
+    // name ends the header. Per record: the note's index (`None`: not a note) and its bytes.
+    let mut records: Vec<(Option<usize>, Vec<u8>)> = Vec::new();
+    loop {
+        let mut record = Vec::new();
+        r.read_until(0, &mut record)?;
+        if record == [0] {
+            break;
+        }
+        let name_len = record.len().saturating_sub(1);
+        r.read_until(0, &mut record)?;
+        if record.last() != Some(&0) || record.len() == name_len + 1 {
+            return Err(invalid("truncated header"));
+        }
+        let mut size = [0u8; 4];
+        r.read_exact(&mut size)?;
+        record.extend_from_slice(&size);
+        let size = u64::try_from(i32::from_le_bytes(size)).map_err(|_| invalid("negative attribute size"))?;
+        if (&mut r).take(size).read_to_end(&mut record)? as u64 != size {
+            return Err(invalid("truncated attribute"));
+        }
+        let note = notes.iter().position(|(k, _)| k.as_bytes() == &record[..name_len]);
+        records.push((note, record));
+    }
+    drop(r);
+    let mut in_order: Vec<&(Option<usize>, Vec<u8>)> = records.iter().filter(|(n, _)| n.is_some()).collect();
+    in_order.sort_by_key(|(n, _)| *n);
+    let mut next = in_order.into_iter();
+    let mut header = Vec::new();
+    for (note, record) in &records {
+        let record = match note {
+            Some(_) => &next.next().expect("as many notes as slots").1,
+            None => record,
+        };
+        header.extend_from_slice(record);
+    }
+    file.seek(SeekFrom::Start(start.len() as u64))?;
+    file.write_all(&header)
 }
 
 /// An 8-bit sRGB PNG preview of `img`, tone-mapped ([`super::tone`]), in a temporary file.
@@ -133,7 +201,9 @@ pub fn srgb8(v: f32) -> u8 {
 /// Where the outputs go: an EXR and/or a PNG preview.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Outputs {
+    /// The linear float RGB image (OpenEXR, ZIP compression), with the header notes.
     pub exr: Option<PathBuf>,
+    /// The 8-bit sRGB preview, exposed and tone-mapped.
     pub png: Option<PathBuf>,
     /// The preview's exposure in stops: added to the automatic exposure, or with
     /// `fixed_exposure` the whole of it (pixel values multiplied by 2^exposure).
@@ -276,6 +346,38 @@ mod tests {
         img.samples = Some((2, vec![bright, Vec3::ZERO]));
         assert_eq!(code(&img), srgb8(0.5));
         assert_eq!(srgb8(0.5), 188);
+    }
+
+    /// The same image and notes give the same EXR bytes on every write, the notes in the
+    /// header in the order given (the exr crate alone writes them in its hash map's order,
+    /// which changes from one map to the next, so from one run to the next).
+    #[test]
+    fn exr_bytes_do_not_depend_on_the_run() {
+        let dir = tempfile::tempdir().unwrap();
+        let mut img = Image::new(7, 5);
+        for (i, p) in img.pixels.iter_mut().enumerate() {
+            *p = Vec3::new(i as f32, 0.5, 1e-3 * i as f32);
+        }
+        let notes: Notes = (0..8).map(|i| (format!("photonkit:note{i}"), "é".repeat(i))).collect();
+        let bytes = |name: &str| {
+            let out = Outputs { exr: Some(dir.path().join(name)), ..Outputs::default() };
+            write(&img, &out, &notes).unwrap();
+            std::fs::read(dir.path().join(name)).unwrap()
+        };
+        let first = bytes("0.exr");
+        for i in 1..4 {
+            assert!(bytes(&format!("{i}.exr")) == first, "write {i} differs from the first");
+        }
+        let at = |name: &str| {
+            let key = format!("{name}\0string\0");
+            first.windows(key.len()).position(|w| w == key.as_bytes()).expect("the note is in the header")
+        };
+        let order: Vec<usize> = notes.iter().map(|(k, _)| at(k)).collect();
+        assert!(order.is_sorted(), "notes at {order:?}");
+        let (back, mut back_notes) = read_exr(&dir.path().join("0.exr")).unwrap();
+        assert_eq!(back, img);
+        back_notes.sort();
+        assert_eq!(back_notes, notes);
     }
 
     #[test]

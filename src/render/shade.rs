@@ -40,6 +40,7 @@ pub enum Specular {
 /// Limits on eye paths.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct EyeOptions {
+    /// How a path continues at a dielectric.
     pub specular: Specular,
     /// Specular interactions after which a path is dropped.
     pub max_depth: u32,
@@ -58,9 +59,11 @@ impl Default for EyeOptions {
 /// Where an eye path reached a diffuse surface.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DiffuseHit {
+    /// The hit point, metres.
     pub point: Vec3,
     /// Unit geometric normal on the side the eye ray came from.
     pub normal: Vec3,
+    /// The surface's albedo ρ per RGB channel.
     pub albedo: Vec3,
     /// Product of the specular reflectances and transmittances along the path.
     pub weight: Vec3,
@@ -194,6 +197,8 @@ pub struct Lights {
 }
 
 impl Lights {
+    /// The emitters of `scene` as lights (a degenerate collimated rectangle gives none), each
+    /// one's power split over RGB in proportion to its colour.
     pub fn new(scene: &Scene) -> Lights {
         let lights = scene
             .emitters()

@@ -14,7 +14,7 @@
 //! photon) with an Epanechnikov, disc or cone kernel; diffusion-based photon mapping (Schjøth,
 //! Olsen, Sporring 2008), whose kernel is an ellipse shaped by the structure tensor of the
 //! density estimate so it smooths along a caustic's edges and not across them; and a fixed
-//! radius, for progressive photon mapping ([`super::reference`]).
+//! radius, for progressive photon mapping ([`crate::eval::reference`]).
 //!
 //! Neighbours come from a [`BoxTree`]; each search starts from a bound given by the previous
 //! query of the same thread (exact, see [`PhotonLookup::irradiance`]), which makes the
@@ -53,6 +53,7 @@ impl Kernel {
         }
     }
 
+    /// The kernel's name on the command line and in reports.
     pub fn name(self) -> &'static str {
         match self {
             Kernel::Epanechnikov => "epanechnikov",
@@ -67,26 +68,55 @@ impl Kernel {
 pub enum Estimator {
     /// E = Σ Φ_p w(d_p) over the `k` nearest photons, r the distance to the k-th; with
     /// `max_radius`, r is at most that (and only photons within it count).
-    Knn { k: usize, kernel: Kernel, max_radius: Option<f32> },
+    Knn {
+        /// K: photons per estimate.
+        k: usize,
+        /// The kernel w.
+        kernel: Kernel,
+        /// Largest r, metres.
+        max_radius: Option<f32>,
+    },
     /// Diffusion-based photon mapping: `k` neighbours (the paper compares with 500), and the
     /// Perona–Malik control `q` of the diffusivity c(g) = 1/(1 + (g/q)²) (the paper: 0.02).
-    Diffusion { k: usize, q: f32 },
+    Diffusion {
+        /// Photons gathered per estimate.
+        k: usize,
+        /// q of the diffusivity.
+        q: f32,
+    },
     /// E = Σ Φ_p w(d_p) over every photon within the fixed `radius` (progressive photon
     /// mapping); needs a lookup made by [`PhotonLookup::for_radius`].
-    Radius { radius: f32, kernel: Kernel },
+    Radius {
+        /// The gather radius, metres.
+        radius: f32,
+        /// The kernel w.
+        kernel: Kernel,
+    },
     /// E = Σ Φ_p w(d_p) over every photon within r = `scale` · r_k(x), r_k(x) the distance
     /// from x to the `k`-th nearest photon of the lookup's radius map (progressive photon
     /// mapping with an initial radius from the local photon density, Hachisuka & Jensen's
     /// advice; the map is the first pass's photons); needs a lookup made by
     /// [`PhotonLookup::with_radius_map`].
-    LocalRadius { k: usize, scale: f32, kernel: Kernel },
+    LocalRadius {
+        /// Which nearest photon of the radius map sets r_k(x).
+        k: usize,
+        /// The factor on r_k(x).
+        scale: f32,
+        /// The kernel w.
+        kernel: Kernel,
+    },
     /// The variable-kernel estimate (Breiman, Meisel & Purcell 1977; Silverman 1986 §5.3):
     /// E = Σ Φ_p w_{r_p}(d_p), each photon's kernel radius r_p the distance from the photon
     /// to its own `k`-th nearest photon. Unbiased on uniform photons of any arrangement
     /// (Campbell's theorem: each kernel integrates to one and its radius belongs to the
     /// photon, not to x), where [`Estimator::Knn`] is low on stratified photons (docs/truth.md);
     /// needs a lookup made [`PhotonLookup::prepared_for`] it.
-    Variable { k: usize, kernel: Kernel },
+    Variable {
+        /// Which nearest photon sets each photon's radius.
+        k: usize,
+        /// The kernel w.
+        kernel: Kernel,
+    },
 }
 
 impl Estimator {
@@ -129,6 +159,7 @@ pub const DIFFUSION_MIN_AXIS: f32 = 0.05;
 /// The photon columns an estimate reads (photon i at index i of each).
 #[derive(Clone, Copy, Debug)]
 pub struct PhotonData<'a> {
+    /// Photon positions, metres.
     pub positions: &'a [[f32; 3]],
     /// W per RGB channel.
     pub flux: &'a [[f32; 3]],
@@ -139,6 +170,7 @@ pub struct PhotonData<'a> {
 
 /// Photons with their k-NN index (or, for fixed-radius lookups, a grid), ready for lookups.
 pub struct PhotonLookup<'a> {
+    /// The photons looked up, in the caller's order.
     pub data: PhotonData<'a>,
     index: Option<BoxTree>,
     grid: Option<Grid>,
@@ -239,10 +271,12 @@ impl<'a> PhotonLookup<'a> {
         Ok(())
     }
 
+    /// Number of photons.
     pub fn len(&self) -> usize {
         self.data.positions.len()
     }
 
+    /// Whether it holds no photon.
     pub fn is_empty(&self) -> bool {
         self.data.positions.is_empty()
     }

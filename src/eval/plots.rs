@@ -72,10 +72,33 @@ fn decade_above(x: f64) -> f64 {
 /// truth's mean), one panel per region (the whole image, core, edge, smooth), a line with
 /// markers per series ([`series`]), and the legend beside the panels, where it hides no point.
 pub fn plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
+    loglog_png(runs, title, &|r| Some(r.times.total), "total time per view, s")
+}
+
+/// The error-versus-passes plot as PNG, like [`plot_png`] with passes on the x axis: the
+/// progressive series only (progressive photon mapping, the refined map), so each line's slope
+/// is its convergence rate.
+pub fn passes_plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
+    loglog_png(runs, title, &|r| r.passes.map(|p| p as f64), "passes")
+}
+
+/// A log–log plot of NRMSE against `x` of each row (rows without one left out), one panel per
+/// region, a line per series.
+fn loglog_png(
+    runs: &[Run],
+    title: &str,
+    x: &dyn Fn(&Row) -> Option<f64>,
+    x_desc: &str,
+) -> Result<Vec<u8>, CompareError> {
     register_font()?;
     let (w, h) = (1400u32, 900u32);
     let mut buf = vec![255u8; (w * h * 3) as usize];
-    let all_series = series(runs);
+    let mut all_series = series(runs);
+    for (_, _, rows) in &mut all_series {
+        rows.retain(|r| x(r).is_some());
+        rows.sort_by(|a, b| x(a).unwrap_or(0.0).total_cmp(&x(b).unwrap_or(0.0)));
+    }
+    all_series.retain(|(_, _, rows)| !rows.is_empty());
     let mut nth = std::collections::HashMap::new();
     let styled: Vec<(String, RGBColor, Vec<&Row>)> = all_series
         .into_iter()
@@ -91,7 +114,7 @@ pub fn plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
         r.regions
             .iter()
             .find(|e| e.region == g)
-            .map(|e| (r.times.total, e.nrmse))
+            .and_then(|e| Some((x(r)?, e.nrmse)))
             .filter(|&(t, e)| t > 0.0 && e > 0.0 && e.is_finite())
     };
     let draw = |buf: &mut [u8]| -> Result<(), Box<dyn std::error::Error + '_>> {
@@ -125,7 +148,7 @@ pub fn plot_png(runs: &[Run], title: &str) -> Result<Vec<u8>, CompareError> {
                 .configure_mesh()
                 .x_labels(12)
                 .y_labels(10)
-                .x_desc("total time per view, s")
+                .x_desc(x_desc)
                 .y_desc("NRMSE")
                 .x_label_formatter(&|v| tick(*v))
                 .y_label_formatter(&|v| tick(*v))

@@ -338,6 +338,68 @@ pub fn time_to_error_markdown(runs: &[Run]) -> String {
     s
 }
 
+/// The least-squares slope of ln y on ln x over `points` (x, y > 0): the exponent a of
+/// y ∝ xᵃ, e.g. −0.5 for an error that halves with each 4× passes. `None` for fewer than two
+/// distinct x or a non-positive value.
+pub fn loglog_slope(points: &[(f64, f64)]) -> Option<f64> {
+    if points.iter().any(|&(x, y)| !(x > 0.0 && y > 0.0 && x.is_finite() && y.is_finite())) {
+        return None;
+    }
+    let n = points.len() as f64;
+    let (mx, my) = points.iter().fold((0.0, 0.0), |(a, b), &(x, y)| (a + x.ln() / n, b + y.ln() / n));
+    let (sxy, sxx) = points.iter().fold((0.0, 0.0), |(a, b), &(x, y)| {
+        let dx = x.ln() - mx;
+        (a + dx * (y.ln() - my), b + dx * dx)
+    });
+    (sxx > 1e-12).then(|| sxy / sxx)
+}
+
+/// The convergence table: for each progressive series (progressive photon mapping, the refined
+/// map), per region, its NRMSE at each pass count and the log–log slope of NRMSE against
+/// passes ([`loglog_slope`]) over all its pass counts and over its last two. A slope of −1/3
+/// is progressive photon mapping's asymptotic rate for its RMSE (α = 2/3); 0 is a plateau.
+pub fn convergence_markdown(runs: &[Run]) -> String {
+    let mut s = String::from(
+        "| run | series | region | NRMSE by passes | slope, all | slope, last two |\n|---|---|---|---|---|---|\n",
+    );
+    let regions = [None, Some(Region::Core), Some(Region::Edge), Some(Region::Smooth)];
+    for run in runs {
+        let one = [run.clone()];
+        for (name, _, rows) in series(&one) {
+            let mut rows: Vec<&Row> = rows.into_iter().filter(|r| r.passes.is_some()).collect();
+            rows.sort_by_key(|r| r.passes);
+            if rows.len() < 2 {
+                continue;
+            }
+            for g in regions {
+                let pts: Vec<(f64, f64)> = rows
+                    .iter()
+                    .filter_map(|r| {
+                        let e = r.regions.iter().find(|e| e.region == g)?;
+                        Some((r.passes? as f64, e.nrmse))
+                    })
+                    .collect();
+                if pts.len() < 2 {
+                    continue;
+                }
+                let by_pass: Vec<String> = pts.iter().map(|&(p, e)| format!("{p}: {}", num(e))).collect();
+                let slope = |p: &[(f64, f64)]| loglog_slope(p).map_or("-".into(), |a| format!("{a:+.2}"));
+                let _ = writeln!(
+                    s,
+                    "| {} | {} | {} | {} | {} | {} |",
+                    run.label,
+                    name,
+                    g.map_or("all", Region::name),
+                    by_pass.join(", "),
+                    slope(&pts),
+                    slope(&pts[pts.len() - 2..])
+                );
+            }
+        }
+    }
+    s
+}
+
 /// The series of the plot and the time-to-error table: one per method, except standard photon
 /// mapping (one per K) and progressive photon mapping (one per photon budget per pass, its
 /// points its pass counts), each with its rows in time order (so a line never zig-zags).
@@ -364,7 +426,8 @@ pub fn series(runs: &[Run]) -> Vec<(String, MethodKind, Vec<&Row>)> {
     out
 }
 
-/// Writes report.md, report.csv, grid.png (of the last run) and error-vs-time.png into `dir`.
+/// Writes report.md, report.csv, grid.png (of the last run), error-vs-time.png and, when a
+/// progressive method ran, error-vs-passes.png into `dir`.
 pub fn write(
     dir: &Path,
     title: &str,
@@ -425,6 +488,17 @@ pub fn write(
          (one per photon count) or, for progressive photon mapping, its pass counts.\n"
     );
     md.push_str(&time_to_error_markdown(runs));
+    if runs.iter().flat_map(|r| &r.rows).any(|r| r.passes.is_some()) {
+        let _ = writeln!(md, "\n## Convergence with passes\n");
+        let _ = writeln!(
+            md,
+            "Each progressive series' NRMSE (over the whole truth's mean) per region at each pass count, and the \
+             log–log slope of NRMSE against passes (least squares over every count, and over the last two): −1/3 \
+             is progressive photon mapping's asymptotic rate (α = 2/3), 0 a plateau, below 0 still converging.\n"
+        );
+        md.push_str(&convergence_markdown(runs));
+        let _ = writeln!(md, "\n![error against passes](error-vs-passes.png)");
+    }
     let _ = writeln!(md, "\n## One view and ten\n");
     let _ = writeln!(
         md,
@@ -438,8 +512,11 @@ pub fn write(
     write_atomic(&dir.join("report.csv"), csv(runs).as_bytes())?;
     #[cfg(feature = "plots")]
     {
-        use super::plots::{grid_png, plot_png};
+        use super::plots::{grid_png, passes_plot_png, plot_png};
         write_atomic(&dir.join("error-vs-time.png"), &plot_png(runs, title)?)?;
+        if runs.iter().flat_map(|r| &r.rows).any(|r| r.passes.is_some()) {
+            write_atomic(&dir.join("error-vs-passes.png"), &passes_plot_png(runs, title)?)?;
+        }
         if let Some(last) = runs.last() {
             write_atomic(&dir.join("grid.png"), &grid_png(target, &last.rows)?)?;
         }
@@ -524,6 +601,7 @@ mod tests {
             emitted: 1,
             photons: 1,
             radiance_k: 15,
+            passes: None,
             times: super::super::compare::StageTimes { render, total, ..Default::default() },
             errors: super::super::metrics::Errors {
                 rmse: 0.0,
@@ -541,6 +619,22 @@ mod tests {
         assert_eq!((cost_of_views(&ours, 1), cost_of_views(&ours, 10)), (8.0, 12.5));
         let ppm = row(MethodKind::Progressive, None, 4.0);
         assert_eq!((cost_of_views(&ppm, 1), cost_of_views(&ppm, 10)), (4.0, 40.0));
+    }
+
+    #[test]
+    fn loglog_slope_recovers_a_power_law_exponent() {
+        // e = 0.4·p^(−1/3) exactly: the fit returns −1/3 over any pass counts.
+        let p: Vec<(f64, f64)> = [1.0, 4.0, 16.0, 64.0].map(|x: f64| (x, 0.4 * x.powf(-1.0 / 3.0))).to_vec();
+        assert!((loglog_slope(&p).unwrap() + 1.0 / 3.0).abs() < 1e-12);
+        assert!((loglog_slope(&p[2..]).unwrap() + 1.0 / 3.0).abs() < 1e-12);
+        // A plateau is 0; noise around a line is its least-squares fit.
+        assert!(loglog_slope(&[(1.0, 0.1), (4.0, 0.1), (16.0, 0.1)]).unwrap().abs() < 1e-12);
+        let q = [(1.0, 1.0), (2.0, 0.25), (4.0, 0.25)];
+        // dx = (−1, 0, 1)·ln 2, dy = (4, −2, −2)·ln 2 / 3: Σ dx·dy / Σ dx² = −2 / 2 = −1.
+        assert!((loglog_slope(&q).unwrap() + 1.0).abs() < 1e-12);
+        assert_eq!(loglog_slope(&[(1.0, 0.1)]), None);
+        assert_eq!(loglog_slope(&[(4.0, 0.1), (4.0, 0.2)]), None);
+        assert_eq!(loglog_slope(&[(1.0, 0.1), (4.0, 0.0)]), None);
     }
 
     #[test]

@@ -231,6 +231,7 @@ impl Seed<'_> {
             emitted: self.o.photons,
             photons: map.len() as u64,
             radiance_k,
+            passes: None,
             times,
             errors,
             seeds: 1,
@@ -343,7 +344,8 @@ impl Seed<'_> {
                 o.refine_iterations,
                 self.k_label(o.k)
             );
-            rows.push(self.row(MethodKind::OursProgressive, setting, &refined, o.k, times, img));
+            let row = self.row(MethodKind::OursProgressive, setting, &refined, o.k, times, img);
+            rows.push(Row { passes: Some(n), ..row });
         }
         Ok(())
     }
@@ -411,6 +413,7 @@ impl Seed<'_> {
                 emitted: n * per_pass,
                 photons: 0,
                 radiance_k: 0,
+                passes: Some(n),
                 times: StageTimes { total: secs, ..Default::default() },
                 errors,
                 seeds: 1,

@@ -258,6 +258,9 @@ pub struct Row {
     pub photons: u64,
     /// K of the radiance estimate (0 for the progressive radius estimate).
     pub radiance_k: usize,
+    /// Passes of a progressive method (progressive photon mapping, the refined map); `None`
+    /// for the others.
+    pub passes: Option<u64>,
     /// Mean times over the seeds.
     pub times: StageTimes,
     /// The whole-image measures, mean over the seeds.

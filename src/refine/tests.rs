@@ -31,19 +31,28 @@ fn grid_primal(side: usize) -> Primal {
 }
 
 #[test]
-fn gather_gives_each_fresh_photon_to_its_nearest_primal_photon() {
-    let primal = grid_primal(20);
+fn gather_gives_each_fresh_photon_to_its_nearest_primal_photon_on_its_side() {
+    let mut primal = grid_primal(20);
+    // Every seventh primal photon faces down: the fresh photons nearest to it go to their
+    // nearest one facing up.
+    let facing_down = |i: usize| i % 7 == 3;
+    for (i, n) in primal.normals.as_mut().unwrap().iter_mut().enumerate() {
+        if facing_down(i) {
+            *n = [0.0, 0.0, -1.0];
+        }
+    }
     let mut stats = Statistics::start(primal.len());
     let mut fresh = uniform_fresh(5000, 1, 1.0);
-    // A few photons on the underside of the floor belong to no primal photon.
+    // A few photons on a surface facing another way belong to no primal photon.
     for j in 0..50 {
-        fresh.normal[j] = [0.0, 0.0, -1.0];
+        fresh.normal[j] = [1.0, 0.0, 0.0];
     }
     let gathered = gather(&mut stats, &primal, &BoxTree::build(&primal.positions), &fresh);
     let mut want = vec![0.0f64; primal.len()];
     for j in 50..fresh.len() {
         let x = Vec3::from(fresh.position[j]);
         let nearest = (0..primal.len())
+            .filter(|&i| !facing_down(i))
             .min_by(|&a, &b| {
                 let d = |i: usize| x.distance_squared(primal.positions[i].into());
                 d(a).total_cmp(&d(b)).then(a.cmp(&b))
@@ -51,6 +60,7 @@ fn gather_gives_each_fresh_photon_to_its_nearest_primal_photon() {
             .unwrap();
         want[nearest] += fresh.flux[j][0] as f64;
     }
+    assert!(want.iter().enumerate().all(|(i, &w)| !facing_down(i) || w == 0.0));
     for (i, w) in want.iter().enumerate() {
         assert!((stats.tau[i][0] as f64 - w).abs() < 1e-6, "photon {i}: {} against {w}", stats.tau[i][0]);
         assert_eq!(stats.passes[i], 1.0);

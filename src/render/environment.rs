@@ -15,6 +15,15 @@ use crate::scene::Background;
 pub enum Environment {
     /// The same radiance in every direction, W/(m²·sr) per RGB channel.
     Uniform(Vec3),
+    /// A sky gradient ([`Background::Sky`]).
+    Sky {
+        /// Radiance straight up.
+        zenith: Vec3,
+        /// Radiance along the horizon.
+        horizon: Vec3,
+        /// Radiance below the horizon.
+        ground: Vec3,
+    },
     /// An equirectangular image ([`Environment::radiance`] maps directions to pixels).
     Equirect {
         /// Radiance per pixel, already multiplied by the strength.
@@ -29,6 +38,9 @@ impl Environment {
     pub fn load(b: &Background) -> Result<Environment, RenderError> {
         Ok(match b {
             Background::Uniform(c) => Environment::Uniform(*c),
+            Background::Sky { zenith, horizon, ground } => {
+                Environment::Sky { zenith: *zenith, horizon: *horizon, ground: *ground }
+            }
             Background::Image { path, strength, rotate_deg } => {
                 let (mut image, _) = read_exr(path)?;
                 image.pixels.iter_mut().for_each(|p| *p *= *strength);
@@ -43,6 +55,10 @@ impl Environment {
     pub fn radiance(&self, d: Vec3) -> Vec3 {
         match self {
             Environment::Uniform(c) => *c,
+            Environment::Sky { zenith, horizon, ground } => match d.z {
+                z if z >= 0.0 => horizon.lerp(*zenith, z.min(1.0)),
+                _ => *ground,
+            },
             Environment::Equirect { image, turn } => {
                 let (w, h) = (image.width as usize, image.height as usize);
                 let phi = d.y.atan2(d.x) - turn;
@@ -102,6 +118,21 @@ mod tests {
         assert!((mid.x - 3.5).abs() < 1e-3, "{mid}");
         let seam = env.radiance(direction(PI, PI * 1.5 / 4.0));
         assert!((seam.x - 3.5).abs() < 1e-3, "seam between x = 7 and x = 0: {seam}");
+    }
+
+    #[test]
+    fn the_sky_blends_horizon_into_zenith_with_the_sine_of_the_elevation() {
+        let (zenith, horizon, ground) =
+            (Vec3::new(0.1, 0.2, 0.8), Vec3::new(0.9, 0.6, 0.4), Vec3::splat(0.05));
+        let sky = Environment::Sky { zenith, horizon, ground };
+        let close = |a: Vec3, b: Vec3| (a - b).abs().max_element() < 1e-6;
+        assert!(close(sky.radiance(Vec3::Z), zenith));
+        assert!(close(sky.radiance(Vec3::X), horizon));
+        // 30° above the horizon: sin = ½, halfway.
+        let up30 = Vec3::new(30f32.to_radians().cos(), 0.0, 0.5);
+        assert!(close(sky.radiance(up30), (zenith + horizon) / 2.0), "{}", sky.radiance(up30));
+        assert!(close(sky.radiance(Vec3::new(0.6, 0.0, -0.8)), ground));
+        assert!(close(sky.radiance(-Vec3::Z), ground));
     }
 
     #[test]

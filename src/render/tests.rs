@@ -94,8 +94,8 @@ fn uniformly_lit_plane_renders_the_closed_form_radiance() {
 /// `[background]` with an equirectangular EXR: an orthographic view along +x above the floor
 /// meets nothing and sees the image at azimuth 0, polar angle 90°: with pixel (x, y) of an
 /// 8 × 4 image holding (x, y, 1), the bilinear value between columns 3, 4 and rows 1, 2 is
-/// (3.5, 1.5, 1), times the strength. A uniform colour is seen as it is; neither shows in
-/// irradiance mode, which measures the photons only.
+/// (3.5, 1.5, 1), times the strength. A uniform colour is seen as it is, a sky's horizon
+/// along the horizon; none shows in irradiance mode, which measures the photons only.
 #[test]
 fn a_background_is_seen_by_escaping_eye_rays() {
     let dir = tempfile::tempdir().unwrap();
@@ -144,7 +144,18 @@ fn a_background_is_seen_by_escaping_eye_rays() {
         "t.toml",
         dir.path(),
     );
-    assert!(err.unwrap_err().to_string().contains("either colour"));
+    assert!(err.unwrap_err().to_string().contains("give one of colour"));
+    // A sky: looking along the horizon sees `horizon` (times the strength).
+    let seen = render("zenith = [0, 0, 1]\nhorizon = [0.5, 0.25, 0.125]\nstrength = 2", Mode::Direct);
+    assert!((seen - Vec3::new(1.0, 0.5, 0.25)).abs().max_element() < 1e-6, "{seen}");
+    for (sky, says) in [
+        ("zenith = [0, 0, 1]\n", "needs both zenith and horizon"),
+        ("zenith = [0, 0, 1]\nhorizon = [1, 1, 1]\ncolour = [1, 1, 1]\n", "takes no colour"),
+        ("zenith = [0, 0, 1]\nhorizon = [1, -1, 1]\n", "background.horizon"),
+    ] {
+        let err = Scene::parse(&format!("{floor}[background]\n{sky}"), "t.toml", dir.path()).unwrap_err();
+        assert!(err.to_string().contains(says), "{sky}: {err}");
+    }
 }
 
 #[test]

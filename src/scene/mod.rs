@@ -165,6 +165,9 @@ impl SceneDescription {
         let k = 1.0 / (f * f);
         let background = self.background.as_ref().map(|b| match b {
             Background::Uniform(c) => Background::Uniform(*c * k),
+            Background::Sky { zenith, horizon, ground } => {
+                Background::Sky { zenith: *zenith * k, horizon: *horizon * k, ground: *ground * k }
+            }
             Background::Image { path, strength, rotate_deg } => {
                 Background::Image { path: path.clone(), strength: strength * k, rotate_deg: *rotate_deg }
             }
@@ -228,6 +231,16 @@ struct TriInfo {
 pub enum Background {
     /// The same radiance in every direction.
     Uniform(Vec3),
+    /// A sky: above the horizon `horizon` blended into `zenith` with the sine of the
+    /// elevation, L = horizon + (zenith − horizon)·d_z for d_z ≥ 0; below it `ground`.
+    Sky {
+        /// Radiance straight up, W/(m²·sr) per channel.
+        zenith: Vec3,
+        /// Radiance along the horizon.
+        horizon: Vec3,
+        /// Radiance of every direction below the horizon.
+        ground: Vec3,
+    },
     /// An equirectangular image (linear RGB OpenEXR), loaded by the renderer: the image's
     /// top row looks up (+z), its horizontal centre along +x turned by `rotate_deg` about z
     /// (anticlockwise seen from above), each pixel times `strength`.

@@ -83,6 +83,12 @@ struct RawBackground {
     strength: Option<Sp<f32>>,
     #[serde(default)]
     rotate_deg: Option<Sp<f32>>,
+    #[serde(default)]
+    zenith: Option<Sp<[f32; 3]>>,
+    #[serde(default)]
+    horizon: Option<Sp<[f32; 3]>>,
+    #[serde(default)]
+    ground: Option<Sp<[f32; 3]>>,
 }
 
 raw_table!(RawMaterial {
@@ -489,16 +495,38 @@ fn background(cx: &Ctx, b: &Sp<RawBackground>, dir: &Path) -> Result<Background,
         Some(s) => *s.get_ref(),
         None => 1.0,
     };
+    let rgb = |c: &Sp<[f32; 3]>, key: &str| {
+        let v = *c.get_ref();
+        match v.iter().all(|x| x.is_finite() && *x >= 0.0) {
+            true => Ok(Vec3::from_array(v) * strength),
+            false => Err(cx.err(c.span(), key, "needs three finite values ≥ 0")),
+        }
+    };
+    let sky = [&r.zenith, &r.horizon, &r.ground];
+    if sky.iter().any(|k| k.is_some()) {
+        if r.colour.is_some() || r.image.is_some() || r.rotate_deg.is_some() {
+            return Err(cx.err(
+                span,
+                "background",
+                "a sky (zenith, horizon, ground) takes no colour, image or rotate_deg",
+            ));
+        }
+        let (Some(zenith), Some(horizon)) = (&r.zenith, &r.horizon) else {
+            return Err(cx.err(span, "background", "a sky needs both zenith and horizon"));
+        };
+        let (zenith, horizon) = (rgb(zenith, "background.zenith")?, rgb(horizon, "background.horizon")?);
+        let ground = match &r.ground {
+            Some(g) => rgb(g, "background.ground")?,
+            None => horizon,
+        };
+        return Ok(Background::Sky { zenith, horizon, ground });
+    }
     match (&r.colour, &r.image) {
         (Some(c), None) => {
             if r.rotate_deg.is_some() {
                 return Err(cx.err(span, "background.rotate_deg", "applies to an image only"));
             }
-            let c = *c.get_ref();
-            if c.iter().any(|x| !(x.is_finite() && *x >= 0.0)) {
-                return Err(cx.err(b.span(), "background.colour", "needs three finite values ≥ 0"));
-            }
-            Ok(Background::Uniform(Vec3::from_array(c) * strength))
+            Ok(Background::Uniform(rgb(c, "background.colour")?))
         }
         (None, Some(f)) => {
             let path = dir.join(f.get_ref());
@@ -515,7 +543,11 @@ fn background(cx: &Ctx, b: &Sp<RawBackground>, dir: &Path) -> Result<Background,
             }
             Ok(Background::Image { path, strength, rotate_deg })
         }
-        _ => Err(cx.err(span, "background", "give either colour = [r, g, b] or image = \"file.exr\"")),
+        _ => Err(cx.err(
+            span,
+            "background",
+            "give one of colour = [r, g, b], image = \"file.exr\", or a sky (zenith = [r, g, b], horizon = [r, g, b])",
+        )),
     }
 }
 

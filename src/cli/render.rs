@@ -307,6 +307,9 @@ impl Common {
 pub(super) fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Scene, String)> {
     let view = map.map(PhotonMap::view);
     let r = photonkit::scene::for_map(view.as_ref(), arg)?;
+    if let Some(w) = photonkit::scene::unsupported_warning(&r.name, &r.unsupported) {
+        eprintln!("photonkit: warning: {w}");
+    }
     for note in &r.notes {
         if r.recorded {
             eprintln!("photonkit: note: {note}");
@@ -491,14 +494,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         self, Progressive, ReferenceOptions, ReferenceState, Resumed, SavedRun,
     };
 
-    let (scene, scene_name) = load_scene(None, a.scene.as_deref())?;
-    let text = match &a.scene {
-        Some(p) => {
-            photonkit::format::guard::register_input(p);
-            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
-        }
-        None => photonkit::scene::DEFAULT_SCENE.to_string(),
-    };
+    let (scene, scene_name, text) = super::trace::load_scene(a.scene.as_deref())?;
     let camera = a.common.camera(&scene)?;
     let mode = match a.mode {
         ModeArg::Full => Mode::Full,

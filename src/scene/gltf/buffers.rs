@@ -189,8 +189,10 @@ pub(super) fn vec3s(cx: &Cx, acc: &gltf::Accessor, buffers: &[Vec<u8>]) -> Resul
         ));
     }
     let f = |b: &[u8], k: usize| f32::from_le_bytes([b[4 * k], b[4 * k + 1], b[4 * k + 2], b[4 * k + 3]]);
+    // Bounded by the bytes there: elements() has checked the count against its buffer view.
+    let elems = elements(cx, acc, buffers, 12)?;
     let mut out = Vec::with_capacity(acc.count());
-    for (i, b) in elements(cx, acc, buffers, 12)?.enumerate() {
+    for (i, b) in elems.enumerate() {
         let v = Vec3::new(f(b, 0), f(b, 1), f(b, 2));
         if !v.is_finite() || v.abs().max_element() > MAX_COORDINATE {
             return Err(cx.err(

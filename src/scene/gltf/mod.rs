@@ -179,8 +179,9 @@ pub fn parse(bytes: &[u8], file: &str, dir: &Path) -> Result<GltfScene, SceneErr
             .iter()
             .filter(|s| !specular_only || materials[s.material as usize].is_specular())
             .flat_map(|s| match &s.geometry {
-                SurfaceGeometry::Mesh(m) => m.positions.iter().copied(),
-                SurfaceGeometry::Analytic(_) => [].iter().copied(),
+                // The vertices of its triangles (an accessor may hold others' too).
+                SurfaceGeometry::Mesh(m) => (0..m.indices.len()).flat_map(|i| m.triangle(i)).collect(),
+                SurfaceGeometry::Analytic(_) => Vec::new(),
             });
         pts.fold(None, |b: Option<(Vec3, Vec3)>, p| Some(b.map_or((p, p), |(lo, hi)| (lo.min(p), hi.max(p)))))
     };

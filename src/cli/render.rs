@@ -48,7 +48,7 @@ pub struct Args {
     /// Output OpenEXR image; the PNG preview goes beside it (same name, .png) unless --png.
     #[arg(short, long, value_name = "FILE")]
     output: PathBuf,
-    /// Scene file (TOML) for geometry, materials, lights and camera.
+    /// Scene file (TOML or glTF 2.0) for geometry, materials, lights and camera.
     #[arg(long, value_name = "FILE")]
     pub(super) scene: Option<PathBuf>,
     #[command(flatten)]
@@ -446,7 +446,7 @@ pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>
     photonkit reference samples/scenes/prism.toml --passes 100 -o ref.exr\n  \
     photonkit reference samples/scenes/prism.toml --passes 400 -o ref.exr --resume   # 300 more")]
 pub struct ReferenceArgs {
-    /// Scene file (TOML); without it, the embedded default scene.
+    /// Scene file, TOML or glTF 2.0 (.gltf, .glb); without it, the embedded default scene.
     scene: Option<PathBuf>,
     /// Output OpenEXR image (the running mean); the PNG preview goes beside it unless --png.
     #[arg(short, long, value_name = "FILE")]

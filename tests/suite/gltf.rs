@@ -82,8 +82,14 @@ fn a_gltf_traced_map_renders_and_dry_run_describes_the_scene() {
     let o = photonkit(&["trace", scene.to_str().unwrap(), "--dry-run"]);
     assert!(o.status.success(), "{}", stderr(&o));
     let s = stdout(&o);
-    for want in ["[1] ball: mesh of", "smooth", "glass: dielectric, ior 1.5", "[0] sun: collimated", "2 parameters", "camera: pinhole"]
-    {
+    for want in [
+        "[1] ball: mesh of",
+        "smooth",
+        "glass: dielectric, ior 1.5",
+        "[0] sun: collimated",
+        "2 parameters",
+        "camera: pinhole",
+    ] {
         assert!(s.contains(want), "missing '{want}' in:\n{s}");
     }
     assert!(stderr(&o).contains("beam 1 × 1 m from extras.photonkit_beam_size"), "{}", stderr(&o));
@@ -174,7 +180,12 @@ fn the_small_scene_traces_and_lists_what_is_not_honoured_in_one_warning() {
     let e = stderr(&o);
     assert!(o.status.success(), "{e}");
     assert_eq!(e.matches("warning").count(), 1, "{e}");
-    for want in ["emissiveFactor", "rough transmission", "KHR_materials_clearcoat", "extension KHR_materials_clearcoat"] {
+    for want in [
+        "emissiveFactor",
+        "rough transmission",
+        "KHR_materials_clearcoat",
+        "extension KHR_materials_clearcoat",
+    ] {
         assert!(e.contains(want), "missing '{want}' in: {e}");
     }
 }
@@ -185,13 +196,18 @@ fn the_small_scene_traces_and_lists_what_is_not_honoured_in_one_warning() {
 fn a_directional_light_without_a_beam_size_covers_the_glass() {
     let dir = tempfile::tempdir().unwrap();
     let (mut doc, bin) = scene_json();
-    doc["extensions"]["KHR_lights_punctual"]["lights"][0] = json!({"type": "directional", "intensity": 683.0});
+    doc["extensions"]["KHR_lights_punctual"]["lights"][0] =
+        json!({"type": "directional", "intensity": 683.0});
     let p = write(dir.path(), "sun.gltf", doc, &bin);
     let o = photonkit(&["trace", p.to_str().unwrap(), "--dry-run"]);
     assert!(o.status.success(), "{}", stderr(&o));
     assert!(stderr(&o).contains("the bounding box of the mirrors and glass"), "{}", stderr(&o));
     // The gem spans 0.5 × 0.6 m across the beam: 683 lx on 0.3 m² is 0.3 W.
-    assert!(stdout(&o).contains("0.5000 × 0.6000 m rectangle") && stdout(&o).contains("0.300000 W"), "{}", stdout(&o));
+    assert!(
+        stdout(&o).contains("0.5000 × 0.6000 m rectangle") && stdout(&o).contains("0.300000 W"),
+        "{}",
+        stdout(&o)
+    );
 }
 
 /// Each broken file: refused with an error that names the element, no panic, no output.
@@ -201,9 +217,17 @@ fn malformed_and_hostile_gltf_files_are_refused_naming_the_element() {
     let (doc, bin) = scene_json();
     type Break = fn(&mut Value, &mut Vec<u8>);
     let cases: Vec<(&str, Break, &[&str])> = vec![
-        ("missing-buffer", |d, _| d["buffers"][0]["uri"] = json!("missing.bin"), &["buffers[0]", "missing.bin"]),
+        (
+            "missing-buffer",
+            |d, _| d["buffers"][0]["uri"] = json!("missing.bin"),
+            &["buffers[0]", "missing.bin"],
+        ),
         ("short-buffer", |_, b| b.truncate(100), &["buffers[0]", "byteLength"]),
-        ("accessor-past-view", |d, _| d["accessors"][2]["count"] = json!(30), &["accessors[2]", "bufferView"]),
+        (
+            "accessor-past-view",
+            |d, _| d["accessors"][2]["count"] = json!(30),
+            &["accessors[2]", "bufferView"],
+        ),
         ("huge-count", |d, _| d["accessors"][0]["count"] = json!(1u64 << 40), &["accessors[0]", "count"]),
         (
             "view-past-buffer",

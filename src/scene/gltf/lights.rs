@@ -41,7 +41,7 @@ pub(super) fn emitter(
     let what = super::label("lights", p.light.index(), p.light.name());
     let intensity = p.light.intensity();
     let colour = Vec3::from_array(p.light.color());
-    if !(intensity.is_finite() && intensity >= 0.0) || !colour.is_finite() || colour.min_element() < 0.0 {
+    if !(intensity.is_finite() && intensity >= 0.0 && colour.is_finite()) || colour.min_element() < 0.0 {
         return Err(cx.err(&what, "intensity and color must be finite and ≥ 0"));
     }
     if intensity == 0.0 || colour.max_element() == 0.0 {

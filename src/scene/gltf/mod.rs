@@ -6,7 +6,7 @@
 //!
 //! The document is parsed and validated by the `gltf` crate; buffers and accessors are read
 //! here, every offset, stride and count checked against the bytes that are there
-//! ([`buffers`]). What the file holds and the tracer cannot honour (textures, animation,
+//! (the `buffers` module). What the file holds and the tracer cannot honour (textures, animation,
 //! emissive meshes, extensions not read, …) is listed in [`GltfScene::unsupported`], never
 //! dropped silently.
 
@@ -329,7 +329,7 @@ fn primitive(
         Some(acc) => buffers::indices(cx, &acc, buffers)?,
         None => (0..positions.len() as u32).collect(),
     };
-    if flat.len() % 3 != 0 {
+    if !flat.len().is_multiple_of(3) {
         return Err(cx.err(what, format!("{} indices is not a whole number of triangles", flat.len())));
     }
     if let Some(&bad) = flat.iter().find(|&&i| i as usize >= positions.len()) {

@@ -10,7 +10,7 @@ use photonkit::detect::{DetectParams, Method, NoiseModel};
 use photonkit::format::{self, ColumnSpec, MapView, Output, PhotonTable, guard, name};
 use photonkit::pipeline::{PipelineError, PipelineParams, Stage, StageDone};
 use photonkit::relax::RelaxParams;
-use photonkit::scene::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, Scene};
+use photonkit::scene::{Scene, SceneFile};
 use photonkit::trace::{Budget, Shard, Spool, StorePolicy, TraceOptions};
 use pyo3::prelude::*;
 
@@ -50,20 +50,18 @@ fn finish(table: PhotonTable, output: Option<PathBuf>, context: &str) -> Result<
     }
 }
 
-/// The scene file at `path` (its name for records and its text), or the embedded default, as
-/// `photonkit trace` loads it.
-pub fn load_scene(path: Option<&Path>) -> Result<(Scene, String, String), Failure> {
+/// The scene file at `path` (TOML or glTF: its name for records and the bytes it was read
+/// from), or the embedded default, as `photonkit trace` loads it.
+pub fn load_scene(path: Option<&Path>) -> Result<(Scene, String, Vec<u8>), Failure> {
     Ok(match path {
         Some(p) => {
-            guard::register_input(p);
-            let text = std::fs::read_to_string(p).map_err(|e| Failure {
-                kind: Kind::Os(e.kind()),
-                message: format!("reading {}: {e}", p.display()),
-            })?;
-            let scene = Scene::parse(&text, &options::text(p), format::folder_of(p))?;
-            (scene, options::text(p), text)
+            let f = SceneFile::read(p)?;
+            (f.scene, options::text(p), f.content)
         }
-        None => (Scene::default_scene(), DEFAULT_SCENE_NAME.to_string(), DEFAULT_SCENE.to_string()),
+        None => {
+            let f = SceneFile::default_scene();
+            (f.scene, f.name, f.content)
+        }
     })
 }
 

@@ -35,7 +35,7 @@ use photonkit::scene::Camera;
     photonkit compare samples/scenes/prism.toml --sweep photons=1e5,3e5,1e6\n  \
     photonkit compare samples/scenes/ring.toml --methods pm,ours --sweep kc=20,50,100")]
 pub struct Args {
-    /// Scene file (TOML); without it, the embedded default scene.
+    /// Scene file, TOML or glTF 2.0 (.gltf, .glb); without it, the embedded default scene.
     scene: Option<PathBuf>,
     /// Folder for the report, images and photon maps (created if missing).
     #[arg(long, value_name = "DIR", default_value = "photonkit-compare")]

@@ -25,10 +25,12 @@ use photonkit::trace::{self, Budget, DEFAULT_SPOOL_MEMORY, Spool, TraceOptions};
 #[command(after_help = "Examples:\n  \
     photonkit pipeline                                   # the embedded default scene\n  \
     photonkit pipeline samples/scenes/prism.toml --photons 2e6 --out-dir prism-run\n  \
-    photonkit pipeline samples/scenes/sphere-point.toml --stored 200000")]
+    photonkit pipeline samples/scenes/sphere-point.toml --stored 200000\n  \
+    photonkit pipeline samples/scenes/gltf/reflector.gltf --photons 2e6   # a glTF 2.0 scene")]
 pub struct Args {
-    /// Scene file (TOML); without it, the embedded default scene (a glass sphere above a floor
-    /// under a vertical collimated beam, samples/scenes/glass-sphere.toml).
+    /// Scene file, TOML or glTF 2.0 (.gltf, .glb); without it, the embedded default scene (a
+    /// glass sphere above a floor under a vertical collimated beam,
+    /// samples/scenes/glass-sphere.toml).
     scene: Option<PathBuf>,
     /// Folder for the stages' photon maps (created if missing).
     #[arg(long, value_name = "DIR", default_value = "photonkit-out")]

@@ -48,7 +48,7 @@ pub struct Args {
     /// Output OpenEXR image; the PNG preview goes beside it (same name, .png) unless --png.
     #[arg(short, long, value_name = "FILE")]
     output: PathBuf,
-    /// Scene file (TOML) for geometry, materials, lights and camera.
+    /// Scene file (TOML or glTF 2.0) for geometry, materials, lights and camera.
     #[arg(long, value_name = "FILE")]
     pub(super) scene: Option<PathBuf>,
     #[command(flatten)]
@@ -307,6 +307,9 @@ impl Common {
 pub(super) fn load_scene(map: Option<&PhotonMap>, arg: Option<&Path>) -> anyhow::Result<(Scene, String)> {
     let view = map.map(PhotonMap::view);
     let r = photonkit::scene::for_map(view.as_ref(), arg)?;
+    if let Some(w) = photonkit::scene::unsupported_warning(&r.name, &r.unsupported) {
+        eprintln!("photonkit: warning: {w}");
+    }
     for note in &r.notes {
         if r.recorded {
             eprintln!("photonkit: note: {note}");
@@ -443,7 +446,7 @@ pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>
     photonkit reference samples/scenes/prism.toml --passes 100 -o ref.exr\n  \
     photonkit reference samples/scenes/prism.toml --passes 400 -o ref.exr --resume   # 300 more")]
 pub struct ReferenceArgs {
-    /// Scene file (TOML); without it, the embedded default scene.
+    /// Scene file, TOML or glTF 2.0 (.gltf, .glb); without it, the embedded default scene.
     scene: Option<PathBuf>,
     /// Output OpenEXR image (the running mean); the PNG preview goes beside it unless --png.
     #[arg(short, long, value_name = "FILE")]
@@ -491,14 +494,7 @@ pub fn reference(a: ReferenceArgs) -> anyhow::Result<ExitCode> {
         self, Progressive, ReferenceOptions, ReferenceState, Resumed, SavedRun,
     };
 
-    let (scene, scene_name) = load_scene(None, a.scene.as_deref())?;
-    let text = match &a.scene {
-        Some(p) => {
-            photonkit::format::guard::register_input(p);
-            std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?
-        }
-        None => photonkit::scene::DEFAULT_SCENE.to_string(),
-    };
+    let (scene, scene_name, text) = super::trace::load_scene(a.scene.as_deref())?;
     let camera = a.common.camera(&scene)?;
     let mode = match a.mode {
         ModeArg::Full => Mode::Full,

@@ -8,7 +8,7 @@ use std::time::Instant;
 use anyhow::{Context, bail};
 use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::format::Output;
-use photonkit::scene::{DEFAULT_SCENE, DEFAULT_SCENE_NAME, Scene};
+use photonkit::scene::{Scene, SceneFile};
 use photonkit::trace::{self, Budget, Shard, Spool, StorePolicy, TraceOptions};
 
 /// Trace photons from the emitters of a scene and store the caustic ones.
@@ -21,18 +21,27 @@ use photonkit::trace::{self, Budget, Shard, Spool, StorePolicy, TraceOptions};
 /// direction of a point or spot light), path length, bounce count, emission number and
 /// surface id. The output is the same for a given seed whatever the number of threads.
 ///
-/// Scene files are TOML in metres and watts: see docs/scene.md and samples/scenes/.
+/// Scene files are TOML in metres and watts, or glTF 2.0 (.gltf, .glb: meshes, cameras,
+/// KHR_lights_punctual lights, transmissive, metallic and diffuse materials): see docs/scene.md
+/// and samples/scenes/. --dry-run prints what was understood of a scene and traces nothing.
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
     photonkit trace -o sphere.phm                                  # the embedded default scene\n  \
     photonkit trace samples/scenes/prism.toml --photons 20000000 -o prism.phm\n  \
     photonkit trace scene.toml --stored 1000000 -o map.phm\n  \
+    photonkit trace samples/scenes/gltf/cognac.glb -o cognac.phm      # a glTF 2.0 scene\n  \
+    photonkit trace scene.gltf --dry-run        # what was understood: objects, materials, lights, camera\n  \
     photonkit trace scene.toml --photons 1e8 --shard 0/4 -o part0.phm   # one of four machines\n  \
     photonkit merge part0.phm part1.phm part2.phm part3.phm -o map.phm")]
 pub struct Args {
-    /// Scene file (TOML); without it, the embedded default scene (a glass sphere above a floor
-    /// under a vertical collimated beam, samples/scenes/glass-sphere.toml).
+    /// Scene file: TOML, or glTF 2.0 (.gltf or .glb); without it, the embedded default scene
+    /// (a glass sphere above a floor under a vertical collimated beam,
+    /// samples/scenes/glass-sphere.toml).
     scene: Option<PathBuf>,
+    /// Read the scene, print what was understood of it (objects, materials, emitters with the
+    /// number of trajectory parameters each gives its photons, camera) and trace nothing.
+    #[arg(long)]
+    dry_run: bool,
     /// Output photon map (`-` for standard output); required.
     #[arg(short, long, value_name = "FILE")]
     output: Option<String>,
@@ -97,22 +106,32 @@ pub(crate) fn spool_dir(output: &str) -> PathBuf {
     }
 }
 
-/// The scene at `path` (its name for records and its text), or the embedded default.
-pub(crate) fn load_scene(path: Option<&std::path::Path>) -> anyhow::Result<(Scene, String, String)> {
-    Ok(match path {
-        Some(p) => {
-            photonkit::format::guard::register_input(p);
-            let text = std::fs::read_to_string(p).with_context(|| format!("reading {}", p.display()))?;
-            let dir = photonkit::format::folder_of(p);
-            (Scene::parse(&text, &p.display().to_string(), dir)?, p.display().to_string(), text)
-        }
-        None => (Scene::default_scene(), DEFAULT_SCENE_NAME.to_string(), DEFAULT_SCENE.to_string()),
-    })
+/// The scene at `path` (TOML or glTF) or the embedded default, with its name for records and
+/// the bytes it was read from ([`SceneFile::content`]); tells the user how a glTF file was read
+/// (notes) and, in one warning, what in it is not honoured.
+pub(crate) fn load_scene(path: Option<&std::path::Path>) -> anyhow::Result<(Scene, String, Vec<u8>)> {
+    let f = SceneFile::read_or_default(path)?;
+    tell_about_scene(&f.notes, f.warning());
+    Ok((f.scene, f.name, f.content))
+}
+
+/// Prints a scene file's notes (not under --quiet) and its warning.
+pub(crate) fn tell_about_scene(notes: &[String], warning: Option<String>) {
+    for n in notes {
+        super::note!("photonkit: note: {n}");
+    }
+    if let Some(w) = warning {
+        eprintln!("photonkit: warning: {w}");
+    }
 }
 
 pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     // The scene first: a missing or broken scene is the first thing to fix.
     let (scene, label, text) = load_scene(a.scene.as_deref())?;
+    if a.dry_run {
+        print!("{label}\n{}", photonkit::scene::describe(&scene));
+        return Ok(ExitCode::SUCCESS);
+    }
     let Some(output) = a.output.clone() else {
         // A usage error, as clap's own (exit status 2).
         eprintln!(

@@ -159,13 +159,13 @@ pub const STATE_NOTE: &str = "photonkit:reference_state";
 /// The settings a resumed run must share with the saved one: the scene file's CRC-32, the
 /// camera, image size, samples, mode, kernel, eye-path options and seed.
 pub fn settings(
-    scene_text: &str,
+    scene_content: &[u8],
     camera: &Camera,
     render: &RenderOptions,
     kernel: Kernel,
 ) -> serde_json::Value {
     serde_json::json!({
-        "scene_crc32": crate::scene::scene_crc32(scene_text),
+        "scene_crc32": crate::scene::scene_crc32(scene_content),
         "camera": format!("{:?}", camera),
         "width": render.width, "height": render.height, "spp": render.spp,
         "mode": render.mode.name(), "kernel": kernel.name(), "specular": format!("{:?}", render.eye.specular),

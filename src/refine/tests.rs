@@ -181,7 +181,7 @@ fn traced_map(dir: &std::path::Path) -> (PhotonMap, Scene) {
         &opts,
         &traced,
         crate::scene::DEFAULT_SCENE_NAME,
-        crate::scene::DEFAULT_SCENE,
+        crate::scene::DEFAULT_SCENE.as_bytes(),
     );
     let path = dir.join("traced.phm");
     traced.write(Output::Path(path.clone()), info).unwrap();

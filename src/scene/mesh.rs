@@ -88,8 +88,9 @@ impl Mesh {
         self.indices[i].map(|k| self.positions[k as usize])
     }
 
-    /// Drops triangles of zero area (the poles of a surface of revolution, for instance).
-    fn drop_degenerate(mut self) -> Mesh {
+    /// The mesh without its triangles of zero area (the poles of a surface of revolution, for
+    /// instance).
+    pub(crate) fn without_degenerate(mut self) -> Mesh {
         let pos = &self.positions;
         self.indices.retain(|t| {
             let [a, b, c] = t.map(|k| pos[k as usize]);
@@ -139,7 +140,7 @@ pub fn revolution(profile: &[Vec2], segments: u32, crease_deg: f32) -> Mesh {
         }
     }
     mesh.normals = Some(normals);
-    mesh.drop_degenerate()
+    mesh.without_degenerate()
 }
 
 /// A height field over [−sx/2, sx/2] × [−sy/2, sy/2] with `nx × ny` cells, heights z = h(x, y)
@@ -310,7 +311,7 @@ pub fn load_obj(path: &std::path::Path) -> Result<Mesh, String> {
     if mesh.normals.as_ref().is_some_and(|ns| ns.contains(&Vec3::ZERO)) {
         mesh.normals = None;
     }
-    Ok(mesh.drop_degenerate())
+    Ok(mesh.without_degenerate())
 }
 
 #[cfg(test)]

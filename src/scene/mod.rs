@@ -1,14 +1,17 @@
 //! Scenes: the camera, emitters, shapes and materials the tracer shoots photons through.
 //!
 //! A scene is read from a TOML file (`docs/scene.md`; units are metres and watts) by
-//! [`Scene::load`] or [`Scene::parse`]. Shapes are numbered in file order: that number is the
+//! [`Scene::load`] or [`Scene::parse`], or from a glTF 2.0 file ([`gltf`]); [`SceneFile::read`]
+//! reads either and says what the user should be told. Shapes are numbered in file order: that number is the
 //! `surface` id stored with each photon. Analytic shapes are intersected directly; every
 //! triangle of every mesh goes into one [bounding volume hierarchy](bvh).
 
 pub use crate::accel::bvh;
 pub mod camera;
+pub mod describe;
 pub mod emitter;
 mod file;
+pub mod gltf;
 use crate::accel::hull;
 #[cfg(test)]
 mod hull_tests;
@@ -17,18 +20,21 @@ pub mod material;
 pub mod mesh;
 mod resolve;
 pub mod shape;
+mod source;
 
 use std::path::Path;
 
 use glam::Vec3;
 
 pub use camera::{Camera, Projection};
+pub use describe::describe;
 pub use emitter::{Emitter, EmitterShape};
 pub use intersect::Reach;
 pub use material::{Dielectric, Dispersion, Material};
 pub use mesh::{Mesh, Transform};
 pub use resolve::{ResolvedScene, for_map, scene_crc32};
 pub use shape::{Hit, Ray, Shape};
+pub use source::{SceneFile, unsupported_warning};
 
 /// The scene `photonkit trace` uses when given none: a glass sphere above a floor under a
 /// vertical collimated beam (`samples/scenes/glass-sphere.toml`).
@@ -64,6 +70,17 @@ pub enum SceneError {
         column: usize,
         /// The key's path (`shapes[1].radius`).
         field: String,
+        /// What is wrong with it.
+        message: String,
+    },
+    /// A glTF file that is malformed, refers to what is not there, or asks for more than is
+    /// read: `element` names the part (`accessors[3]`, `nodes[2] 'lamp'`, `buffers[0]`).
+    #[error("{file}: {element}: {message}")]
+    Gltf {
+        /// The glTF file as named to the user.
+        file: String,
+        /// The element of the file at fault.
+        element: String,
         /// What is wrong with it.
         message: String,
     },
@@ -297,14 +314,11 @@ impl Scene {
         .build()
     }
 
-    /// Reads a scene file; relative paths inside it (OBJ files) are resolved beside it.
+    /// Reads a scene file, TOML or glTF by its extension; relative paths inside it (OBJ files,
+    /// glTF buffers) are resolved beside it. [`SceneFile::read`] does the same and also returns
+    /// what the file holds that the tracer does not honour.
     pub fn load(path: &Path) -> Result<Scene, SceneError> {
-        let file = path.display().to_string();
-        crate::format::guard::register_input(path);
-        let src =
-            std::fs::read_to_string(path).map_err(|source| SceneError::Io { file: file.clone(), source })?;
-        let dir = crate::format::folder_of(path);
-        Scene::parse(&src, &file, dir)
+        SceneFile::read(path).map(|f| f.scene)
     }
 
     /// Reads a scene from TOML text; `file` names it in errors, `dir` resolves relative paths.

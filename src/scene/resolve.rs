@@ -3,13 +3,14 @@
 
 use std::path::{Path, PathBuf};
 
-use super::{DEFAULT_SCENE_NAME, Scene, SceneError};
+use super::{DEFAULT_SCENE_NAME, Scene, SceneError, SceneFile};
 use crate::format::MapView;
 
-/// The CRC-32 of a scene file's text as the trace record's `scene_crc32` holds it (8 hex
-/// digits): how later stages tell whether a scene file is the one the map was traced from.
-pub fn scene_crc32(scene_text: &str) -> String {
-    format!("{:08x}", crc32fast::hash(scene_text.as_bytes()))
+/// The CRC-32 of a scene file's content ([`SceneFile::content`]: a TOML file's text) as the
+/// trace record's `scene_crc32` holds it (8 hex digits): how later stages tell whether a scene
+/// file is the one the map was traced from.
+pub fn scene_crc32(content: impl AsRef<[u8]>) -> String {
+    format!("{:08x}", crc32fast::hash(content.as_ref()))
 }
 
 /// A scene found for a map, and what the user should be told about how it was found.
@@ -24,6 +25,10 @@ pub struct ResolvedScene {
     pub recorded: bool,
     /// Notes for the user (the scene file changed since the trace, or none was named).
     pub notes: Vec<String>,
+    /// What the scene file holds and the tracer does not honour ([`SceneFile::unsupported`]).
+    pub unsupported: Vec<String>,
+    /// What the scene was read from ([`SceneFile::content`]).
+    pub content: Vec<u8>,
 }
 
 /// The scene of `map`: `given` if set; else the file its trace record names, as recorded
@@ -32,9 +37,19 @@ pub struct ResolvedScene {
 /// names none (with a note). A named file that is found nowhere is an error; one whose text
 /// changed since the trace (its CRC-32 differs) is used with a note.
 pub fn for_map(map: Option<&MapView>, given: Option<&Path>) -> Result<ResolvedScene, SceneError> {
-    let resolved = |scene, name: String, recorded, notes| ResolvedScene { scene, name, recorded, notes };
+    let resolved = |f: SceneFile, recorded, mut notes: Vec<String>| {
+        notes.extend(f.notes);
+        ResolvedScene {
+            scene: f.scene,
+            name: f.name,
+            recorded,
+            notes,
+            unsupported: f.unsupported,
+            content: f.content,
+        }
+    };
     if let Some(p) = given {
-        return Ok(resolved(Scene::load(p)?, p.display().to_string(), true, Vec::new()));
+        return Ok(resolved(SceneFile::read(p)?, true, Vec::new()));
     }
     let record = map.and_then(|m| m.info().trace_record());
     let Some((map, record)) = map.zip(record) else {
@@ -47,11 +62,11 @@ pub fn for_map(map: Option<&MapView>, given: Option<&Path>) -> Result<ResolvedSc
             })
             .into_iter()
             .collect();
-        return Ok(resolved(Scene::default_scene(), DEFAULT_SCENE_NAME.into(), false, notes));
+        return Ok(resolved(SceneFile::default_scene(), false, notes));
     };
     let path = record.parameters.scene.as_str();
     if path == DEFAULT_SCENE_NAME {
-        return Ok(resolved(Scene::default_scene(), DEFAULT_SCENE_NAME.into(), true, Vec::new()));
+        return Ok(resolved(SceneFile::default_scene(), true, Vec::new()));
     }
     let map_dir = crate::format::folder_of(Path::new(map.file_name()));
     let from_map = record.report.scene_from_map.as_ref().map(|rel| map_dir.join(rel));
@@ -60,10 +75,8 @@ pub fn for_map(map: Option<&MapView>, given: Option<&Path>) -> Result<ResolvedSc
         .chain(std::iter::once(map_dir.join(path)))
         .find(|p| p.is_file())
         .ok_or_else(|| SceneError::NotFound { map: map.file_name().to_string(), scene: path.to_string() })?;
-    crate::format::guard::register_input(&found);
-    let text = std::fs::read_to_string(&found)
-        .map_err(|source| SceneError::Io { file: found.display().to_string(), source })?;
-    let crc = scene_crc32(&text);
+    let file = SceneFile::read(&found)?;
+    let crc = file.crc32();
     let mut notes = Vec::new();
     let recorded = &record.parameters.scene_crc32;
     if !recorded.is_empty() && *recorded != crc {
@@ -72,8 +85,7 @@ pub fn for_map(map: Option<&MapView>, given: Option<&Path>) -> Result<ResolvedSc
             found.display()
         ));
     }
-    let scene = Scene::parse(&text, &found.display().to_string(), crate::format::folder_of(&found))?;
-    Ok(resolved(scene, found.display().to_string(), true, notes))
+    Ok(resolved(file, true, notes))
 }
 
 #[cfg(test)]

@@ -70,14 +70,15 @@ impl Traced {
 }
 
 /// The metadata of a traced map: the scene's emitters and the `trace` stage record.
-/// `scene_label` names the scene file; `scene_text` is hashed ([`scene_crc32`]) so shards of
-/// different scenes are not merged.
+/// `scene_label` names the scene file; `scene_content` (a TOML file's text, a glTF file's
+/// bytes and its buffers': [`crate::scene::SceneFile::content`]) is hashed ([`scene_crc32`]) so
+/// shards of different scenes are not merged.
 pub fn map_info(
     scene: &Scene,
     opts: &TraceOptions,
     traced: &Traced,
     scene_label: &str,
-    scene_text: &str,
+    scene_content: &[u8],
 ) -> MapInfo {
     let mut info = MapInfo::new(scene.emitter_records(), State::Traced);
     let (photons, stored) = match opts.budget {
@@ -86,7 +87,7 @@ pub fn map_info(
     };
     let parameters = TraceParameters {
         scene: scene_label.to_string(),
-        scene_crc32: scene_crc32(scene_text),
+        scene_crc32: scene_crc32(scene_content),
         seed: opts.seed,
         store: match opts.store {
             StorePolicy::Caustic => "caustic",

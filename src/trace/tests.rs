@@ -69,7 +69,7 @@ fn spooled_photons_are_the_photons_held_in_memory() {
         let held = run(&scene, &opts);
         assert_eq!(held.store.spooled_count(), 0);
         assert_eq!(held.emitter_column, scene.emitters().len() > 1);
-        let info = map_info(&scene, &opts, &held, "default", "");
+        let info = map_info(&scene, &opts, &held, "default", b"");
         let want = dir.path().join("held.phm");
         held.write(Output::Path(want.clone()), info.clone()).unwrap();
         for memory in [1, held.stored * 30] {

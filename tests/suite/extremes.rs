@@ -51,7 +51,7 @@ fn pipeline(scene: &Scene, photons: u64, dir: &Path, mode: Mode) -> Run {
     let file = |s: &str| dir.join(s);
     let opts = TraceOptions { budget: Budget::Emitted(photons), ..TraceOptions::default() };
     let traced = trace::trace(scene, &opts, &|_, _| {}).expect("trace");
-    let info = trace::map_info(scene, &opts, &traced, "scaled", "");
+    let info = trace::map_info(scene, &opts, &traced, "scaled", b"");
     traced.write(Output::Path(file("traced.phm")), info).unwrap();
 
     let map = PhotonMap::open_path(&file("traced.phm")).unwrap();

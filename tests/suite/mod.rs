@@ -2,6 +2,7 @@ pub mod common;
 mod compare;
 mod extremes;
 mod format;
+mod gltf;
 mod import;
 mod phm_py;
 mod relax;

@@ -22,7 +22,7 @@ use crate::trace::{self, Budget, TraceOptions};
 pub(super) fn run_seed(
     scene: &Scene,
     scene_label: &str,
-    scene_text: &str,
+    scene_content: &[u8],
     target: &Target,
     o: &CompareOptions,
     work_dir: &Path,
@@ -36,7 +36,7 @@ pub(super) fn run_seed(
     let mut s = Seed { scene, target, o, work_dir, log, trace_secs: 0.0 };
     // Trace once for every map-based method.
     if o.methods.iter().any(|&m| m != MethodKind::Progressive) {
-        s.trace_secs = s.trace_shared(scene_label, scene_text)?;
+        s.trace_secs = s.trace_shared(scene_label, scene_content)?;
     }
     let wants = |m: MethodKind| o.methods.contains(&m);
     let mut rows = Vec::new();
@@ -93,7 +93,7 @@ impl Seed<'_> {
 
     /// Traces the shared map into `traced.phm` (only the bounce counts the truth accounts
     /// for kept); returns the seconds spent tracing.
-    fn trace_shared(&self, scene_label: &str, scene_text: &str) -> Result<f64, CompareError> {
+    fn trace_shared(&self, scene_label: &str, scene_content: &[u8]) -> Result<f64, CompareError> {
         let o = self.o;
         let topts =
             TraceOptions { seed: o.seed, budget: Budget::Emitted(o.photons), ..TraceOptions::default() };
@@ -110,7 +110,7 @@ impl Seed<'_> {
                 o.photons
             )));
         }
-        let info = trace::map_info(self.scene, &topts, &traced, scene_label, scene_text);
+        let info = trace::map_info(self.scene, &topts, &traced, scene_label, scene_content);
         traced.write(Output::Path(self.file("traced.phm")), info)?;
         (self.log)(Progress::Finished(&format!(
             "trace: {:.2} s, {} photons stored",

@@ -290,7 +290,7 @@ pub enum Progress<'a> {
 pub fn run(
     scene: &Scene,
     scene_label: &str,
-    scene_text: &str,
+    scene_content: &[u8],
     target: &Target,
     o: &CompareOptions,
     work_dir: &Path,
@@ -306,7 +306,7 @@ pub fn run(
             log(Progress::Finished(&format!("seed {} ({} of {})", o.seed + s as u64, s + 1, o.seeds)));
         }
         let os = CompareOptions { seed: o.seed + s as u64, ..o.clone() };
-        let these = methods::run_seed(scene, scene_label, scene_text, target, &os, work_dir, log)?;
+        let these = methods::run_seed(scene, scene_label, scene_content, target, &os, work_dir, log)?;
         if s == 0 {
             images = these.iter().map(|r| vec![pixels(&r.image)]).collect();
             rows = these;

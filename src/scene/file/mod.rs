@@ -6,6 +6,7 @@
 //! refusing the keys that do not apply to its kind.
 
 mod emitters;
+pub(super) use emitters::MAX_POWER_W;
 mod shapes;
 
 use std::collections::BTreeMap;

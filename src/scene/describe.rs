@@ -147,6 +147,15 @@ pub fn describe(scene: &Scene) -> String {
         Some(Background::Uniform(c)) => {
             let _ = writeln!(s, "background: uniform {} W/(m²·sr)", v(*c));
         }
+        Some(Background::Sky { zenith, horizon, ground }) => {
+            let _ = writeln!(
+                s,
+                "background: sky, zenith {}, horizon {}, ground {} W/(m²·sr)",
+                v(*zenith),
+                v(*horizon),
+                v(*ground)
+            );
+        }
         Some(Background::Image { path, strength, .. }) => {
             let _ = writeln!(s, "background: {} times {strength}", path.display());
         }

@@ -6,7 +6,7 @@
 //! error is taken over all three channels unless it says luminance.
 
 /// Luminance weights (Rec. 709) for the scalar measures (SSIM, edge detection).
-pub const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
+pub use crate::scene::material::LUMA;
 
 /// Luminance of a pixel.
 pub fn luminance(p: [f64; 3]) -> f64 {

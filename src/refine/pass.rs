@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use super::{RefineError, RefineParams, column};
 use crate::format::{MapView, name};
 use crate::relax::{clamp_step, project_on_basis, project_on_tangent};
+use crate::scene::material::luminance;
 use crate::spatial::{BoxTree, Neighbours};
 use crate::trace::Photons;
 
@@ -188,10 +189,6 @@ pub(super) fn neighbourhoods(positions: &[[f32; 3]], kf: usize) -> (Vec<f32>, Ve
             },
         )
         .unzip()
-}
-
-fn luminance(v: Vec3) -> f32 {
-    0.2126 * v.x + 0.7152 * v.y + 0.0722 * v.z
 }
 
 /// Step 3 of a pass, one iteration: Eq. 8's repulsion over the Kf nearest primal photons

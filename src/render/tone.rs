@@ -19,8 +19,11 @@ use glam::Vec3;
 
 use super::image::Image;
 
-/// Rec. 709 luminance weights of linear sRGB.
-const LUMA: Vec3 = Vec3::new(0.2126, 0.7152, 0.0722);
+/// Rec. 709 luminance weights of linear sRGB ([`crate::scene::material::LUMA`]).
+const LUMA: Vec3 = {
+    let w = crate::scene::material::LUMA;
+    Vec3::new(w[0] as f32, w[1] as f32, w[2] as f32)
+};
 
 /// The exposed value of the lit pixels' log-average luminance.
 pub const MID_GREY: f32 = 0.18;

@@ -149,6 +149,15 @@ pub fn fresnel_cosines(cos_i: f32, cos_t: f32, eta: f32) -> f32 {
 /// dimension records in the format).
 pub use crate::format::meta::WAVELENGTH_RANGE_NM;
 
+/// Rec. 709 luminance weights of linear sRGB: the luminance of (r, g, b) is their dot product
+/// with these (tone mapping, the error measures, the flux spread of refinement).
+pub const LUMA: [f64; 3] = [0.2126, 0.7152, 0.0722];
+
+/// The luminance of a linear sRGB colour ([`LUMA`]).
+pub fn luminance(c: Vec3) -> f32 {
+    c.dot(Vec3::new(LUMA[0] as f32, LUMA[1] as f32, LUMA[2] as f32))
+}
+
 /// Linear sRGB weight of a wavelength, scaled so that each channel averages 1 over
 /// [`WAVELENGTH_RANGE_NM`]: a white photon that takes a uniformly drawn wavelength and
 /// multiplies its flux by this keeps its expected RGB flux (so white light stays white).

@@ -375,10 +375,11 @@ pub fn convergence_markdown(runs: &[Run]) -> String {
                 let pts: Vec<(f64, f64)> = rows
                     .iter()
                     .filter_map(|r| {
-                        let e = r.regions.iter().find(|e| e.region == g)?;
+                        let e = r.regions.iter().find(|e| e.region == g && e.nrmse.is_finite())?;
                         Some((r.passes? as f64, e.nrmse))
                     })
                     .collect();
+                // A region with no pixels (no edge in the glass sphere's truth) has no row.
                 if pts.len() < 2 {
                     continue;
                 }

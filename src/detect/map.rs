@@ -154,6 +154,15 @@ impl<'a> PreparedInput<'a> {
     }
 }
 
+/// The emitters of `info` with the wavelength scales `scales` recorded.
+pub(super) fn with_spectral_scales(info: &mut crate::format::MapInfo, scales: &[Option<f32>]) {
+    for (e, s) in info.emitters.iter_mut().zip(scales) {
+        if let Some(s) = s {
+            *e = e.with_spectral_scale(*s as f64);
+        }
+    }
+}
+
 /// Per emitter, the scale of its wavelength component in parameter-space distances (`None`
 /// for an emitter without one): S·ℓ/(λmax − λmin), where ℓ is the root-mean-square distance
 /// of the emitter's photons' other parameters from their mean and [λmin, λmax] the
@@ -203,15 +212,30 @@ pub fn detected_map<'a>(
     p: &DetectParams,
     seconds: f64,
 ) -> Result<PhotonTable<'a>, DetectError> {
+    detected_map_with(map, d, record_parameters(p, &d.spectral_scales), seconds)
+}
+
+/// The parameters a detect record holds: `p`, and the spectral scale S when some emitter's
+/// wavelength was scaled (`scales`, [`Detection::spectral_scales`]).
+pub fn record_parameters(p: &DetectParams, scales: &[Option<f32>]) -> serde_json::Value {
+    let mut parameters = serde_json::to_value(p).unwrap_or_default();
+    if scales.iter().any(Option::is_some) {
+        parameters["spectral_scale"] = serde_json::json!(p.spectral_scale);
+    }
+    parameters
+}
+
+/// [`detected_map`] with the record's parameters given as they are recorded
+/// ([`record_parameters`]): how `photonkit merge` writes a map detected tile by tile.
+pub fn detected_map_with<'a>(
+    map: &MapView<'a>,
+    d: &Detection,
+    parameters: serde_json::Value,
+    seconds: f64,
+) -> Result<PhotonTable<'a>, DetectError> {
     let mut info = map.info().clone();
     info.state = State::Detected;
-    let mut parameters = serde_json::to_value(p).unwrap_or_default();
-    for (e, s) in info.emitters.iter_mut().zip(&d.spectral_scales) {
-        if let Some(s) = s {
-            *e = e.with_spectral_scale(*s as f64);
-            parameters["spectral_scale"] = serde_json::json!(p.spectral_scale);
-        }
-    }
+    with_spectral_scales(&mut info, &d.spectral_scales);
     let mut rec = StageRecord::now("detect", parameters);
     let s = &d.summary;
     rec.report = serde_json::json!({

@@ -42,6 +42,7 @@
 mod constraint;
 mod map;
 mod noise;
+mod part;
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -53,9 +54,11 @@ pub use constraint::{
     migration, noise_filter, pca_constraint, tangent_basis, v_factor,
 };
 pub use map::{
-    PreparedInput, choose_method, detect_map, detect_map_tile, detected_map, map_input, spectral_scales,
+    PreparedInput, choose_method, detect_map, detect_map_tile, detected_map, detected_map_with, map_input,
+    record_parameters, spectral_scales,
 };
 pub use noise::{NoiseModel, Row, SIMULATED, in_disc, lambda2_of, simulate};
+pub use part::{FACTOR, OUTCOME, PHOTON_INDEX, merge_parts, tile_part};
 
 use crate::format::FormatError;
 use crate::spatial::{Neighbours, ParamColumn, PointSet, Space, SpatialError, SpatialIndex};

@@ -240,7 +240,7 @@ fn bad_tiles_and_bad_parts_are_refused() {
     assert!(detect_tile(&inp, &p, &tiling, 2, &|_| {}).is_err());
     let a = detect_tile(&inp, &p, &tiling, 0, &|_| {}).unwrap();
     let b = detect_tile(&inp, &p, &tiling, 1, &|_| {}).unwrap();
-    assert!(assemble(m.len(), &[a.clone()]).unwrap_err().to_string().contains("in no tile"));
+    assert!(assemble(m.len(), std::slice::from_ref(&a)).unwrap_err().to_string().contains("in no tile"));
     assert!(
         assemble(m.len(), &[a.clone(), a.clone(), b.clone()]).unwrap_err().to_string().contains("two tiles")
     );

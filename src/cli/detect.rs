@@ -151,17 +151,17 @@ fn run_tile(
     detect::tile_part(map, &part, p, &prepared.scales, tile, seconds)?
         .write(Output::parse(output))
         .context("writing the tile part")?;
+    let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
     super::note!(
-        "detected tile {tile} ({}×{} over the map's box): {} of {} photons in {seconds:.2} s, with up to {} \
-         photons around them ({} round{} in world space, {} in parameter space)",
+        "detected tile {tile} ({}×{} over the map's box): {} of {} photons in {seconds:.2} s; photons \
+         measured per round of halos: {} ({} round{} in parameter space)",
         tiling.counts[0],
         tiling.counts[1],
         part.indices.len(),
         map.len(),
-        part.working_set,
-        part.rounds,
-        if part.rounds == 1 { "" } else { "s" },
-        part.param_rounds
+        if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") },
+        part.param_rounds,
+        if part.param_rounds == 1 { "" } else { "s" },
     );
     super::print_record(output)?;
     Ok(ExitCode::SUCCESS)

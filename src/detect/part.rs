@@ -54,6 +54,7 @@ pub fn tile_part(
         "rounds": t.rounds,
         "param_rounds": t.param_rounds,
         "working_set": t.working_set,
+        "per_round": t.per_round,
     });
     info.history.push(rec);
     // Every column of the map for the tile's photons (a part is the tile's map), then the

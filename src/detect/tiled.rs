@@ -40,6 +40,9 @@ pub struct TileDetection {
     pub param_rounds: u32,
     /// The most photons one round of the tile worked on (interior and halo).
     pub working_set: usize,
+    /// Per round of the world-space search: how many interior photons it measured, and how
+    /// many photons its working set held.
+    pub per_round: Vec<[usize; 2]>,
 }
 
 /// Rounds after which the halo is the whole map (a guard: doubling reaches it long before).
@@ -127,6 +130,7 @@ pub(super) fn detect_tile_with(
         let members: Vec<u32> =
             (0..n as u32).into_par_iter().filter(|&i| halo.contains(pos[i as usize])).collect();
         out.working_set = out.working_set.max(members.len());
+        out.per_round.push([pending.len(), members.len()]);
         // Labelled as the whole map labels them: Z-order on the map's box, ties by file index.
         let local = locality_order_in(&permuted(pos, &members, 1), tiling.lo, tiling.hi);
         let work: Vec<u32> = local.iter().map(|&k| members[k as usize]).collect();

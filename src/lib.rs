@@ -16,8 +16,9 @@
 //!
 //! Around it: [`import`] and [`export`] (PLY, CSV, Radiance), [`inspect`], and [`eval`]
 //! (ground truth, error metrics and the comparison of every method); beneath the scene,
-//! [`accel`] (the BVH and convex hulls that rays are cast against); and [`sampling`] (the
-//! Halton emission sequence and per-photon random streams).
+//! [`accel`] (the BVH and convex hulls that rays are cast against); [`sampling`] (the
+//! Halton emission sequence and per-photon random streams); and [`tiles`] (a map cut into
+//! spatial tiles with halos, processed tile by tile with the whole map's result).
 #![warn(missing_docs)]
 pub mod accel;
 pub mod detect;
@@ -34,4 +35,5 @@ pub mod sampling;
 pub mod scene;
 pub mod spatial;
 pub mod synthetic;
+pub mod tiles;
 pub mod trace;

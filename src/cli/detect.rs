@@ -6,7 +6,8 @@ use std::time::Instant;
 use anyhow::Context;
 use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::detect::{self, DetectParams, Method, NoiseModel};
-use photonkit::format::{Output, PhotonMap};
+use photonkit::format::{MapView, Output, PhotonMap};
+use photonkit::tiles::{TileSpec, Tiling};
 
 /// Detect features: a constraint basis per photon for `relax` (Eq. 1–7).
 ///
@@ -39,6 +40,17 @@ pub struct Args {
     /// implementation's normalisation; `paper` is the paper's fit at K = 100.
     #[arg(long, value_enum, default_value_t = NoiseArg::Simulated)]
     mu_sigma: NoiseArg,
+    /// Detect only tile i of n (from 0) and write a tile part: the tile's photons with their
+    /// detection and their indices in the map, for `photonkit merge --map INPUT PART…`. The
+    /// map's box is cut in its two longest axes into n cells (2 → 2×1, 4 → 2×2, 9 → 3×3); each
+    /// tile is measured with a halo wide enough that its photons get exactly the untiled
+    /// result, so the merged map is the one `detect INPUT -o OUT` writes (docs/tiles.md).
+    #[arg(long, value_name = "i/n", value_parser = parse_tile)]
+    tile: Option<TileSpec>,
+}
+
+fn parse_tile(s: &str) -> Result<TileSpec, String> {
+    s.parse().map_err(|e: photonkit::tiles::TileError| e.to_string())
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -92,6 +104,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .expect("valid template"),
     );
     let t = Instant::now();
+    if let Some(tile) = a.tile {
+        return run_tile(&map.view(), &p, tile, &a.output, bar, t);
+    }
     let d = detect::detect_map(&map.view(), &p, &|k| bar.inc(k))?;
     bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
@@ -115,5 +130,39 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         }
     );
     super::print_record(&a.output)?;
+    Ok(ExitCode::SUCCESS)
+}
+
+/// `--tile`: one tile's part.
+fn run_tile(
+    map: &MapView,
+    p: &DetectParams,
+    tile: TileSpec,
+    output: &str,
+    bar: ProgressBar,
+    t: Instant,
+) -> anyhow::Result<ExitCode> {
+    let tiling = Tiling::new(map.positions(), tile.grid());
+    let prepared = detect::PreparedInput::new(map, p)?;
+    bar.set_length(map.len().div_ceil(tiling.len()).max(1) as u64);
+    let part = detect::detect_map_tile(map, p, &tiling, tile.index, &|k| bar.inc(k))?;
+    bar.finish_and_clear();
+    let seconds = t.elapsed().as_secs_f64();
+    detect::tile_part(map, &part, p, &prepared.scales, tile, seconds)?
+        .write(Output::parse(output))
+        .context("writing the tile part")?;
+    let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
+    super::note!(
+        "detected tile {tile} ({}×{} over the map's box): {} of {} photons in {seconds:.2} s; photons \
+         measured per round of halos: {} ({} round{} in parameter space)",
+        tiling.counts[0],
+        tiling.counts[1],
+        part.indices.len(),
+        map.len(),
+        if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") },
+        part.param_rounds,
+        if part.param_rounds == 1 { "" } else { "s" },
+    );
+    super::print_record(output)?;
     Ok(ExitCode::SUCCESS)
 }

@@ -127,7 +127,7 @@ fn estimated_normal(offsets: &[DVec3]) -> DVec3 {
 }
 
 /// How a photon's constraint was decided.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Outcome {
     /// Computed from the neighbourhood.
@@ -137,7 +137,28 @@ pub enum Outcome {
     /// No extent in the tangent plane (r = 0 or all offsets along the normal): free.
     Coincident,
     /// Method `none`: free.
+    #[default]
     Unconstrained,
+}
+
+impl Outcome {
+    /// The outcome as one byte (a tile part's `detect_outcome` column): 0 measured, 1 too few,
+    /// 2 coincident, 3 unconstrained.
+    pub fn code(self) -> u8 {
+        match self {
+            Outcome::Measured => 0,
+            Outcome::TooFew => 1,
+            Outcome::Coincident => 2,
+            Outcome::Unconstrained => 3,
+        }
+    }
+
+    /// The outcome of [`Self::code`] `c`, `None` for a byte that is none.
+    pub fn from_code(c: u8) -> Option<Outcome> {
+        [Outcome::Measured, Outcome::TooFew, Outcome::Coincident, Outcome::Unconstrained]
+            .get(c as usize)
+            .copied()
+    }
 }
 
 /// One photon's constraint (Eq. 7), in world space.

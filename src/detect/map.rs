@@ -1,9 +1,13 @@
 //! Detection over a photon map: the columns it reads, the method it runs, the wavelength's
 //! scale, and the map it writes back.
 
-use super::{DetectError, DetectInput, DetectParams, Detection, Method, check_params, detect};
+use super::{
+    DetectError, DetectInput, DetectParams, Detection, Method, TileDetection, check_params, detect,
+    detect_tile,
+};
 use crate::format::{MapView, PhotonTable, StageRecord, State, name};
 use crate::spatial::ParamColumn;
+use crate::tiles::Tiling;
 
 /// The method to run on `map`: `requested` if given (an error if it is `param-pca` and the map
 /// has no trajectory parameters), else `param-pca`, or `world-pca` with a note to show the
@@ -70,37 +74,93 @@ pub fn detect_map(
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Detection, DetectError> {
     check_params(p)?;
-    let emitters = &map.info().emitters;
-    let dims: Vec<u32> = emitters.iter().map(|e| e.param_dims).collect();
-    let mut input = map_input(map)?;
-    input.params = input.params.map(|c| ParamColumn { dims: &dims, ..c });
-    // A wavelength component enters distances scaled (docs/spectral.md).
-    let mut scales = Vec::new();
-    let scaled = match input.params {
-        Some(c) if p.method == Method::ParamPca && emitters.iter().any(|e| e.is_spectral()) => {
-            scales = spectral_scales(emitters, c, input.emitters, p.spectral_scale);
-            // The factors relax will read back from the records write_detected makes.
-            let factors: Vec<Vec<f32>> = emitters
-                .iter()
-                .zip(&scales)
-                .map(|(e, s)| {
-                    s.map_or_else(|| e.param_scales(), |s| e.with_spectral_scale(s as f64).param_scales())
-                })
-                .collect();
-            Some(c.scaled(input.emitters, &factors))
-        }
-        _ => None,
-    };
-    if let (Some(values), Some(c)) = (scaled.as_deref(), input.params.as_mut()) {
-        c.values = values;
-    }
-    let mut d = detect(&input, p, progress).map_err(|e| match e {
+    let prepared = PreparedInput::new(map, p)?;
+    let mut d = detect(&prepared.input(), p, progress).map_err(|e| in_map(map, e))?;
+    d.spectral_scales = prepared.scales;
+    Ok(d)
+}
+
+/// [`detect_tile`] over a map: tile `tile` of `tiling` (made over the map's positions), with
+/// the parameters as [`detect_map`] reads them; exactly [`detect_map`]'s results for the
+/// tile's photons (docs/tiles.md).
+pub fn detect_map_tile(
+    map: &MapView,
+    p: &DetectParams,
+    tiling: &Tiling,
+    tile: usize,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<TileDetection, DetectError> {
+    check_params(p)?;
+    let prepared = PreparedInput::new(map, p)?;
+    detect_tile(&prepared.input(), p, tiling, tile, progress).map_err(|e| in_map(map, e))
+}
+
+/// An error of [`detect`] named after `map`.
+fn in_map(map: &MapView, e: DetectError) -> DetectError {
+    match e {
         DetectError::NoParameters { .. } => DetectError::NoParameters { file: map.file_name().into() },
         DetectError::Spatial(source) => DetectError::Photons { file: map.file_name().into(), source },
         e => e,
-    })?;
-    d.spectral_scales = scales;
-    Ok(d)
+    }
+}
+
+/// A map's columns as detection reads them: each emitter's parameter dimensions from the
+/// file's emitter list, and the wavelength component scaled where the map has one
+/// (docs/spectral.md; the scaled copy is owned here).
+pub struct PreparedInput<'a> {
+    base: DetectInput<'a>,
+    dims: Vec<u32>,
+    scaled: Option<Vec<f32>>,
+    /// Per emitter, the scale given to its wavelength ([`spectral_scales`]); empty when the
+    /// parameters are used as given.
+    pub scales: Vec<Option<f32>>,
+}
+
+impl<'a> PreparedInput<'a> {
+    /// The columns of `map` for a detection with `p`.
+    pub fn new(map: &MapView<'a>, p: &DetectParams) -> Result<Self, DetectError> {
+        let emitters = &map.info().emitters;
+        let dims: Vec<u32> = emitters.iter().map(|e| e.param_dims).collect();
+        let base = map_input(map)?;
+        let mut scales = Vec::new();
+        let scaled = match base.params {
+            Some(c) if p.method == Method::ParamPca && emitters.iter().any(|e| e.is_spectral()) => {
+                let c = ParamColumn { dims: &dims, ..c };
+                scales = spectral_scales(emitters, c, base.emitters, p.spectral_scale);
+                // The factors relax will read back from the records write_detected makes.
+                let factors: Vec<Vec<f32>> = emitters
+                    .iter()
+                    .zip(&scales)
+                    .map(|(e, s)| {
+                        s.map_or_else(|| e.param_scales(), |s| e.with_spectral_scale(s as f64).param_scales())
+                    })
+                    .collect();
+                Some(c.scaled(base.emitters, &factors))
+            }
+            _ => None,
+        };
+        Ok(PreparedInput { base, dims, scaled, scales })
+    }
+
+    /// The input to [`detect`] or [`detect_tile`].
+    pub fn input(&self) -> DetectInput<'_> {
+        let mut input = self.base;
+        input.params = input.params.map(|c| ParamColumn {
+            dims: &self.dims,
+            values: self.scaled.as_deref().unwrap_or(c.values),
+            ..c
+        });
+        input
+    }
+}
+
+/// The emitters of `info` with the wavelength scales `scales` recorded.
+pub(super) fn with_spectral_scales(info: &mut crate::format::MapInfo, scales: &[Option<f32>]) {
+    for (e, s) in info.emitters.iter_mut().zip(scales) {
+        if let Some(s) = s {
+            *e = e.with_spectral_scale(*s as f64);
+        }
+    }
 }
 
 /// Per emitter, the scale of its wavelength component in parameter-space distances (`None`
@@ -152,15 +212,30 @@ pub fn detected_map<'a>(
     p: &DetectParams,
     seconds: f64,
 ) -> Result<PhotonTable<'a>, DetectError> {
+    detected_map_with(map, d, record_parameters(p, &d.spectral_scales), seconds)
+}
+
+/// The parameters a detect record holds: `p`, and the spectral scale S when some emitter's
+/// wavelength was scaled (`scales`, [`Detection::spectral_scales`]).
+pub fn record_parameters(p: &DetectParams, scales: &[Option<f32>]) -> serde_json::Value {
+    let mut parameters = serde_json::to_value(p).unwrap_or_default();
+    if scales.iter().any(Option::is_some) {
+        parameters["spectral_scale"] = serde_json::json!(p.spectral_scale);
+    }
+    parameters
+}
+
+/// [`detected_map`] with the record's parameters given as they are recorded
+/// ([`record_parameters`]): how `photonkit merge` writes a map detected tile by tile.
+pub fn detected_map_with<'a>(
+    map: &MapView<'a>,
+    d: &Detection,
+    parameters: serde_json::Value,
+    seconds: f64,
+) -> Result<PhotonTable<'a>, DetectError> {
     let mut info = map.info().clone();
     info.state = State::Detected;
-    let mut parameters = serde_json::to_value(p).unwrap_or_default();
-    for (e, s) in info.emitters.iter_mut().zip(&d.spectral_scales) {
-        if let Some(s) = s {
-            *e = e.with_spectral_scale(*s as f64);
-            parameters["spectral_scale"] = serde_json::json!(p.spectral_scale);
-        }
-    }
+    with_spectral_scales(&mut info, &d.spectral_scales);
     let mut rec = StageRecord::now("detect", parameters);
     let s = &d.summary;
     rec.report = serde_json::json!({

@@ -42,6 +42,7 @@
 mod constraint;
 mod map;
 mod noise;
+mod part;
 
 use glam::DVec3;
 use rayon::prelude::*;
@@ -52,8 +53,12 @@ pub use constraint::{
     Eigen2, LAMBDA2_MIN, Neighbourhood, Outcome, PhotonConstraint, eigen2, erf, gradient_constraint,
     migration, noise_filter, pca_constraint, tangent_basis, v_factor,
 };
-pub use map::{choose_method, detect_map, detected_map, map_input, spectral_scales};
+pub use map::{
+    PreparedInput, choose_method, detect_map, detect_map_tile, detected_map, detected_map_with, map_input,
+    record_parameters, spectral_scales,
+};
 pub use noise::{NoiseModel, Row, SIMULATED, in_disc, lambda2_of, simulate};
+pub use part::{FACTOR, OUTCOME, PHOTON_INDEX, merge_parts, tile_part};
 
 use crate::format::FormatError;
 use crate::spatial::{Neighbours, ParamColumn, PointSet, Space, SpatialError, SpatialIndex};
@@ -323,20 +328,27 @@ pub fn param_radius(
                 points.prefetch(a as usize);
             }
             index.knn(&points.query(i as usize, None), k_density, &mut nb);
-            *r = match nb.max_dist2() {
-                Some(d2) => {
-                    let rk = (d2 as f64).sqrt();
-                    (beta as f64 * rk * (kc as f64 / nb.len() as f64).sqrt()) as f32
-                }
-                _ => 0.0,
-            };
+            *r = radius_of(&nb, kc, beta);
         }
         progress(ids.len() as u64);
     });
     for (&i, &r) in order.iter().zip(&found) {
-        radius[i as usize] = if r.is_finite() { r } else { f32::MAX };
+        radius[i as usize] = r;
     }
     Ok(radius)
+}
+
+/// Eq. 1's r_param from the result of a photon's parameter-space k-NN search: β·r_k·sqrt(Kc/m)
+/// for m neighbours found, 0 when none was, `f32::MAX` when not finite.
+fn radius_of(nb: &Neighbours, kc: usize, beta: f32) -> f32 {
+    let r = match nb.max_dist2() {
+        Some(d2) => {
+            let rk = (d2 as f64).sqrt();
+            (beta as f64 * rk * (kc as f64 / nb.len() as f64).sqrt()) as f32
+        }
+        _ => 0.0,
+    };
+    if r.is_finite() { r } else { f32::MAX }
 }
 
 /// Runs feature detection over `input` (see the module docs). `progress` receives increments
@@ -364,7 +376,7 @@ pub fn detect(
         params: input.params.zip(values.as_deref()).map(|(c, values)| ParamColumn { values, ..c }),
         emitters: emitters.as_deref(),
     };
-    let d = detect_in_order(&sorted, p, progress).map_err(|e| match e {
+    let (d, factors, outcomes) = detect_in_order(&sorted, p, progress).map_err(|e| match e {
         DetectError::Spatial(e) => DetectError::Spatial(e.in_file_order(&order)),
         e => e,
     })?;
@@ -374,8 +386,31 @@ pub fn detect(
         lambda2: unpermuted(&d.lambda2, &order),
         r_param: d.r_param.map(|r| unpermuted(&r, &order)),
         spectral_scales: Vec::new(),
-        summary: d.summary,
+        summary: summarise(&unpermuted(&factors, &order), &unpermuted(&outcomes, &order)),
     })
+}
+
+/// The report's counts over photons given in file order: each photon's Eq. 7 factor and how
+/// its constraint was decided. The mean factor is summed in this order, so a map assembled
+/// from tiles ([`tiled`], [`assemble`]) reports the same bits as the whole map.
+pub fn summarise(factors: &[f32], outcomes: &[Outcome]) -> Summary {
+    let n = factors.len();
+    let mut s = Summary { photons: n, ..Default::default() };
+    let mut factor_sum = 0.0f64;
+    for (&f, o) in factors.iter().zip(outcomes) {
+        factor_sum += f as f64;
+        match o {
+            Outcome::Measured => s.measured += 1,
+            Outcome::TooFew => s.too_few += 1,
+            Outcome::Coincident => s.coincident += 1,
+            Outcome::Unconstrained => {}
+        }
+        if f < 0.5 {
+            s.constrained += 1;
+        }
+    }
+    s.mean_factor = if n > 0 { factor_sum / n as f64 } else { 0.0 };
+    s
 }
 
 /// Photons whose factor is below this are measured again in a grown ball when theirs binds.
@@ -410,14 +445,13 @@ fn ball_binds(points: &PointSet, i: usize, nb: &Neighbours, radius: f32, outer: 
     false
 }
 
-/// [`detect`] on photons in the order given.
-// Long because each photon's search, constraint and ball growth run inside one parallel loop
-// over chunks that shares its buffers and prefetches between them.
+/// [`detect`] on photons in the order given, with each photon's factor and outcome (in the
+/// same order) for the report.
 fn detect_in_order(
     input: &DetectInput,
     p: &DetectParams,
     progress: &(dyn Fn(u64) + Sync),
-) -> Result<Detection, DetectError> {
+) -> Result<(Detection, Vec<f32>, Vec<Outcome>), DetectError> {
     let n = input.positions.len();
     let has_params = input.has_params();
     if p.method == Method::ParamPca && !has_params {
@@ -432,7 +466,42 @@ fn detect_in_order(
         None
     };
     let normals_ok = input.normals.is_some_and(|ns| ns.iter().all(|&n| unit_normal(n).is_some()));
-    let (points, space) = match p.method {
+    let (points, index) = world_index(input, p.method, normals_ok)?;
+    let order: Vec<u32> = index.as_ref().map_or_else(|| (0..n as u32).collect(), |ix| ix.order());
+    let results =
+        measure(input, &points, index.as_ref(), &order, r_param.as_deref(), p, &|_, _| true, progress);
+    let mut d = Detection {
+        basis_u: vec![[0.0; 3]; n],
+        basis_v: vec![[0.0; 3]; n],
+        lambda2: vec![0.0; n],
+        r_param,
+        spectral_scales: Vec::new(),
+        summary: Summary::default(),
+    };
+    let mut factors = vec![0f32; n];
+    let mut outcomes = vec![Outcome::Unconstrained; n];
+    for (&i, m) in order.iter().zip(&results) {
+        let i = i as usize;
+        if let Some(r) = &mut d.r_param {
+            r[i] = m.radius;
+        }
+        d.basis_u[i] = m.constraint.u;
+        d.basis_v[i] = m.constraint.v;
+        d.lambda2[i] = m.constraint.lambda2;
+        factors[i] = m.constraint.factor;
+        outcomes[i] = m.constraint.outcome;
+    }
+    Ok((d, factors, outcomes))
+}
+
+/// The point set the neighbourhood search of `method` runs over, and its index (`None` for
+/// method `none` with usable normals: nothing is searched).
+fn world_index<'a>(
+    input: &DetectInput<'a>,
+    method: Method,
+    normals_ok: bool,
+) -> Result<(PointSet<'a>, Option<SpatialIndex>), DetectError> {
+    let (points, space) = match method {
         Method::ParamPca => (input.points(true), Some(Space::WorldParams)),
         Method::WorldPca | Method::Gradient => (input.points(false), Some(Space::World)),
         Method::None if normals_ok => (input.points(false), None),
@@ -442,12 +511,46 @@ fn detect_in_order(
         Some(s) => Some(SpatialIndex::build(&points, s)?),
         None => None,
     };
-    let order: Vec<u32> = index.as_ref().map_or_else(|| (0..n as u32).collect(), |ix| ix.order());
-    let mut results = vec![(PhotonConstraint::free(DVec3::X, DVec3::Y, Outcome::Unconstrained), 0f32); n];
-    results.par_chunks_mut(CHUNK).zip(order.par_chunks(CHUNK)).for_each(|(out, ids)| {
-        // The PCA and the gradient need the neighbours, not their order (one buffer per chunk:
-        // the order is the same whatever the thread count).
-        let mut nb = Neighbours::unordered(p.kc);
+    Ok((points, index))
+}
+
+/// One photon's measurement: its constraint, the parameter radius finally used (0 without
+/// one), and whether every search it made was certified.
+#[derive(Clone, Copy, Debug)]
+struct Measured {
+    constraint: PhotonConstraint,
+    radius: f32,
+    certified: bool,
+}
+
+/// A certificate for one search: given the photon and the neighbours found, whether they are
+/// the ones the whole map gives (always, over the whole map; docs/tiles.md in a tile).
+type Certify<'c> = &'c (dyn Fn(usize, &Neighbours) -> bool + Sync);
+
+/// Steps 2–3 of the module docs for the photons `queries` of `input` (labels of `points`,
+/// which `index` is built over), each with the radius `r_param[i]` when given: the
+/// constraint, the radius finally used, and whether `certify` accepted every search.
+///
+/// The neighbours are taken sorted by (distance, label), so every sum over them runs in an
+/// order that depends only on the photons, not on the tree or the queries before: a tile
+/// whose labels keep the whole map's order gets the same bits (docs/tiles.md).
+// Long because each photon's search, constraint and ball growth run inside one parallel loop
+// over chunks that shares its buffers and prefetches between them.
+#[allow(clippy::too_many_arguments)]
+fn measure(
+    input: &DetectInput,
+    points: &PointSet,
+    index: Option<&SpatialIndex>,
+    queries: &[u32],
+    r_param: Option<&[f32]>,
+    p: &DetectParams,
+    certify: Certify,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Vec<Measured> {
+    let free = PhotonConstraint::free(DVec3::X, DVec3::Y, Outcome::Unconstrained);
+    let mut results = vec![Measured { constraint: free, radius: 0.0, certified: true }; queries.len()];
+    results.par_chunks_mut(CHUNK).zip(queries.par_chunks(CHUNK)).for_each(|(out, ids)| {
+        let mut nb = Neighbours::with_capacity(p.kc);
         let (mut offsets, mut weights, mut scratch) = (Vec::new(), Vec::new(), Vec::new());
         let mut outer = Vec::new();
         for (o, (res, &i)) in out.iter_mut().zip(ids).enumerate() {
@@ -460,20 +563,22 @@ fn detect_in_order(
                 if let Some(n) = input.normals.and_then(|ns| ns.get(a)) {
                     crate::spatial::prefetch(n);
                 }
-                if let Some(r) = r_param.as_ref().and_then(|r| r.get(a)) {
+                if let Some(r) = r_param.and_then(|r| r.get(a)) {
                     crate::spatial::prefetch(r);
                 }
             }
             let normal = input.normals.map(|ns| ns[i]);
-            let Some(index) = &index else {
+            let Some(index) = index else {
                 let (t1, t2) = tangent_basis(normal.and_then(unit_normal).unwrap_or(DVec3::Z));
-                *res = (PhotonConstraint::free(t1, t2, Outcome::Unconstrained), 0.0);
+                res.constraint = PhotonConstraint::free(t1, t2, Outcome::Unconstrained);
                 continue;
             };
-            let mut radius = r_param.as_ref().map(|r| r[i]);
+            let mut radius = r_param.map(|r| r[i]);
             let mut growths = 0;
+            let mut certified = true;
             loop {
                 index.knn(&points.query(i, radius), p.kc, &mut nb);
+                certified &= certify(i, &nb);
                 let xi = input.positions[i];
                 offsets.clear();
                 // The index's copy of the neighbours' positions, already in cache from the search.
@@ -502,13 +607,13 @@ fn detect_in_order(
                     Some(r)
                         if growths < p.growths
                             && c.factor < GROWN_BELOW
-                            && ball_binds(&points, i, &nb, r, &mut outer) =>
+                            && ball_binds(points, i, &nb, r, &mut outer) =>
                     {
                         radius = Some(r * 2.0);
                         growths += 1;
                     }
                     _ => {
-                        *res = (c, radius.unwrap_or(0.0));
+                        *res = Measured { constraint: c, radius: radius.unwrap_or(0.0), certified };
                         break;
                     }
                 }
@@ -516,38 +621,11 @@ fn detect_in_order(
         }
         progress(ids.len() as u64);
     });
-    let mut d = Detection {
-        basis_u: vec![[0.0; 3]; n],
-        basis_v: vec![[0.0; 3]; n],
-        lambda2: vec![0.0; n],
-        r_param,
-        spectral_scales: Vec::new(),
-        summary: Summary { photons: n, ..Default::default() },
-    };
-    let mut factor_sum = 0.0f64;
-    for (&i, (c, radius)) in order.iter().zip(&results) {
-        let i = i as usize;
-        if let Some(r) = &mut d.r_param {
-            r[i] = *radius;
-        }
-        d.basis_u[i] = c.u;
-        d.basis_v[i] = c.v;
-        d.lambda2[i] = c.lambda2;
-        factor_sum += c.factor as f64;
-        let s = &mut d.summary;
-        match c.outcome {
-            Outcome::Measured => s.measured += 1,
-            Outcome::TooFew => s.too_few += 1,
-            Outcome::Coincident => s.coincident += 1,
-            Outcome::Unconstrained => {}
-        }
-        if c.factor < 0.5 {
-            s.constrained += 1;
-        }
-    }
-    d.summary.mean_factor = if n > 0 { factor_sum / n as f64 } else { 0.0 };
-    Ok(d)
+    results
 }
+
+mod tiled;
+pub use tiled::{TileDetection, assemble, detect_tile, tiled};
 
 #[cfg(test)]
 mod tests;

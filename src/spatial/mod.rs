@@ -188,7 +188,7 @@ impl<'a> PointSet<'a> {
         }
     }
 
-    fn check(&self, space: Space) -> Result<(), SpatialError> {
+    pub(crate) fn check(&self, space: Space) -> Result<(), SpatialError> {
         let n = self.positions.len();
         if n >= u32::MAX as usize {
             return Err(SpatialError::TooMany { count: n });

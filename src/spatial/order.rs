@@ -15,6 +15,13 @@ use rayon::prelude::*;
 /// Non-finite coordinates are placed as if at the box's low corner (the stages reject them
 /// before they matter).
 pub fn locality_order(positions: &[[f32; 3]]) -> Vec<u32> {
+    let (lo, hi) = finite_bounds(positions);
+    locality_order_in(positions, lo, hi)
+}
+
+/// The box (low and high corners) of the finite coordinates of `positions`, per axis
+/// (+∞ and −∞ on an axis without any).
+pub fn finite_bounds(positions: &[[f32; 3]]) -> ([f32; 3], [f32; 3]) {
     let mut lo = [f32::INFINITY; 3];
     let mut hi = [f32::NEG_INFINITY; 3];
     for p in positions {
@@ -25,6 +32,14 @@ pub fn locality_order(positions: &[[f32; 3]]) -> Vec<u32> {
             }
         }
     }
+    (lo, hi)
+}
+
+/// [`locality_order`] with the Z-order keys taken on the box `lo`–`hi` instead of the
+/// positions' own. A subset of a map listed in file order and ordered on the *map's* box
+/// ([`finite_bounds`] of the map) is visited in the order the whole map's [`locality_order`]
+/// visits those photons: a tile labels its photons as the whole map does (docs/tiles.md).
+pub fn locality_order_in(positions: &[[f32; 3]], lo: [f32; 3], hi: [f32; 3]) -> Vec<u32> {
     const CELLS: f64 = ((1u32 << 21) - 1) as f64;
     let scale: [f64; 3] = std::array::from_fn(|a| {
         let e = hi[a] as f64 - lo[a] as f64;

@@ -10,5 +10,6 @@ mod render;
 mod safety;
 mod samples;
 mod stages;
+mod tiles;
 mod trace;
 mod truth;

@@ -1,0 +1,436 @@
+//! Detection tile by tile, exact against the whole map (docs/tiles.md).
+//!
+//! A tile's interior photons are measured over the tile's working set (the photons within a
+//! halo around it); each search is certified (its farthest result closer than anything left
+//! out), and the photons whose searches are not all certified are measured again with the halo
+//! doubled, so every interior photon ends with exactly the whole map's result. Eq. 1's density
+//! is found the same way in parameter space, where neighbours can lie anywhere on the surface.
+
+use rayon::prelude::*;
+
+use super::{
+    CHUNK, DetectError, DetectInput, DetectParams, Detection, Measured, Method, Outcome, check_params,
+    measure, radius_of, summarise, unit_normal, world_index,
+};
+use crate::spatial::order::{locality_order_in, permuted};
+use crate::spatial::{MAX_PARAM_DIMS, Neighbours, ParamColumn, PointSet, Space, SpatialIndex};
+use crate::tiles::{Tiling, within_margin};
+
+/// The detection of one tile's interior photons, in file order, with what the whole map's
+/// report needs of each ([`assemble`] puts tiles together).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TileDetection {
+    /// The interior photons' indices in the map, ascending.
+    pub indices: Vec<u32>,
+    /// u_b (Eq. 7) of each.
+    pub basis_u: Vec<[f32; 3]>,
+    /// v_b (Eq. 7) of each, its length the factor.
+    pub basis_v: Vec<[f32; 3]>,
+    /// λ2 of each.
+    pub lambda2: Vec<f32>,
+    /// r_param of each, for method `param-pca` on a map with parameters.
+    pub r_param: Option<Vec<f32>>,
+    /// The Eq. 7 factor of each, as the report sums it.
+    pub factor: Vec<f32>,
+    /// How each constraint was decided.
+    pub outcome: Vec<Outcome>,
+    /// Rounds of the world-space search (1: the first halo certified every photon).
+    pub rounds: u32,
+    /// Rounds of the parameter-space density (0 when there is none).
+    pub param_rounds: u32,
+    /// The most photons one round of the tile worked on (interior and halo).
+    pub working_set: usize,
+    /// Per round of the world-space search: how many interior photons it measured, and how
+    /// many photons its working set held.
+    pub per_round: Vec<[usize; 2]>,
+}
+
+/// Rounds after which the halo is the whole map (a guard: doubling reaches it long before).
+const MAX_ROUNDS: u32 = 48;
+
+/// Detection of tile `tile` of `tiling` over `input` (the whole map, in file order): each
+/// interior photon's result is bit for bit the one [`super::detect`] gives it over the whole
+/// map (docs/tiles.md). The map-wide quantities (Kc capped at the map's photons, whether it
+/// has parameters, whether all normals are usable) are taken from the whole input, and its
+/// photons are checked as the whole map's are, so a tile fails where the whole map fails.
+pub fn detect_tile(
+    input: &DetectInput,
+    p: &DetectParams,
+    tiling: &Tiling,
+    tile: usize,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<TileDetection, DetectError> {
+    detect_tile_with(input, p, tiling, tile, Options::default(), progress)
+}
+
+/// How [`detect_tile_with`] sizes and checks its halos (for tests: the defaults are the only
+/// exact choice of `certify`).
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Options {
+    /// The first halos' widths as multiples of the default ones.
+    pub halo_scale: f64,
+    /// Whether searches are certified; without, the first halo's results are kept, exact or
+    /// not.
+    pub certify: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { halo_scale: 1.0, certify: true }
+    }
+}
+
+/// [`detect_tile`] with [`Options`].
+pub(super) fn detect_tile_with(
+    input: &DetectInput,
+    p: &DetectParams,
+    tiling: &Tiling,
+    tile: usize,
+    opts: Options,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<TileDetection, DetectError> {
+    check_params(p)?;
+    if tile >= tiling.len() {
+        return Err(DetectError::Parameter(format!("tile {tile} of a tiling of {}", tiling.len())));
+    }
+    let n = input.positions.len();
+    let p = &p.capped(n);
+    let has_params = input.has_params();
+    if p.method == Method::ParamPca && !has_params {
+        return Err(DetectError::NoParameters { file: "<input>".into() });
+    }
+    let param_search = has_params && p.method == Method::ParamPca;
+    let normals_ok = input.normals.is_some_and(|ns| ns.iter().all(|&n| unit_normal(n).is_some()));
+    if param_search {
+        input.points(true).check(Space::Params)?;
+    } else if !(p.method == Method::None && normals_ok) {
+        input.points(false).check(Space::World)?;
+    }
+    let pos = input.positions;
+    let interior: Vec<u32> =
+        (0..n as u32).into_par_iter().filter(|&i| tiling.tile_of(pos[i as usize]) == tile).collect();
+    let mut out = TileDetection { r_param: param_search.then(Vec::new), ..Default::default() };
+    if interior.is_empty() {
+        return Ok(out);
+    }
+    let (r_param, param_rounds) = if param_search {
+        let (r, rounds) = tile_radius(input, &interior, p, opts)?;
+        (Some(r), rounds)
+    } else {
+        (None, 0)
+    };
+    let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
+    let mut h = opts.halo_scale * 3.0 * extent * (p.kc as f64 / n as f64).sqrt();
+    let mut pending: Vec<usize> = (0..interior.len()).collect();
+    let mut done: Vec<Option<Measured>> = vec![None; interior.len()];
+    let mut rounds = 0u32;
+    while !pending.is_empty() {
+        rounds += 1;
+        let halo = tiling.halo_box(tile, if rounds >= MAX_ROUNDS { f64::INFINITY } else { h });
+        let members: Vec<u32> =
+            (0..n as u32).into_par_iter().filter(|&i| halo.contains(pos[i as usize])).collect();
+        out.working_set = out.working_set.max(members.len());
+        out.per_round.push([pending.len(), members.len()]);
+        // Labelled as the whole map labels them: Z-order on the map's box, ties by file index.
+        let local = locality_order_in(&permuted(pos, &members, 1), tiling.lo, tiling.hi);
+        let work: Vec<u32> = local.iter().map(|&k| members[k as usize]).collect();
+        let mut label_of_member = vec![0u32; members.len()];
+        for (label, &k) in local.iter().enumerate() {
+            label_of_member[k as usize] = label as u32;
+        }
+        let label = |g: u32| {
+            members.binary_search(&g).map(|k| label_of_member[k]).expect("interior photons are members")
+        };
+        let positions = permuted(pos, &work, 1);
+        let normals = input.normals.map(|v| permuted(v, &work, 1));
+        let flux = input.flux.filter(|_| p.method == Method::Gradient).map(|v| permuted(v, &work, 1));
+        let emitters = input.emitters.map(|v| permuted(v, &work, 1));
+        let values = input.params.map(|c| permuted(c.values, &work, c.stride));
+        let sorted = DetectInput {
+            positions: &positions,
+            normals: normals.as_deref(),
+            flux: flux.as_deref(),
+            params: input.params.zip(values.as_deref()).map(|(c, values)| ParamColumn { values, ..c }),
+            emitters: emitters.as_deref(),
+        };
+        let (points, index) = world_index(&sorted, p.method, normals_ok)?;
+        let mut queries: Vec<(u32, usize)> = pending.iter().map(|&q| (label(interior[q]), q)).collect();
+        queries.sort_unstable();
+        let labels: Vec<u32> = queries.iter().map(|&(l, _)| l).collect();
+        let radius = r_param.as_ref().map(|r| {
+            let mut v = vec![0f32; work.len()];
+            for &(l, q) in &queries {
+                v[l as usize] = r[q];
+            }
+            v
+        });
+        let whole = halo.is_whole();
+        let certify = |i: usize, nb: &Neighbours| {
+            whole
+                || !opts.certify
+                || (nb.len() == p.kc
+                    && nb.max_dist2().is_some_and(|d2| within_margin(d2, halo.margin(positions[i]))))
+        };
+        let results =
+            measure(&sorted, &points, index.as_ref(), &labels, radius.as_deref(), p, &certify, &|_| {});
+        pending.clear();
+        for (&(_, q), m) in queries.iter().zip(results) {
+            if m.certified {
+                done[q] = Some(m);
+            } else {
+                pending.push(q);
+            }
+        }
+        pending.sort_unstable();
+        h *= 2.0;
+    }
+    progress(interior.len() as u64);
+    let done: Vec<Measured> = done.into_iter().map(|m| m.expect("every photon certified")).collect();
+    out.basis_u = done.iter().map(|m| m.constraint.u).collect();
+    out.basis_v = done.iter().map(|m| m.constraint.v).collect();
+    out.lambda2 = done.iter().map(|m| m.constraint.lambda2).collect();
+    out.factor = done.iter().map(|m| m.constraint.factor).collect();
+    out.outcome = done.iter().map(|m| m.constraint.outcome).collect();
+    out.r_param = r_param.map(|_| done.iter().map(|m| m.radius).collect());
+    out.indices = interior;
+    out.rounds = rounds;
+    out.param_rounds = param_rounds;
+    Ok(out)
+}
+
+/// Per emitter: its photons' count and the range of each parameter component.
+#[derive(Clone, Copy, Debug)]
+struct Range {
+    count: usize,
+    lo: [f32; MAX_PARAM_DIMS],
+    hi: [f32; MAX_PARAM_DIMS],
+}
+
+impl Default for Range {
+    fn default() -> Self {
+        Range { count: 0, lo: [f32::INFINITY; MAX_PARAM_DIMS], hi: [f32::NEG_INFINITY; MAX_PARAM_DIMS] }
+    }
+}
+
+impl Range {
+    fn add(&mut self, q: &[f32]) {
+        self.count += 1;
+        for (c, &v) in q.iter().enumerate() {
+            self.lo[c] = self.lo[c].min(v);
+            self.hi[c] = self.hi[c].max(v);
+        }
+    }
+}
+
+/// Each emitter's [`Range`] over `photons` (all of them when `None`).
+fn ranges(points: &PointSet, photons: Option<&[u32]>) -> Vec<Range> {
+    let emitters = points.emitters.map_or(1, |e| e.iter().max().map_or(1, |&m| m as usize + 1));
+    let mut r = vec![Range::default(); emitters];
+    let mut add = |i: usize| r[points.emitter(i) as usize].add(points.params_of(i));
+    match photons {
+        Some(ids) => ids.iter().for_each(|&i| add(i as usize)),
+        None => (0..points.len()).for_each(add),
+    }
+    r
+}
+
+/// A box in one emitter's parameter space: the interior photons' range grown by a margin,
+/// ±∞ on the sides beyond which the emitter has no photon.
+#[derive(Clone, Copy, Debug)]
+struct ParamBox {
+    dims: usize,
+    lo: [f64; MAX_PARAM_DIMS],
+    hi: [f64; MAX_PARAM_DIMS],
+}
+
+impl ParamBox {
+    fn grown(inner: &Range, all: &Range, dims: usize, h: f64) -> Self {
+        let mut b =
+            ParamBox { dims, lo: [f64::NEG_INFINITY; MAX_PARAM_DIMS], hi: [f64::INFINITY; MAX_PARAM_DIMS] };
+        for c in 0..dims {
+            let (l, u) = (inner.lo[c] as f64 - h, inner.hi[c] as f64 + h);
+            if l > all.lo[c] as f64 {
+                b.lo[c] = l;
+            }
+            if u < all.hi[c] as f64 {
+                b.hi[c] = u;
+            }
+        }
+        b
+    }
+
+    fn contains(&self, q: &[f32]) -> bool {
+        q.iter().take(self.dims).enumerate().all(|(c, &v)| self.lo[c] <= v as f64 && v as f64 <= self.hi[c])
+    }
+
+    fn is_whole(&self) -> bool {
+        (0..self.dims).all(|c| self.lo[c].is_infinite() && self.hi[c].is_infinite())
+    }
+
+    /// The distance from `q` (inside) to the outside: photons outside lie strictly farther.
+    fn margin(&self, q: &[f32]) -> f64 {
+        q.iter()
+            .take(self.dims)
+            .enumerate()
+            .map(|(c, &v)| (v as f64 - self.lo[c]).min(self.hi[c] - v as f64))
+            .fold(f64::INFINITY, f64::min)
+    }
+}
+
+/// Eq. 1's r_param of each photon of `interior` (file indices of `input`), exactly as
+/// [`super::param_radius`] over the whole map gives it: the k nearest in parameter space are
+/// searched among the photons of the emitter whose parameters lie in the interior's box grown
+/// by h_p, certified against that box's margin, and searched again with h_p doubled where not.
+/// Also how many rounds that took.
+fn tile_radius(
+    input: &DetectInput,
+    interior: &[u32],
+    p: &DetectParams,
+    opts: Options,
+) -> Result<(Vec<f32>, u32), DetectError> {
+    let points = input.points(true);
+    let Some(column) = input.params else { return Ok((vec![0.0; interior.len()], 0)) };
+    let k = p.k_density.unwrap_or(p.kc);
+    let all = ranges(&points, None);
+    let inner = ranges(&points, Some(interior));
+    let dims = |e: usize| column.dims_of(e as u16).min(MAX_PARAM_DIMS);
+    let mut radius = vec![0f32; interior.len()];
+    // Photons of emitters without parameters keep r_param = 0, as the whole map gives them.
+    let mut pending: Vec<usize> =
+        (0..interior.len()).filter(|&q| dims(points.emitter(interior[q] as usize) as usize) > 0).collect();
+    let mut rounds = 0u32;
+    let mut scale = 2.0 * opts.halo_scale;
+    while !pending.is_empty() {
+        rounds += 1;
+        let boxes: Vec<ParamBox> = (0..all.len())
+            .map(|e| {
+                let d = dims(e);
+                let extent = (0..d).map(|c| all[e].hi[c] as f64 - all[e].lo[c] as f64).fold(0.0, f64::max);
+                let h = if rounds >= MAX_ROUNDS {
+                    f64::INFINITY
+                } else {
+                    scale * extent * (k as f64 / all[e].count.max(1) as f64).sqrt()
+                };
+                ParamBox::grown(&inner[e], &all[e], d, h)
+            })
+            .collect();
+        let active: Vec<bool> = {
+            let mut a = vec![false; all.len()];
+            pending.iter().for_each(|&q| a[points.emitter(interior[q] as usize) as usize] = true);
+            a
+        };
+        let members: Vec<u32> = (0..points.len() as u32)
+            .into_par_iter()
+            .filter(|&j| {
+                let e = points.emitter(j as usize) as usize;
+                active[e] && boxes[e].contains(points.params_of(j as usize))
+            })
+            .collect();
+        let positions = permuted(input.positions, &members, 1);
+        let values = permuted(column.values, &members, column.stride);
+        let emitters = input.emitters.map(|e| permuted(e, &members, 1));
+        let sub = PointSet {
+            positions: &positions,
+            params: Some(ParamColumn { values: &values, ..column }),
+            emitters: emitters.as_deref(),
+        };
+        let index = SpatialIndex::build(&sub, Space::Params)?;
+        let found: Vec<(f32, bool)> = pending
+            .par_chunks(CHUNK)
+            .flat_map_iter(|qs| {
+                let mut nb = Neighbours::farthest_only(k);
+                qs.iter()
+                    .map(|&q| {
+                        let g = interior[q];
+                        let l = members.binary_search(&g).expect("interior photons are candidates");
+                        index.knn(&sub.query(l, None), k, &mut nb);
+                        let b = &boxes[points.emitter(g as usize) as usize];
+                        let certified = b.is_whole()
+                            || !opts.certify
+                            || (nb.len() == k
+                                && nb.max_dist2().is_some_and(|d2| {
+                                    within_margin(d2, b.margin(points.params_of(g as usize)))
+                                }));
+                        (radius_of(&nb, p.kc, p.beta), certified)
+                    })
+                    .collect::<Vec<_>>()
+            })
+            .collect();
+        let mut next = Vec::new();
+        for (&q, &(r, certified)) in pending.iter().zip(&found) {
+            if certified {
+                radius[q] = r;
+            } else {
+                next.push(q);
+            }
+        }
+        pending = next;
+        scale *= 2.0;
+    }
+    Ok((radius, rounds))
+}
+
+/// Detection of the whole map tile by tile: [`detect_tile`] for each tile of `tiling`, put
+/// together by [`assemble`]. Bit for bit what [`super::detect`] gives (docs/tiles.md).
+pub fn tiled(
+    input: &DetectInput,
+    p: &DetectParams,
+    tiling: &Tiling,
+    progress: &(dyn Fn(u64) + Sync),
+) -> Result<Detection, DetectError> {
+    let parts = (0..tiling.len())
+        .map(|t| detect_tile(input, p, tiling, t, progress))
+        .collect::<Result<Vec<_>, _>>()?;
+    assemble(input.positions.len(), &parts)
+}
+
+/// The detection of a map of `n` photons from its tiles' parts (in any order): an error unless
+/// every photon is in exactly one part and the parts agree on having r_param.
+pub fn assemble(n: usize, parts: &[TileDetection]) -> Result<Detection, DetectError> {
+    let bad = |m: String| Err(DetectError::Parameter(m));
+    let with_r = parts.first().is_some_and(|t| t.r_param.is_some());
+    if parts.iter().any(|t| t.r_param.is_some() != with_r) {
+        return bad("the tiles disagree on having r_param".into());
+    }
+    let mut d = Detection {
+        basis_u: vec![[0.0; 3]; n],
+        basis_v: vec![[0.0; 3]; n],
+        lambda2: vec![0.0; n],
+        r_param: with_r.then(|| vec![0.0; n]),
+        ..Default::default()
+    };
+    let mut factors = vec![0f32; n];
+    let mut outcomes = vec![Outcome::Unconstrained; n];
+    let mut seen = vec![false; n];
+    for t in parts {
+        let len = t.indices.len();
+        if [t.basis_u.len(), t.basis_v.len(), t.lambda2.len(), t.factor.len(), t.outcome.len()]
+            .iter()
+            .chain(t.r_param.as_ref().map(|r| r.len()).as_ref())
+            .any(|&l| l != len)
+        {
+            return bad("a tile's columns differ in length".into());
+        }
+        for (k, &i) in t.indices.iter().enumerate() {
+            let i = i as usize;
+            match seen.get_mut(i) {
+                None => return bad(format!("photon {i} is not in a map of {n}")),
+                Some(true) => return bad(format!("photon {i} is in two tiles")),
+                Some(s) => *s = true,
+            }
+            d.basis_u[i] = t.basis_u[k];
+            d.basis_v[i] = t.basis_v[k];
+            d.lambda2[i] = t.lambda2[k];
+            if let (Some(r), Some(tr)) = (&mut d.r_param, &t.r_param) {
+                r[i] = tr[k];
+            }
+            factors[i] = t.factor[k];
+            outcomes[i] = t.outcome[k];
+        }
+    }
+    if let Some(i) = seen.iter().position(|s| !s) {
+        return bad(format!("photon {i} is in no tile"));
+    }
+    d.summary = summarise(&factors, &outcomes);
+    Ok(d)
+}

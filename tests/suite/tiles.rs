@@ -1,0 +1,184 @@
+//! `photonkit detect --tile i/n` and `photonkit merge --map`: the parts of every tiling merge
+//! into the file `photonkit detect` writes, byte for byte; the local runner runs the same
+//! commands; bad tiles and bad parts are refused without output (docs/tiles.md).
+
+use std::path::Path;
+use std::process::Command;
+
+use photonkit::format::PhotonMap;
+
+use super::common::*;
+
+/// Runs photonkit with SOURCE_DATE_EPOCH set (reproducible records), asserting success.
+fn run(args: &[&str]) {
+    let o = Command::new(env!("CARGO_BIN_EXE_photonkit"))
+        .arg("--quiet")
+        .args(args)
+        .env("SOURCE_DATE_EPOCH", "1700000000")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{args:?}: {}", stderr(&o));
+}
+
+/// The parts of `map` in `n` tiles, written into `dir`, with `extra` detect options.
+fn parts(map: &str, n: usize, dir: &Path, extra: &[&str]) -> Vec<String> {
+    (0..n)
+        .map(|i| {
+            let part = dir.join(format!("part-{i}-of-{n}.phm")).display().to_string();
+            let tile = format!("{i}/{n}");
+            let mut args = vec!["detect", map, "--tile", &tile, "-o", &part];
+            args.extend(extra);
+            run(&args);
+            part
+        })
+        .collect()
+}
+
+/// A uniform square with its upper-right quarter unlit (an empty tile of 2×2), the box kept
+/// by two photons at its far corners, and photons exactly on the borders x = ½ and y = ½.
+fn quarter_unlit(dir: &Path) -> String {
+    let full = photonkit::synthetic::uniform_square(3000, 5, 1.0);
+    let mut m = photonkit::synthetic::SyntheticMap { emitters: full.emitters.clone(), ..Default::default() };
+    let mut keep = |k: usize, x: [f32; 3]| {
+        m.position.push(x);
+        m.params.extend_from_slice(&[x[0], x[1]]);
+        m.normal.push(full.normal[k]);
+        m.flux.push(full.flux[k]);
+        m.incident.push(full.incident[k]);
+        m.emitter.push(0);
+        m.path_length.push(full.path_length[k]);
+        m.bounces.push(full.bounces[k]);
+        m.emission_index.push(full.emission_index[k]);
+    };
+    keep(0, [1.0, 0.0, 0.0]);
+    keep(1, [0.0, 1.0, 0.0]);
+    for k in 2..full.len() {
+        let x = full.position[k];
+        if x[0] < 0.5 || x[1] < 0.5 {
+            keep(k, x);
+        }
+    }
+    for k in 0..40 {
+        keep(k, [0.5, k as f32 / 80.0, 0.0]);
+        keep(k, [k as f32 / 80.0, 0.5, 0.0]);
+    }
+    m.param_dims = 2;
+    let path = dir.join("quarter-unlit.phm");
+    write_synthetic(&m, "quarter-unlit", &path);
+    path.display().to_string()
+}
+
+#[test]
+fn merged_tile_parts_equal_the_untiled_detection_byte_for_byte() {
+    let dir = tempfile::tempdir().unwrap();
+    let unlit = quarter_unlit(dir.path());
+    let maps = [
+        sample_path("two-emitters.phm").display().to_string(),
+        sample_path("point-ring.phm").display().to_string(),
+        unlit.clone(),
+    ];
+    for map in &maps {
+        for (n, extra) in [(2, &[][..]), (4, &[][..]), (9, &["--kc", "20", "--growths", "0"][..])] {
+            let whole = dir.path().join("whole.phm").display().to_string();
+            let mut args = vec!["detect", map.as_str(), "-o", &whole];
+            args.extend(extra);
+            run(&args);
+            let parts = parts(map, n, dir.path(), extra);
+            let merged = dir.path().join("merged.phm").display().to_string();
+            // Parts in any order.
+            let mut args = vec!["merge", "--map", map.as_str(), "-o", &merged];
+            args.extend(parts.iter().rev().map(String::as_str));
+            run(&args);
+            let (a, b) = (std::fs::read(&whole).unwrap(), std::fs::read(&merged).unwrap());
+            assert!(a == b, "{map}, {n} tiles {extra:?}: the merged parts differ from the untiled run");
+            if *map == unlit && n == 4 {
+                let empty = PhotonMap::open(&parts[3]).unwrap();
+                assert_eq!(empty.len(), 0, "the unlit quarter is an empty tile");
+            }
+        }
+    }
+}
+
+#[test]
+fn the_local_runner_runs_the_tiles_in_parallel_and_merges_them() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = sample_path("collimated-cusp.phm").display().to_string();
+    let whole = dir.path().join("whole.phm").display().to_string();
+    run(&["detect", &map, "--method", "world-pca", "-o", &whole]);
+    let out = dir.path().join("tiled.phm").display().to_string();
+    let o = Command::new("bash")
+        .arg(root().join("tools/cluster/run-local.sh"))
+        .args([&map, &out, "4", "2", "--", "--method", "world-pca"])
+        .env("PHOTONKIT", env!("CARGO_BIN_EXE_photonkit"))
+        .env("SOURCE_DATE_EPOCH", "1700000000")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        std::fs::read(&whole).unwrap() == std::fs::read(&out).unwrap(),
+        "run-local.sh differs from detect"
+    );
+    // Its parts are gone; a bad tile count is refused.
+    let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
+    assert_eq!(left.len(), 2, "{left:?}");
+    let o = Command::new("bash")
+        .arg(root().join("tools/cluster/run-local.sh"))
+        .args([&map, &out, "0"])
+        .env("PHOTONKIT", env!("CARGO_BIN_EXE_photonkit"))
+        .output()
+        .unwrap();
+    assert!(!o.status.success() && stderr(&o).contains("TILES"), "{}", stderr(&o));
+}
+
+#[test]
+fn bad_tiles_and_bad_parts_are_refused_without_output() {
+    let dir = tempfile::tempdir().unwrap();
+    let map = sample_path("two-emitters.phm").display().to_string();
+    let out = dir.path().join("out.phm");
+    let outs = out.display().to_string();
+    for (tile, why) in [("3/2", "numbered 0 to 1"), ("0/0", "at least 1"), ("1", "i/n"), ("x/2", "index")] {
+        let o = photonkit(&["detect", &map, "--tile", tile, "-o", &outs]);
+        assert!(!o.status.success() && stderr(&o).contains(why), "{tile}: {}", stderr(&o));
+        assert!(!out.exists(), "{tile}");
+    }
+    // A part written over its map is refused.
+    let copy = dir.path().join("copy.phm");
+    std::fs::copy(&map, &copy).unwrap();
+    let copy = copy.display().to_string();
+    let o = photonkit(&["detect", &copy, "--tile", "0/2", "-o", &copy]);
+    assert!(!o.status.success(), "{}", stderr(&o));
+    assert_eq!(std::fs::read(&copy).unwrap(), std::fs::read(&map).unwrap());
+
+    let parts_in = |sub: &str, map: &str, n: usize, extra: &[&str]| {
+        let d = dir.path().join(sub);
+        std::fs::create_dir(&d).unwrap();
+        parts(map, n, &d, extra)
+    };
+    let p2 = parts_in("two", &map, 2, &[]);
+    let other = parts_in("other", &sample_path("point-ring.phm").display().to_string(), 2, &[]);
+    let kc = parts_in("kc", &map, 2, &["--kc", "20"]);
+    let p3 = parts_in("three", &map, 3, &[]);
+    let merge = |list: &[&str]| {
+        let mut args = vec!["merge", "--map", map.as_str(), "-o", outs.as_str()];
+        args.extend(list);
+        photonkit(&args)
+    };
+    for (list, why) in [
+        (vec![p2[0].as_str()], "tile 1/2 is missing"),
+        (vec![p2[0].as_str(), p2[0].as_str()], "also in"),
+        (vec![p2[0].as_str(), other[1].as_str()], "another map"),
+        (vec![p2[0].as_str(), kc[1].as_str()], "other parameters"),
+        (vec![p2[0].as_str(), p3[1].as_str()], "other parameters or tile count"),
+        (vec![map.as_str(), p2[1].as_str()], "not a tile part"),
+    ] {
+        let o = merge(&list);
+        assert!(!o.status.success() && stderr(&o).contains(why), "{list:?}: {}", stderr(&o));
+        assert!(!out.exists(), "{list:?}");
+    }
+    // The merge never writes over its map or a part.
+    let o = photonkit(&["merge", "--map", &copy, &p2[0], &p2[1], "-o", &copy]);
+    assert!(!o.status.success());
+    let o = photonkit(&["merge", "--map", &map, &p2[0], &p2[1], "-o", &p2[1]]);
+    assert!(!o.status.success());
+    assert!(merge(&[&p2[1], &p2[0]]).status.success());
+}

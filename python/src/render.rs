@@ -15,7 +15,7 @@ use pyo3::types::PyDict;
 
 use crate::errors::{Failure, Kind};
 use crate::map::input;
-use crate::stages::{load_scene, notes, refuse_input_as_output};
+use crate::stages::{LoadedScene, load_scene, notes, refuse_input_as_output};
 use crate::{options, run};
 
 /// The scene's own camera.
@@ -336,13 +336,13 @@ pub fn compare<'py>(
     if cells < 4 {
         return Err(Failure::value("--cells needs at least 4".into()).into());
     }
-    let (rows, table, told) = run(py, threads, || {
-        let (scene, label, text) = load_scene(scene_path.as_deref())?;
+    let (rows, table, told, warning) = run(py, threads, || {
+        let LoadedScene { scene, label, content: text, notes: mut told, warning } =
+            load_scene(scene_path.as_deref())?;
         std::fs::create_dir_all(&out_dir).map_err(|e| Failure {
             kind: Kind::Os(e.kind()),
             message: format!("creating {}: {e}", out_dir.display()),
         })?;
-        let mut told = Vec::new();
         let quality = if fast_truth { Quality::Test } else { Quality::Report };
         let target = match Target::closed_form(&scene, cells, quality) {
             Ok(t) => t,
@@ -385,9 +385,9 @@ pub fn compare<'py>(
             &format!("photonkit.compare({label:?}) from Python"),
         )?;
         let [run] = runs;
-        Ok((report::csv(std::slice::from_ref(&run)), report::table_markdown(&run.rows), told))
+        Ok((report::csv(std::slice::from_ref(&run)), report::table_markdown(&run.rows), told, warning))
     })?;
-    notes(py, &told)?;
+    LoadedScene::tell(&told, warning.as_deref(), py)?;
     let result = PyDict::new(py);
     result.set_item("rows", csv_rows(py, &rows)?)?;
     result.set_item("table", table)?;

@@ -50,19 +50,45 @@ fn finish(table: PhotonTable, output: Option<PathBuf>, context: &str) -> Result<
     }
 }
 
-/// The scene file at `path` (TOML or glTF: its name for records and the bytes it was read
-/// from), or the embedded default, as `photonkit trace` loads it.
-pub fn load_scene(path: Option<&Path>) -> Result<(Scene, String, Vec<u8>), Failure> {
-    Ok(match path {
-        Some(p) => {
-            let f = SceneFile::read(p)?;
-            (f.scene, options::text(p), f.content)
+/// A scene file as `photonkit trace` loads it, with what the command line would tell the user.
+pub struct LoadedScene {
+    /// The scene, built.
+    pub scene: Scene,
+    /// Its name for records.
+    pub label: String,
+    /// The bytes it was read from (the trace record's CRC-32 covers them).
+    pub content: Vec<u8>,
+    /// Notes (how a glTF directional light's beam was chosen).
+    pub notes: Vec<String>,
+    /// The one warning listing what the file holds and the tracer does not honour.
+    pub warning: Option<String>,
+}
+
+impl LoadedScene {
+    /// Tells the user, as the command line does: the notes to the `photonkit` logger, the
+    /// warning as a `UserWarning`.
+    pub fn tell(told: &[String], warning: Option<&str>, py: Python<'_>) -> PyResult<()> {
+        notes(py, told)?;
+        if let Some(w) = warning {
+            warn(py, w)?;
         }
+        Ok(())
+    }
+}
+
+/// The scene file at `path` (TOML or glTF), or the embedded default, as `photonkit trace`
+/// loads it.
+pub fn load_scene(path: Option<&Path>) -> Result<LoadedScene, Failure> {
+    let (f, label) = match path {
+        Some(p) => (SceneFile::read(p)?, options::text(p)),
         None => {
             let f = SceneFile::default_scene();
-            (f.scene, f.name, f.content)
+            let name = f.name.clone();
+            (f, name)
         }
-    })
+    };
+    let warning = photonkit::scene::unsupported_warning(&label, &f.unsupported);
+    Ok(LoadedScene { scene: f.scene, label, content: f.content, notes: f.notes, warning })
 }
 
 fn shard(value: &Bound<'_, PyAny>) -> PyResult<Shard> {
@@ -118,8 +144,9 @@ pub fn trace(
         "direct" => StorePolicy::Direct,
         _ => StorePolicy::Caustic,
     };
-    let (source, nothing_stored) = run(py, threads, || {
-        let (scene, label, text) = load_scene(scene_path.as_deref())?;
+    let (source, nothing_stored, told, warning) = run(py, threads, || {
+        let LoadedScene { scene, label, content: text, notes: told, warning } =
+            load_scene(scene_path.as_deref())?;
         if let Some(p) = &output {
             refuse_input_as_output(p)?;
         }
@@ -154,8 +181,9 @@ pub fn trace(
             }
             None => Source::Memory(traced_table(&traced, info)?),
         };
-        Ok((source, nothing))
+        Ok((source, nothing, told, warning))
     })?;
+    LoadedScene::tell(&told, warning.as_deref(), py)?;
     if nothing_stored {
         warn(py, "no photon was stored (does light reach a diffuse surface through a mirror or glass?)")?;
     }

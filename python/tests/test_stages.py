@@ -62,6 +62,30 @@ def test_trace_of_a_scene_file_with_options(tmp_path, run_cli, reproducible):
     assert same(tmp_path / "cli-shard.phm", tmp_path / "py-shard.phm")
 
 
+def test_trace_of_a_gltf_scene_warns_of_what_it_does_not_honour(tmp_path, caplog):
+    """A glTF scene traces from Python as from the command line, and what the file holds that the
+    tracer does not honour (an emissive material) comes as one UserWarning naming it."""
+    import json
+    import logging
+    import shutil
+
+    gltf = json.loads((SAMPLES / "scenes" / "gltf" / "reflector.gltf").read_text())
+    gltf["materials"][0]["emissiveFactor"] = [1.0, 1.0, 1.0]
+    scene = tmp_path / "glowing.gltf"
+    scene.write_text(json.dumps(gltf))
+    with pytest.warns(UserWarning, match="emissiveFactor"):
+        m = photonkit.trace(scene, photons=2000)
+    assert len(m) > 0
+    # The sample itself: no warning.
+    shutil.copy(SAMPLES / "scenes" / "gltf" / "reflector.gltf", tmp_path / "plain.gltf")
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with caplog.at_level(logging.INFO, logger="photonkit"):
+            photonkit.trace(tmp_path / "plain.gltf", photons=2000)
+
+
 def test_detect_relax_collapse_write_the_command_lines_files(tmp_path, traced, run_cli):
     cli = lambda *a: run_cli(*a)  # noqa: E731
     cli("detect", traced, "-o", "cli-detected.phm", "--kc", 30, "--beta", 2.5, "--growths", 1)

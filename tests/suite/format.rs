@@ -925,7 +925,8 @@ fn fuzz_regressions_do_not_panic() {
     let mut seen = 0;
     for entry in std::fs::read_dir(&dir).unwrap() {
         let path = entry.unwrap().path();
-        if path.extension().is_some_and(|e| e == "md") {
+        // The other parsers' regressions (`.gltf`) have their own test.
+        if !path.extension().is_some_and(|e| e == "phm") {
             continue;
         }
         let bytes = std::fs::read(&path).unwrap();

@@ -248,6 +248,11 @@ fn malformed_and_hostile_gltf_files_are_refused_naming_the_element() {
             },
             &["nodes[0] 'floor'", "cycle"],
         ),
+        (
+            "position-accessor-missing",
+            |d, _| d["meshes"][0]["primitives"][0]["attributes"]["POSITION"] = json!(99),
+            &["meshes[0].primitives[0].attributes.POSITION", "accessor 99 does not exist"],
+        ),
         ("missing-node", |d, _| d["scenes"][0]["nodes"] = json!([0, 9]), &["document", "scenes[0].nodes[1]"]),
         ("not-json", |d, _| *d = json!("not a glTF"), &["document"]),
         ("no-light", |d, _| d["nodes"][2] = json!({"name": "bulb"}), &["lights", "no light"]),
@@ -286,4 +291,22 @@ fn malformed_and_hostile_gltf_files_are_refused_naming_the_element() {
     let e = stderr(&o);
     assert!(!o.status.success() && !e.contains("panicked") && !out.exists(), "{e}");
     assert!(e.contains("cut.glb: document"), "{e}");
+}
+
+/// Every glTF input the fuzzer (fuzz/, target gltf) crashed on is refused or read, never a panic.
+#[test]
+fn gltf_fuzz_regressions_do_not_panic() {
+    let dir = root().join("tests/fuzz-regressions");
+    let mut seen = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "gltf") {
+            let bytes = std::fs::read(&path).unwrap();
+            if let Ok(g) = photonkit::scene::gltf::parse(&bytes, "fuzz.gltf", &dir) {
+                let _ = g.description.build();
+            }
+            seen += 1;
+        }
+    }
+    assert!(seen > 0, "no glTF regression inputs in {}", dir.display());
 }

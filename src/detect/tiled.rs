@@ -215,6 +215,9 @@ struct ParamNear<'a> {
     /// Per emitter: the largest grown ball of its pending photons, squared and widened for
     /// rounding (negative: no pending photon; ∞: an emitter without parameters, every photon).
     reach2: Vec<f64>,
+    /// Per emitter: the box of its pending photons' parameters grown by the reach (a photon
+    /// outside it is out of reach; a cheap test before the search).
+    boxes: Vec<ParamBox>,
     /// The pending photons' parameters, indexed in parameter space.
     index: SpatialIndex,
 }
@@ -243,6 +246,19 @@ impl<'a> ParamNear<'a> {
             };
             reach2[e] = reach2[e].max(reach * reach);
         }
+        let inner = ranges(&points, Some(&ids));
+        let boxes = (0..emitters)
+            .map(|e| {
+                let d = column.dims_of(e as u16).min(MAX_PARAM_DIMS);
+                let reach = if reach2[e] > 0.0 { reach2[e].sqrt() * (1.0 + 1e-4) } else { 0.0 };
+                let mut b = ParamBox { dims: d, lo: [0.0; MAX_PARAM_DIMS], hi: [0.0; MAX_PARAM_DIMS] };
+                for c in 0..d {
+                    b.lo[c] = inner[e].lo[c] as f64 - reach;
+                    b.hi[c] = inner[e].hi[c] as f64 + reach;
+                }
+                b
+            })
+            .collect();
         let positions = permuted(input.positions, &ids, 1);
         let values = permuted(column.values, &ids, column.stride);
         let emitter_ids = input.emitters.map(|e| permuted(e, &ids, 1));
@@ -254,7 +270,7 @@ impl<'a> ParamNear<'a> {
             };
             SpatialIndex::build(&sub, Space::Params)?
         };
-        Ok(ParamNear { points, reach2, index })
+        Ok(ParamNear { points, reach2, boxes, index })
     }
 
     /// Whether photon `j` of the map may be a candidate of a pending photon's search.
@@ -265,6 +281,9 @@ impl<'a> ParamNear<'a> {
         }
         if reach2 == f64::INFINITY {
             return true;
+        }
+        if !self.boxes[self.points.emitter(j) as usize].contains(self.points.params_of(j)) {
+            return false;
         }
         let mut nb = Neighbours::farthest_only(1);
         self.index.knn(&self.points.query(j, None), 1, &mut nb);

@@ -3,18 +3,21 @@
 //! per machine) and give each photon exactly the result it gets from the whole map
 //! (docs/tiles.md; [`crate::detect::detect_tile`]).
 //!
-//! A [`Tiling`] is nx × ny cells over the two longest axes of the map's box. Cell k of an axis
-//! spans [b_k, b_{k+1}) (the last one closed), so a photon exactly on a border belongs to one
-//! tile only. A [`HaloBox`] is a tile's cell grown by a halo width on each side; the
-//! [`HaloBox::margin`] of a photon inside the cell bounds from below the distance to any photon
-//! outside the grown box, which is what a stage's certificate compares its search radius with.
+//! A [`Tiling`] is nx × ny cells over the two longest axes of the map's box, balanced: the
+//! first axis is cut at the nx-quantiles of the photons' coordinates (columns), then each
+//! column's second axis at the ny-quantiles of its own photons (rows), so every tile holds about
+//! n/(nx·ny) photons. A cut is a photon's coordinate; cell k of an axis spans [b_k, b_{k+1})
+//! (the last one closed), so a photon exactly on a cut belongs to one tile only, the upper one.
+//! A [`HaloBox`] is a tile's cell grown by a halo width on each side; the [`HaloBox::margin`]
+//! of a photon inside the cell bounds from below the distance to any photon outside the grown
+//! box, which is what a stage's certificate compares its search radius with.
 //!
 //! ```
 //! use photonkit::tiles::{TileSpec, Tiling};
 //! let positions = [[0.0f32, 0.0, 0.0], [0.5, 0.2, 0.0], [1.0, 1.0, 0.0]];
 //! let spec: TileSpec = "1/2".parse().unwrap();
 //! let tiling = Tiling::new(&positions, spec.grid());
-//! // The photon at x = 0.5, exactly on the border, is in the upper tile.
+//! // The cut is the median x, 0.5: the photon on it is in the upper tile.
 //! let tiles: Vec<usize> = positions.iter().map(|&x| tiling.tile_of(x)).collect();
 //! assert_eq!(tiles, [0, 1, 1]);
 //! ```
@@ -84,7 +87,9 @@ impl TileSpec {
     }
 }
 
-/// An nx × ny grid of cells over a map's bounding box, in its two longest axes (module docs).
+/// An nx × ny grid of cells over a map's bounding box, in its two longest axes, cut at the
+/// quantiles of the photons' coordinates so that the tiles hold about equal numbers of photons
+/// (module docs).
 #[derive(Clone, Debug, PartialEq)]
 pub struct Tiling {
     /// The map's box: low corner (of its finite positions).
@@ -93,21 +98,51 @@ pub struct Tiling {
     pub hi: [f32; 3],
     /// The two axes cut, the longer first.
     pub axes: [usize; 2],
-    /// Cells along each of [`Self::axes`].
+    /// Cells along each of [`Self::axes`]: columns along the first, rows in each column along
+    /// the second.
     pub counts: [usize; 2],
-    /// Cell borders along each axis: `counts[a] + 1` values from lo to hi.
-    borders: [Vec<f64>; 2],
+    /// Column borders along the first axis: `counts[0] + 1` values from lo to hi.
+    columns: Vec<f64>,
+    /// Per column, its row borders along the second axis: `counts[1] + 1` values from lo to hi.
+    rows: Vec<Vec<f64>>,
+}
+
+/// The `n − 1` inner cuts of `n` cells over the (finite) coordinates `v`, sorted in place: cut c
+/// is the ⌊c·m/n⌋-th smallest of the m values, so that cell c (b_c ≤ x < b_{c+1}) holds the
+/// values ranked ⌊c·m/n⌋ to ⌊(c+1)·m/n⌋ − 1 when no two are equal. With no values, equal cells
+/// of `lo`–`hi`. The ends are `lo` and `hi`.
+fn quantile_borders(v: &mut [f32], n: usize, lo: f32, hi: f32) -> Vec<f64> {
+    use rayon::slice::ParallelSliceMut;
+    v.par_sort_unstable_by(f32::total_cmp);
+    let m = v.len();
+    let (l, h) = (lo as f64, hi as f64);
+    (0..=n)
+        .map(|c| {
+            if c == 0 {
+                l
+            } else if c == n {
+                h
+            } else if m == 0 {
+                if h > l { l + (h - l) * c as f64 / n as f64 } else { l }
+            } else {
+                v[((c as u128 * m as u128) / n as u128) as usize] as f64
+            }
+        })
+        .collect()
+}
+
+/// Whether every coordinate of `x` is finite (the photons the box and the cuts are taken over).
+fn finite(x: &[f32; 3]) -> bool {
+    x.iter().all(|v| v.is_finite())
 }
 
 impl Tiling {
-    /// The grid of `grid` = [nx, ny] cells over the box of `positions`' finite coordinates.
+    /// The grid of `grid` = [nx, ny] cells (each at least 1) over `positions`: the first axis
+    /// cut at the nx-quantiles of every finite photon's coordinate, then each column's second
+    /// axis at the ny-quantiles of that column's photons (module docs). A pure function of the
+    /// positions: every job that reads the same map computes the same tiling.
     pub fn new(positions: &[[f32; 3]], grid: [usize; 2]) -> Self {
         let (lo, hi) = crate::spatial::order::finite_bounds(positions);
-        Tiling::over(lo, hi, grid)
-    }
-
-    /// The grid of `grid` = [nx, ny] cells (each at least 1) over the box `lo`–`hi`.
-    pub fn over(lo: [f32; 3], hi: [f32; 3], grid: [usize; 2]) -> Self {
         let extent = |a: usize| {
             let e = hi[a] as f64 - lo[a] as f64;
             if e.is_finite() { e.max(0.0) } else { 0.0 }
@@ -117,12 +152,18 @@ impl Tiling {
         axes.sort_by(|&a, &b| extent(b).total_cmp(&extent(a)));
         let axes = [axes[0], axes[1]];
         let counts = [grid[0].max(1), grid[1].max(1)];
-        let borders = std::array::from_fn(|k| {
-            let (a, n) = (axes[k], counts[k]);
-            let (l, e) = (lo[a] as f64, extent(a));
-            (0..=n).map(|c| if c == n { hi[a] as f64 } else { l + e * c as f64 / n as f64 }).collect()
-        });
-        Tiling { lo, hi, axes, counts, borders }
+        let (ax, ay) = (axes[0], axes[1]);
+        let mut xs: Vec<f32> = positions.iter().filter(|x| finite(x)).map(|x| x[ax]).collect();
+        let columns = quantile_borders(&mut xs, counts[0], lo[ax], hi[ax]);
+        drop(xs);
+        let mut per_column: Vec<Vec<f32>> = vec![Vec::new(); counts[0]];
+        if counts[1] > 1 {
+            for x in positions.iter().filter(|x| finite(x)) {
+                per_column[cell_in(&columns, x[ax])].push(x[ay]);
+            }
+        }
+        let rows = per_column.iter_mut().map(|ys| quantile_borders(ys, counts[1], lo[ay], hi[ay])).collect();
+        Tiling { lo, hi, axes, counts, columns, rows }
     }
 
     /// How many tiles (nx·ny).
@@ -135,19 +176,23 @@ impl Tiling {
         self.len() == 0
     }
 
-    /// The cell of coordinate `x` along cut axis `k`: the c with b_c ≤ x < b_{c+1}, the last
-    /// cell closed; coordinates outside the box go to the nearest end cell.
-    fn cell(&self, k: usize, x: f32) -> usize {
-        let b = &self.borders[k];
-        // Borders b_1 … b_{n−1} at or below x.
-        b[1..b.len() - 1].partition_point(|&v| v <= x as f64)
+    /// The tile holding position `x`: iy·nx + ix, ix its column and iy its row in that column.
+    pub fn tile_of(&self, x: [f32; 3]) -> usize {
+        let ix = cell_in(&self.columns, x[self.axes[0]]);
+        let iy = cell_in(&self.rows[ix], x[self.axes[1]]);
+        iy * self.counts[0] + ix
     }
 
-    /// The tile holding position `x`: iy·nx + ix.
-    pub fn tile_of(&self, x: [f32; 3]) -> usize {
-        let ix = self.cell(0, x[self.axes[0]]);
-        let iy = self.cell(1, x[self.axes[1]]);
-        iy * self.counts[0] + ix
+    /// Tile `tile`'s cell: its low and high borders in each cut axis (the cell holds the
+    /// positions with low ≤ x < high, closed at the map's high side).
+    ///
+    /// # Panics
+    /// If `tile` is not below [`Self::len`].
+    pub fn cell(&self, tile: usize) -> ([f64; 2], [f64; 2]) {
+        assert!(tile < self.len(), "tile {tile} of {}", self.len());
+        let (ix, iy) = (tile % self.counts[0], tile / self.counts[0]);
+        let rows = &self.rows[ix];
+        ([self.columns[ix], rows[iy]], [self.columns[ix + 1], rows[iy + 1]])
     }
 
     /// Tile `tile`'s cell grown by `halo` (metres, ≥ 0; ∞ for the whole map) in the cut axes.
@@ -155,14 +200,13 @@ impl Tiling {
     /// # Panics
     /// If `tile` is not below [`Self::len`].
     pub fn halo_box(&self, tile: usize, halo: f64) -> HaloBox {
-        assert!(tile < self.len(), "tile {tile} of {}", self.len());
-        let cells = [tile % self.counts[0], tile / self.counts[0]];
+        let (cl, ch) = self.cell(tile);
         let mut lo = [f64::NEG_INFINITY; 2];
         let mut hi = [f64::INFINITY; 2];
         for k in 0..2 {
-            let (a, c) = (self.axes[k], cells[k]);
-            let l = self.borders[k][c] - halo;
-            let h = self.borders[k][c + 1] + halo;
+            let a = self.axes[k];
+            let l = cl[k] - halo;
+            let h = ch[k] + halo;
             // A side at or beyond the map's box has no photon past it.
             if l > self.lo[a] as f64 {
                 lo[k] = l;
@@ -173,6 +217,13 @@ impl Tiling {
         }
         HaloBox { axes: self.axes, lo, hi }
     }
+}
+
+/// The cell of coordinate `x` among `borders` (b_0 … b_n): the c with b_c ≤ x < b_{c+1}, the
+/// last cell closed; coordinates outside the box (or NaN) go to an end cell.
+fn cell_in(borders: &[f64], x: f32) -> usize {
+    // Inner borders b_1 … b_{n−1} at or below x.
+    borders[1..borders.len() - 1].partition_point(|&v| v <= x as f64)
 }
 
 /// A tile's cell grown by a halo, in the two cut axes (closed; ±∞ on sides that hold the rest
@@ -248,20 +299,97 @@ mod tests {
     }
 
     #[test]
-    fn every_photon_is_in_one_tile_and_borders_go_up() {
-        // Box [0, 3] × [0, 1.5] × [0, 0.1]: x is cut first, then y.
-        let mut pos = vec![[0.0f32, 0.0, 0.0], [3.0, 1.5, 0.1]];
-        for (x, y) in [(1.0, 0.5), (2.0, 1.0), (0.999, 0.499), (3.0, 0.0), (1.5, 0.75)] {
-            pos.push([x, y, 0.05]);
-        }
-        let t = Tiling::new(&pos, [3, 3]);
+    fn cuts_are_quantiles_and_photons_on_a_cut_go_up() {
+        // x = 0 … 8 (y = x mod 3): 3 columns cut at x = 3 and 6, the photons on them go up.
+        let pos: Vec<[f32; 3]> = (0..9).map(|i| [i as f32, (i % 3) as f32 * 0.1, 0.0]).collect();
+        let t = Tiling::new(&pos, [3, 1]);
         assert_eq!(t.axes, [0, 1]);
         let tiles: Vec<usize> = pos.iter().map(|&x| t.tile_of(x)).collect();
-        // (1, 0.5) on two borders: cell (1, 1); (2, 1): (2, 2); (3, 1.5), the far corner: (2, 2).
-        assert_eq!(tiles, [0, 8, 4, 8, 0, 2, 4]);
-        // y longer than x: y is cut first.
-        let t = Tiling::new(&[[0.0, 0.0, 0.0], [1.0, 2.0, 0.0]], [2, 1]);
-        assert_eq!((t.axes, t.tile_of([0.9, 1.0, 0.0]), t.tile_of([0.9, 0.99, 0.0])), ([1, 0], 1, 0));
+        assert_eq!(tiles, [0, 0, 0, 1, 1, 1, 2, 2, 2]);
+        // Ties at the cut all go to the upper cell: the median is 1, held by four photons.
+        let xs = [0.0f32, 1.0, 1.0, 1.0, 1.0, 2.0];
+        let pos: Vec<[f32; 3]> = xs.iter().map(|&x| [x, 0.0, 0.0]).collect();
+        let t = Tiling::new(&pos, [2, 1]);
+        assert_eq!(pos.iter().map(|&x| t.tile_of(x)).collect::<Vec<_>>(), [0, 1, 1, 1, 1, 1]);
+        // More than half on the low side of the box: the cut is the box's low side and tile 0 is
+        // empty; the map's high corner is in the last cell (closed).
+        let xs = [0.0f32, 0.0, 0.0, 0.0, 1.0, 2.0];
+        let pos: Vec<[f32; 3]> = xs.iter().map(|&x| [x, 0.0, 0.0]).collect();
+        let t = Tiling::new(&pos, [2, 1]);
+        assert_eq!(pos.iter().map(|&x| t.tile_of(x)).collect::<Vec<_>>(), [1; 6]);
+        // Each column is cut in y at its own photons' quantiles; y longer than x is cut first.
+        let pos: Vec<[f32; 3]> =
+            (0..8).map(|i| [(i % 2) as f32 * 0.5, if i % 2 == 0 { i as f32 } else { 10.0 - i as f32 }, 0.0]).collect();
+        let t = Tiling::new(&pos, [2, 2]);
+        assert_eq!(t.axes, [1, 0]);
+        // y: 0, 9, 2, 7, 4, 5, 6, 3 → columns cut at the 4th of 8, y = 5: {0, 2, 3, 4} and
+        // {5, 6, 7, 9}. The first's x are 0, 0, 0.5, 0: cut at the 2nd of 4, x = 0, so its
+        // first row is empty (tile 0); the second's are 0.5, 0, 0.5, 0.5: cut at x = 0.5.
+        let tiles: Vec<usize> = pos.iter().map(|&x| t.tile_of(x)).collect();
+        for (tile, &x) in tiles.iter().zip(&pos) {
+            let (lo, hi) = t.cell(*tile);
+            let v = [x[1] as f64, x[0] as f64];
+            assert!((0..2).all(|k| lo[k] <= v[k] && (v[k] < hi[k] || hi[k] == t.hi[t.axes[k]] as f64)));
+        }
+        assert_eq!(tiles, [2, 3, 2, 3, 2, 3, 1, 2]);
+    }
+
+    /// Every photon is in the tile whose cell holds it (half-open, closed at the map's high
+    /// sides), and the cuts are the same whatever the order of the photons.
+    #[test]
+    fn tiles_partition_the_map_and_do_not_depend_on_its_order() {
+        let mut pos: Vec<[f32; 3]> = (0..3000u32)
+            .map(|i| {
+                let h = i.wrapping_mul(2_654_435_761);
+                // Coordinates on a coarse lattice: many ties, many photons on cuts.
+                [(h % 37) as f32 * 0.1, ((h >> 8) % 23) as f32 * 0.1, ((h >> 16) % 3) as f32 * 0.01]
+            })
+            .collect();
+        for grid in [[1, 1], [2, 1], [2, 2], [3, 3], [7, 1], [4, 3]] {
+            let t = Tiling::new(&pos, grid);
+            for &x in &pos {
+                let (lo, hi) = t.cell(t.tile_of(x));
+                for k in 0..2 {
+                    let (v, top) = (x[t.axes[k]] as f64, t.hi[t.axes[k]] as f64);
+                    assert!(lo[k] <= v && (v < hi[k] || (v == top && hi[k] == top)), "{grid:?} {x:?}");
+                }
+            }
+            pos.reverse();
+            assert_eq!(Tiling::new(&pos, grid), t);
+        }
+    }
+
+    /// On a skewed map (nine photons in ten in a blob a hundredth of the box wide) with no two
+    /// photons sharing a coordinate, every tile of every grid holds n/t photons give or take 2;
+    /// equal cells would put almost all of them in one tile.
+    #[test]
+    fn tiles_are_balanced_on_a_skewed_map() {
+        let n = 20_000u32;
+        let frac = |i: u32, a: f64| (i as f64 * a).fract();
+        let pos: Vec<[f32; 3]> = (0..n)
+            .map(|i| {
+                let (u, v) = (frac(i, 0.618_033_988_749_895), frac(i, 0.754_877_666_246_693));
+                if i % 10 == 0 {
+                    [u as f32 * 4.0, v as f32 * 2.0, 0.0]
+                } else {
+                    [2.0 + u as f32 * 0.04, 1.0 + v as f32 * 0.02, 0.0]
+                }
+            })
+            .collect();
+        for a in 0..2 {
+            let mut c: Vec<u32> = pos.iter().map(|x| x[a].to_bits()).collect();
+            c.sort_unstable();
+            c.dedup();
+            assert_eq!(c.len(), n as usize, "axis {a} has ties");
+        }
+        for count in [2, 4, 6, 9, 16, 25] {
+            let spec = TileSpec { index: 0, count };
+            let t = Tiling::new(&pos, spec.grid());
+            let mut counts = vec![0usize; count];
+            pos.iter().for_each(|&x| counts[t.tile_of(x)] += 1);
+            let mean = n as f64 / count as f64;
+            assert!(counts.iter().all(|&c| (c as f64 - mean).abs() <= 2.0), "{count}: {counts:?}");
+        }
     }
 
     #[test]

@@ -153,7 +153,7 @@ fn run_tile(
         .context("writing the tile part")?;
     let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
     super::note!(
-        "detected tile {tile} ({}×{} over the map's box): {} of {} photons in {seconds:.2} s; photons \
+        "detected tile {tile} ({}×{}, cut at the photons' quantiles): {} of {} photons in {seconds:.2} s; photons \
          measured per round of halos: {} ({} round{} in parameter space)",
         tiling.counts[0],
         tiling.counts[1],

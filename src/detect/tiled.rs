@@ -127,8 +127,14 @@ pub(super) fn detect_tile_with(
     while !pending.is_empty() {
         rounds += 1;
         let halo = tiling.halo_box(tile, if rounds >= MAX_ROUNDS { f64::INFINITY } else { h });
-        let members: Vec<u32> =
-            (0..n as u32).into_par_iter().filter(|&i| halo.contains(pos[i as usize])).collect();
+        let near = match (&r_param, rounds > 1) {
+            (Some(r), true) => Some(ParamNear::new(input, &interior, &pending, r, p.growths)?),
+            _ => None,
+        };
+        let members: Vec<u32> = (0..n as u32)
+            .into_par_iter()
+            .filter(|&i| halo.contains(pos[i as usize]) && near.as_ref().is_none_or(|f| f.admits(i as usize)))
+            .collect();
         out.working_set = out.working_set.max(members.len());
         out.per_round.push([pending.len(), members.len()]);
         // Labelled as the whole map labels them: Z-order on the map's box, ties by file index.
@@ -196,6 +202,93 @@ pub(super) fn detect_tile_with(
     out.rounds = rounds;
     out.param_rounds = param_rounds;
     Ok(out)
+}
+
+/// The photons that can be candidates of the pending photons' restricted searches: those of a
+/// pending photon's emitter whose parameters lie within the emitter's largest grown ball
+/// (r_param·2^growths over its pending photons) of some pending photon. The rest of the halo box
+/// can never enter those searches, so leaving it out of later rounds changes no result
+/// (docs/tiles.md): the certificate still holds, since every photon left out is either outside
+/// the box or never a candidate.
+struct ParamNear<'a> {
+    points: PointSet<'a>,
+    /// Per emitter: the largest grown ball of its pending photons, squared and widened for
+    /// rounding (negative: no pending photon; ∞: an emitter without parameters, every photon).
+    reach2: Vec<f64>,
+    /// Per emitter: the box of its pending photons' parameters grown by the reach (a photon
+    /// outside it is out of reach; a cheap test before the search).
+    boxes: Vec<ParamBox>,
+    /// The pending photons' parameters, indexed in parameter space.
+    index: SpatialIndex,
+}
+
+impl<'a> ParamNear<'a> {
+    fn new(
+        input: &DetectInput<'a>,
+        interior: &[u32],
+        pending: &[usize],
+        r_param: &[f32],
+        growths: u32,
+    ) -> Result<Self, DetectError> {
+        let points = input.points(true);
+        let column = input.params.expect("a parameter search has parameters");
+        let emitters = points.emitters.map_or(1, |e| e.iter().max().map_or(1, |&m| m as usize + 1));
+        let mut reach2 = vec![-1.0f64; emitters];
+        let ids: Vec<u32> = pending.iter().map(|&q| interior[q]).collect();
+        for (&q, &g) in pending.iter().zip(&ids) {
+            let e = points.emitter(g as usize) as usize;
+            let reach = if column.dims_of(e as u16) == 0 {
+                f64::INFINITY
+            } else {
+                // The last growth's radius, r·2^growths, widened far beyond the rounding of the
+                // f32 squared distances the searches compare.
+                r_param[q] as f64 * 2f64.powi(growths.min(1000) as i32) * (1.0 + 1e-4) + 1e-30
+            };
+            reach2[e] = reach2[e].max(reach * reach);
+        }
+        let inner = ranges(&points, Some(&ids));
+        let boxes = (0..emitters)
+            .map(|e| {
+                let d = column.dims_of(e as u16).min(MAX_PARAM_DIMS);
+                let reach = if reach2[e] > 0.0 { reach2[e].sqrt() * (1.0 + 1e-4) } else { 0.0 };
+                let mut b = ParamBox { dims: d, lo: [0.0; MAX_PARAM_DIMS], hi: [0.0; MAX_PARAM_DIMS] };
+                for c in 0..d {
+                    b.lo[c] = inner[e].lo[c] as f64 - reach;
+                    b.hi[c] = inner[e].hi[c] as f64 + reach;
+                }
+                b
+            })
+            .collect();
+        let positions = permuted(input.positions, &ids, 1);
+        let values = permuted(column.values, &ids, column.stride);
+        let emitter_ids = input.emitters.map(|e| permuted(e, &ids, 1));
+        let index = {
+            let sub = PointSet {
+                positions: &positions,
+                params: Some(ParamColumn { values: &values, ..column }),
+                emitters: emitter_ids.as_deref(),
+            };
+            SpatialIndex::build(&sub, Space::Params)?
+        };
+        Ok(ParamNear { points, reach2, boxes, index })
+    }
+
+    /// Whether photon `j` of the map may be a candidate of a pending photon's search.
+    fn admits(&self, j: usize) -> bool {
+        let reach2 = self.reach2[self.points.emitter(j) as usize];
+        if reach2 < 0.0 {
+            return false;
+        }
+        if reach2 == f64::INFINITY {
+            return true;
+        }
+        if !self.boxes[self.points.emitter(j) as usize].contains(self.points.params_of(j)) {
+            return false;
+        }
+        let mut nb = Neighbours::farthest_only(1);
+        self.index.knn(&self.points.query(j, None), 1, &mut nb);
+        nb.max_dist2().is_some_and(|d2| (d2 as f64) <= reach2)
+    }
 }
 
 /// Per emitter: its photons' count and the range of each parameter component.

@@ -34,14 +34,15 @@ fn parts(map: &str, n: usize, dir: &Path, extra: &[&str]) -> Vec<String> {
         .collect()
 }
 
-/// A uniform square with its upper-right quarter unlit (an empty tile of 2×2), the box kept
-/// by two photons at its far corners, and photons exactly on the borders x = ½ and y = ½.
-fn quarter_unlit(dir: &Path) -> String {
+/// A uniform square and a wall: more than half the photons on the line x = 0 (a strip of
+/// parameters folded onto it), so that the first column's cut is the box's low side and the
+/// first column's tiles are empty; every other cut goes through a photon.
+fn walled(dir: &Path) -> String {
     let full = photonkit::synthetic::uniform_square(3000, 5, 1.0);
     let mut m = photonkit::synthetic::SyntheticMap { emitters: full.emitters.clone(), ..Default::default() };
-    let mut keep = |k: usize, x: [f32; 3]| {
+    let mut keep = |k: usize, x: [f32; 3], q: [f32; 2]| {
         m.position.push(x);
-        m.params.extend_from_slice(&[x[0], x[1]]);
+        m.params.extend_from_slice(&q);
         m.normal.push(full.normal[k]);
         m.flux.push(full.flux[k]);
         m.incident.push(full.incident[k]);
@@ -50,32 +51,28 @@ fn quarter_unlit(dir: &Path) -> String {
         m.bounces.push(full.bounces[k]);
         m.emission_index.push(full.emission_index[k]);
     };
-    keep(0, [1.0, 0.0, 0.0]);
-    keep(1, [0.0, 1.0, 0.0]);
-    for k in 2..full.len() {
+    for k in 0..full.len() {
         let x = full.position[k];
-        if x[0] < 0.5 || x[1] < 0.5 {
-            keep(k, x);
-        }
+        keep(k, x, [x[0], x[1]]);
     }
-    for k in 0..40 {
-        keep(k, [0.5, k as f32 / 80.0, 0.0]);
-        keep(k, [k as f32 / 80.0, 0.5, 0.0]);
+    for k in 0..3200 {
+        let x = full.position[k % full.len()];
+        keep(k % full.len(), [0.0, x[1], x[2]], [-0.05 * x[0], x[1]]);
     }
     m.param_dims = 2;
-    let path = dir.join("quarter-unlit.phm");
-    write_synthetic(&m, "quarter-unlit", &path);
+    let path = dir.join("walled.phm");
+    write_synthetic(&m, "walled", &path);
     path.display().to_string()
 }
 
 #[test]
 fn merged_tile_parts_equal_the_untiled_detection_byte_for_byte() {
     let dir = tempfile::tempdir().unwrap();
-    let unlit = quarter_unlit(dir.path());
+    let walled = walled(dir.path());
     let maps = [
         sample_path("two-emitters.phm").display().to_string(),
         sample_path("point-ring.phm").display().to_string(),
-        unlit.clone(),
+        walled.clone(),
     ];
     for map in &maps {
         for (n, extra) in [(2, &[][..]), (4, &[][..]), (9, &["--kc", "20", "--growths", "0"][..])] {
@@ -91,9 +88,13 @@ fn merged_tile_parts_equal_the_untiled_detection_byte_for_byte() {
             run(&args);
             let (a, b) = (std::fs::read(&whole).unwrap(), std::fs::read(&merged).unwrap());
             assert!(a == b, "{map}, {n} tiles {extra:?}: the merged parts differ from the untiled run");
-            if *map == unlit && n == 4 {
-                let empty = PhotonMap::open(&parts[3]).unwrap();
-                assert_eq!(empty.len(), 0, "the unlit quarter is an empty tile");
+            if *map == walled {
+                // The first column (tiles 0, nx, 2·nx, …) is empty, the others are not.
+                let nx = if n == 9 { 3 } else { 2 };
+                for (t, part) in parts.iter().enumerate() {
+                    let len = PhotonMap::open(part).unwrap().len();
+                    assert_eq!(len == 0, t % nx == 0, "{n} tiles: tile {t} holds {len}");
+                }
             }
         }
     }

@@ -1,6 +1,6 @@
 //! Detection tile by tile against the whole map (the oracle): bit for bit on collimated and
 //! point emitters, two emitters, a dispersed map and the sample files, for 1×1 to 3×3 tilings,
-//! with empty tiles and photons exactly on tile borders (docs/tiles.md).
+//! with empty tiles and photons exactly on the cuts (docs/tiles.md).
 
 use super::*;
 use crate::detect::tiled::{Options, detect_tile_with};
@@ -85,9 +85,10 @@ fn tiles_equal_the_whole_map_for_every_method_and_option() {
     }
 }
 
-/// A collimated map whose 2×2 tile (x ≥ ½, y ≥ ½) is empty, with rows of photons exactly on
-/// the borders x = ½ and y = ½ (which belong to the upper tiles), and a fold (two sheets over
-/// one strip) so that the parameter ball matters.
+/// A collimated map with more than half its photons on the line x = 0 (a strip of parameters
+/// folded onto it), so that the first column's cut is the box's low side and the tiles of that
+/// column are empty; an L with a fold (two sheets over one strip) so that the parameter ball
+/// matters; and rows of photons on x = ½ and y = ½ (ties).
 fn bordered_map() -> crate::synthetic::SyntheticMap {
     let mut m = crate::synthetic::SyntheticMap {
         param_dims: 2,
@@ -117,23 +118,43 @@ fn bordered_map() -> crate::synthetic::SyntheticMap {
         push(0.5, 0.5 * t, 0.5, 0.5 * t);
         push(0.5 * t, 0.5, 0.5 * t, 0.5);
     }
+    for _ in 0..3400 {
+        let (w, v): (f32, f32) = (r.random(), r.random());
+        push(0.0, v, -0.05 * w, v);
+    }
     m
 }
 
 #[test]
-fn empty_tiles_and_photons_on_borders() {
+fn empty_tiles_and_photons_on_cuts() {
     let m = bordered_map();
     let (dims, stride) = owned_input(&m);
     let inp = input(&m, &dims, stride);
-    let tiling = Tiling::new(&m.position, [2, 2]);
-    let counts: Vec<usize> =
-        (0..4).map(|t| m.position.iter().filter(|&&x| tiling.tile_of(x) == t).count()).collect();
-    assert_eq!(counts[3], 0, "{counts:?}");
-    // The border rows belong to the upper tiles: (½, y < ½) to tile 1, (x < ½, ½) to tile 2.
-    assert!(m.position.iter().filter(|x| x[0] == 0.5 && x[1] < 0.5).all(|&x| tiling.tile_of(x) == 1));
-    assert!(m.position.iter().filter(|x| x[1] == 0.5 && x[0] < 0.5).all(|&x| tiling.tile_of(x) == 2));
-    let empty = detect_tile(&inp, &DetectParams::default(), &tiling, 3, &|_| {}).unwrap();
-    assert!(empty.indices.is_empty() && empty.r_param.as_ref().is_some_and(|r| r.is_empty()));
+    for grid in [[2, 2], [3, 3]] {
+        let tiling = Tiling::new(&m.position, grid);
+        let mut counts = vec![0usize; tiling.len()];
+        m.position.iter().for_each(|&x| counts[tiling.tile_of(x)] += 1);
+        // The first column ([0, 0)) is empty: the photons on its cut, x = 0, are in the next.
+        assert_eq!(tiling.cell(0).1[0], 0.0);
+        for iy in 0..grid[1] {
+            assert_eq!(counts[iy * grid[0]], 0, "{grid:?}: {counts:?}");
+        }
+        // Every photon lies in its tile's cell, half-open (the box's high side closed); some lie
+        // exactly on their cell's lower cut inside the box (the ones a cut goes through).
+        assert_eq!(tiling.axes, [0, 1]);
+        let mut on_cuts = 0;
+        for &x in &m.position {
+            let (lo, hi) = tiling.cell(tiling.tile_of(x));
+            for k in 0..2 {
+                let v = x[k] as f64;
+                assert!(lo[k] <= v && (v < hi[k] || v == 1.0), "{grid:?} {x:?}");
+                on_cuts += usize::from(v == lo[k] && v > 0.0);
+            }
+        }
+        assert!(on_cuts > 0, "{grid:?}");
+        let empty = detect_tile(&inp, &DetectParams::default(), &tiling, 0, &|_| {}).unwrap();
+        assert!(empty.indices.is_empty() && empty.r_param.as_ref().is_some_and(|r| r.is_empty()));
+    }
     check_tilings(&inp, &DetectParams::default(), "bordered");
     check_tilings(&inp, &DetectParams { method: Method::WorldPca, ..Default::default() }, "bordered, world");
 }

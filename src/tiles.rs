@@ -318,8 +318,9 @@ mod tests {
         let t = Tiling::new(&pos, [2, 1]);
         assert_eq!(pos.iter().map(|&x| t.tile_of(x)).collect::<Vec<_>>(), [1; 6]);
         // Each column is cut in y at its own photons' quantiles; y longer than x is cut first.
-        let pos: Vec<[f32; 3]> =
-            (0..8).map(|i| [(i % 2) as f32 * 0.5, if i % 2 == 0 { i as f32 } else { 10.0 - i as f32 }, 0.0]).collect();
+        let pos: Vec<[f32; 3]> = (0..8)
+            .map(|i| [(i % 2) as f32 * 0.5, if i % 2 == 0 { i as f32 } else { 10.0 - i as f32 }, 0.0])
+            .collect();
         let t = Tiling::new(&pos, [2, 2]);
         assert_eq!(t.axes, [1, 0]);
         // y: 0, 9, 2, 7, 4, 5, 6, 3 → columns cut at the 4th of 8, y = 5: {0, 2, 3, 4} and

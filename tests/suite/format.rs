@@ -926,7 +926,7 @@ fn fuzz_regressions_do_not_panic() {
     for entry in std::fs::read_dir(&dir).unwrap() {
         let path = entry.unwrap().path();
         // The other parsers' regressions (`.gltf`) have their own test.
-        if !path.extension().is_some_and(|e| e == "phm") {
+        if path.extension().is_none_or(|e| e != "phm") {
             continue;
         }
         let bytes = std::fs::read(&path).unwrap();

@@ -199,6 +199,42 @@ pub struct DetectInput<'a> {
     pub emitters: Option<&'a [u16]>,
 }
 
+/// A [`DetectInput`]'s columns copied in another order (only the flux the method reads):
+/// detection works on photons in spatial order ([`crate::spatial::order`]).
+struct Permuted {
+    positions: Vec<[f32; 3]>,
+    normals: Option<Vec<[f32; 3]>>,
+    flux: Option<Vec<[f32; 3]>>,
+    emitters: Option<Vec<u16>>,
+    values: Option<Vec<f32>>,
+}
+
+impl Permuted {
+    /// `input`'s photons `order[0], order[1], …`.
+    fn of(input: &DetectInput, order: &[u32], method: Method) -> Permuted {
+        use crate::spatial::order::permuted;
+        Permuted {
+            positions: permuted(input.positions, order, 1),
+            normals: input.normals.map(|v| permuted(v, order, 1)),
+            // Only the gradient method weighs neighbours by their flux.
+            flux: input.flux.filter(|_| method == Method::Gradient).map(|v| permuted(v, order, 1)),
+            emitters: input.emitters.map(|v| permuted(v, order, 1)),
+            values: input.params.map(|c| permuted(c.values, order, c.stride)),
+        }
+    }
+
+    /// The permuted photons as an input, with `input`'s parameter layout.
+    fn input<'a>(&'a self, input: &DetectInput<'a>) -> DetectInput<'a> {
+        DetectInput {
+            positions: &self.positions,
+            normals: self.normals.as_deref(),
+            flux: self.flux.as_deref(),
+            params: input.params.zip(self.values.as_deref()).map(|(c, values)| ParamColumn { values, ..c }),
+            emitters: self.emitters.as_deref(),
+        }
+    }
+}
+
 impl<'a> DetectInput<'a> {
     fn points(&self, with_params: bool) -> PointSet<'a> {
         PointSet {
@@ -359,23 +395,12 @@ pub fn detect(
     p: &DetectParams,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Detection, DetectError> {
-    use crate::spatial::order::{locality_order, permuted, unpermuted};
+    use crate::spatial::order::{locality_order, unpermuted};
     check_params(p)?;
     let p = &p.capped(input.positions.len());
     let order = locality_order(input.positions);
-    let positions = permuted(input.positions, &order, 1);
-    let normals = input.normals.map(|v| permuted(v, &order, 1));
-    // Only the gradient method weighs neighbours by their flux.
-    let flux = input.flux.filter(|_| p.method == Method::Gradient).map(|v| permuted(v, &order, 1));
-    let emitters = input.emitters.map(|v| permuted(v, &order, 1));
-    let values = input.params.map(|c| permuted(c.values, &order, c.stride));
-    let sorted = DetectInput {
-        positions: &positions,
-        normals: normals.as_deref(),
-        flux: flux.as_deref(),
-        params: input.params.zip(values.as_deref()).map(|(c, values)| ParamColumn { values, ..c }),
-        emitters: emitters.as_deref(),
-    };
+    let columns = Permuted::of(input, &order, p.method);
+    let sorted = columns.input(input);
     let (d, factors, outcomes) = detect_in_order(&sorted, p, progress).map_err(|e| match e {
         DetectError::Spatial(e) => DetectError::Spatial(e.in_file_order(&order)),
         e => e,

@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 
 use super::{
-    CHUNK, DetectError, DetectInput, DetectParams, Detection, Measured, Method, Outcome, check_params,
-    measure, radius_of, summarise, unit_normal, world_index,
+    CHUNK, DetectError, DetectInput, DetectParams, Detection, Measured, Method, Outcome, Permuted,
+    check_params, measure, radius_of, summarise, unit_normal, world_index,
 };
 use crate::spatial::order::{locality_order_in, permuted};
 use crate::spatial::{MAX_PARAM_DIMS, Neighbours, ParamColumn, PointSet, Space, SpatialIndex};
@@ -147,18 +147,8 @@ pub(super) fn detect_tile_with(
         let label = |g: u32| {
             members.binary_search(&g).map(|k| label_of_member[k]).expect("interior photons are members")
         };
-        let positions = permuted(pos, &work, 1);
-        let normals = input.normals.map(|v| permuted(v, &work, 1));
-        let flux = input.flux.filter(|_| p.method == Method::Gradient).map(|v| permuted(v, &work, 1));
-        let emitters = input.emitters.map(|v| permuted(v, &work, 1));
-        let values = input.params.map(|c| permuted(c.values, &work, c.stride));
-        let sorted = DetectInput {
-            positions: &positions,
-            normals: normals.as_deref(),
-            flux: flux.as_deref(),
-            params: input.params.zip(values.as_deref()).map(|(c, values)| ParamColumn { values, ..c }),
-            emitters: emitters.as_deref(),
-        };
+        let columns = Permuted::of(input, &work, p.method);
+        let sorted = columns.input(input);
         let (points, index) = world_index(&sorted, p.method, normals_ok)?;
         let mut queries: Vec<(u32, usize)> = pending.iter().map(|&q| (label(interior[q]), q)).collect();
         queries.sort_unstable();
@@ -175,7 +165,7 @@ pub(super) fn detect_tile_with(
             whole
                 || !opts.certify
                 || (nb.len() == p.kc
-                    && nb.max_dist2().is_some_and(|d2| within_margin(d2, halo.margin(positions[i]))))
+                    && nb.max_dist2().is_some_and(|d2| within_margin(d2, halo.margin(columns.positions[i]))))
         };
         let results =
             measure(&sorted, &points, index.as_ref(), &labels, radius.as_deref(), p, &certify, &|_| {});

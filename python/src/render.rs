@@ -9,13 +9,13 @@ use photonkit::eval::report::{self, Run};
 use photonkit::eval::truth::{Quality, TruthError};
 use photonkit::render::from_map::{CameraChanges, DiagnosticView, Framing, MapRender, render_map};
 use photonkit::render::{Diagnostic, Estimator, EyeOptions, Kernel, Mode, Outputs, Specular};
-use photonkit::scene::{Camera, Scene};
+use photonkit::scene::{Camera, Scene, SceneFile, unsupported_warning};
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
 use crate::errors::{Failure, Kind};
 use crate::map::input;
-use crate::stages::{LoadedScene, load_scene, notes, refuse_input_as_output};
+use crate::stages::{load_scene, notes, refuse_input_as_output, tell_scene};
 use crate::{options, run};
 
 /// The scene's own camera.
@@ -337,8 +337,9 @@ pub fn compare<'py>(
         return Err(Failure::value("--cells needs at least 4".into()).into());
     }
     let (rows, table, told, warning) = run(py, threads, || {
-        let LoadedScene { scene, label, content: text, notes: mut told, warning } =
+        let SceneFile { scene, name: label, content: text, notes: mut told, unsupported } =
             load_scene(scene_path.as_deref())?;
+        let warning = unsupported_warning(&label, &unsupported);
         std::fs::create_dir_all(&out_dir).map_err(|e| Failure {
             kind: Kind::Os(e.kind()),
             message: format!("creating {}: {e}", out_dir.display()),
@@ -387,7 +388,7 @@ pub fn compare<'py>(
         let [run] = runs;
         Ok((report::csv(std::slice::from_ref(&run)), report::table_markdown(&run.rows), told, warning))
     })?;
-    LoadedScene::tell(&told, warning.as_deref(), py)?;
+    tell_scene(py, &told, warning.as_deref())?;
     let result = PyDict::new(py);
     result.set_item("rows", csv_rows(py, &rows)?)?;
     result.set_item("table", table)?;

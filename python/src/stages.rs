@@ -10,7 +10,7 @@ use photonkit::detect::{DetectParams, Method, NoiseModel};
 use photonkit::format::{self, ColumnSpec, MapView, Output, PhotonTable, guard, name};
 use photonkit::pipeline::{PipelineError, PipelineParams, Stage, StageDone};
 use photonkit::relax::RelaxParams;
-use photonkit::scene::{Scene, SceneFile};
+use photonkit::scene::{Scene, SceneFile, unsupported_warning};
 use photonkit::trace::{Budget, Shard, Spool, StorePolicy, TraceOptions};
 use pyo3::prelude::*;
 
@@ -50,45 +50,23 @@ fn finish(table: PhotonTable, output: Option<PathBuf>, context: &str) -> Result<
     }
 }
 
-/// A scene file as `photonkit trace` loads it, with what the command line would tell the user.
-pub struct LoadedScene {
-    /// The scene, built.
-    pub scene: Scene,
-    /// Its name for records.
-    pub label: String,
-    /// The bytes it was read from (the trace record's CRC-32 covers them).
-    pub content: Vec<u8>,
-    /// Notes (how a glTF directional light's beam was chosen).
-    pub notes: Vec<String>,
-    /// The one warning listing what the file holds and the tracer does not honour.
-    pub warning: Option<String>,
-}
-
-impl LoadedScene {
-    /// Tells the user, as the command line does: the notes to the `photonkit` logger, the
-    /// warning as a `UserWarning`.
-    pub fn tell(told: &[String], warning: Option<&str>, py: Python<'_>) -> PyResult<()> {
-        notes(py, told)?;
-        if let Some(w) = warning {
-            warn(py, w)?;
-        }
-        Ok(())
+/// Tells the user what the command line tells about a scene: its notes to the `photonkit`
+/// logger, what it holds and the tracer does not honour as one `UserWarning`.
+pub fn tell_scene(py: Python<'_>, told: &[String], warning: Option<&str>) -> PyResult<()> {
+    notes(py, told)?;
+    if let Some(w) = warning {
+        warn(py, w)?;
     }
+    Ok(())
 }
 
-/// The scene file at `path` (TOML or glTF), or the embedded default, as `photonkit trace`
-/// loads it.
-pub fn load_scene(path: Option<&Path>) -> Result<LoadedScene, Failure> {
-    let (f, label) = match path {
-        Some(p) => (SceneFile::read(p)?, options::text(p)),
-        None => {
-            let f = SceneFile::default_scene();
-            let name = f.name.clone();
-            (f, name)
-        }
-    };
-    let warning = photonkit::scene::unsupported_warning(&label, &f.unsupported);
-    Ok(LoadedScene { scene: f.scene, label, content: f.content, notes: f.notes, warning })
+/// The scene file at `path` (TOML or glTF, its `name` as records give it), or the embedded
+/// default, as `photonkit trace` loads it.
+pub fn load_scene(path: Option<&Path>) -> Result<SceneFile, Failure> {
+    Ok(match path {
+        Some(p) => SceneFile { name: options::text(p), ..SceneFile::read(p)? },
+        None => SceneFile::default_scene(),
+    })
 }
 
 fn shard(value: &Bound<'_, PyAny>) -> PyResult<Shard> {
@@ -145,8 +123,9 @@ pub fn trace(
         _ => StorePolicy::Caustic,
     };
     let (source, nothing_stored, told, warning) = run(py, threads, || {
-        let LoadedScene { scene, label, content: text, notes: told, warning } =
+        let SceneFile { scene, name: label, content: text, notes: told, unsupported } =
             load_scene(scene_path.as_deref())?;
+        let warning = unsupported_warning(&label, &unsupported);
         if let Some(p) = &output {
             refuse_input_as_output(p)?;
         }
@@ -183,7 +162,7 @@ pub fn trace(
         };
         Ok((source, nothing, told, warning))
     })?;
-    LoadedScene::tell(&told, warning.as_deref(), py)?;
+    tell_scene(py, &told, warning.as_deref())?;
     if nothing_stored {
         warn(py, "no photon was stored (does light reach a diffuse surface through a mirror or glass?)")?;
     }

@@ -364,8 +364,7 @@ pub fn convergence_markdown(runs: &[Run]) -> String {
     );
     let regions = [None, Some(Region::Core), Some(Region::Edge), Some(Region::Smooth)];
     for run in runs {
-        let one = [run.clone()];
-        for (name, _, rows) in series(&one) {
+        for (name, _, rows) in series(std::slice::from_ref(run)) {
             let mut rows: Vec<&Row> = rows.into_iter().filter(|r| r.passes.is_some()).collect();
             rows.sort_by_key(|r| r.passes);
             if rows.len() < 2 {

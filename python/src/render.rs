@@ -324,10 +324,12 @@ pub fn compare<'py>(
         diffusion_q,
         ppm_passes: ppm_passes.unwrap_or(defaults.ppm_passes),
         ppm_photons_per_pass: ppm_photons.map(options::count).transpose()?,
+        refine_photons_per_pass: None,
         ppm_k,
         // ours-progressive runs at the library's pass counts (1, 4, 16).
         refine_passes: defaults.refine_passes.clone(),
         refine_iterations: defaults.refine_iterations,
+        refine_growth: defaults.refine_growth,
         spp,
         seeds,
         methods,

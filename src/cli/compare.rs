@@ -86,9 +86,16 @@ pub struct Args {
     /// photons' flux is refined).
     #[arg(long, value_name = "N", default_value_t = photonkit::refine::RefineParams::default().iterations)]
     refine_iterations: usize,
+    /// γ of ours-progressive: its photons grow toward N₀·p^γ after p passes, by splitting the
+    /// cells holding the most flux (0: fixed) [default: 1/3]
+    #[arg(long, value_name = "G", value_parser = super::finite_f32, default_value_t = photonkit::refine::RefineParams::default().growth, hide_default_value = true)]
+    refine_growth: f32,
     /// Photons per progressive pass (default: --photons).
     #[arg(long, value_name = "N", value_parser = super::trace::parse_count)]
     ppm_photons: Option<u64>,
+    /// Photons emitted per refinement pass of ours-progressive (default: --photons).
+    #[arg(long, value_name = "N", value_parser = super::trace::parse_count)]
+    refine_photons: Option<u64>,
     /// k of progressive photon mapping's initial radius at each point: the distance to the
     /// k-th nearest photon of its first pass (Hachisuka & Jensen advise k in the tens); 0 for
     /// one radius over the whole image.
@@ -210,7 +217,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         ppm_passes: a.ppm_passes.clone(),
         refine_passes: a.refine_passes.clone(),
         refine_iterations: a.refine_iterations,
+        refine_growth: a.refine_growth,
         ppm_photons_per_pass: a.ppm_photons,
+        refine_photons_per_pass: a.refine_photons,
         ppm_k: a.ppm_k,
         spp: a.spp,
         seeds: a.seeds,

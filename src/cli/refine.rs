@@ -40,6 +40,10 @@ pub struct Args {
     /// Relaxation iterations toward constant flux per pass (0: only the flux is refined).
     #[arg(long, value_name = "N", default_value_t = RefineParams::default().iterations)]
     iterations: usize,
+    /// γ: the photons grow toward N₀·p^γ after p passes, by splitting the cells holding the
+    /// most flux (0: the map's photons stay; docs/progressive.md, "Growth") [default: 1/3]
+    #[arg(value_parser = super::finite_f32, long, value_name = "G", default_value_t = RefineParams::default().growth, hide_default_value = true)]
+    growth: f32,
     /// Kf: neighbours of the repulsion (Eq. 8).
     #[arg(long, value_name = "N", default_value_t = RefineParams::default().kf)]
     kf: usize,
@@ -83,6 +87,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         iterations: a.iterations,
         kf: a.kf,
         step_limit: a.step_limit,
+        growth: a.growth,
     };
     let done = RefineRecord::of(&map_view).map_or(0, |r| r.passes_done);
     if done >= a.passes {

@@ -67,8 +67,10 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = KernelArg::Epanechnikov)]
     kernel: KernelArg,
     /// K: photons in each knn estimate (variable: the neighbour that sets each photon's radius).
-    #[arg(short, default_value_t = 15)]
-    k: usize,
+    /// Default 15; for a map that `refine --growth` grew, 15 × its photons over the map's
+    /// before refinement, so each kernel spans the area it did (docs/progressive.md, "Growth").
+    #[arg(short)]
+    k: Option<usize>,
     /// Largest kernel radius of the k-NN estimate, metres (fewer than K photons count then).
     #[arg(value_parser = super::finite_f32, long, value_name = "M")]
     max_radius: Option<f32>,
@@ -342,6 +344,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
 
 /// Renders `map` as the arguments ask, through `scene` (its name for the header) unless they
 /// ask for a plane, and writes the EXR and its preview.
+/// K of the k-NN estimate when `-k` is not given (the paper's).
+const DEFAULT_K: usize = 15;
+
 pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>) -> anyhow::Result<()> {
     for p in [Some(a.output.clone()), a.common.outputs(&a.output).png].into_iter().flatten() {
         super::refuse_input_as_output(&p.to_string_lossy())?;
@@ -351,10 +356,20 @@ pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>
         KernelArg::Disc => Kernel::Disc,
         KernelArg::Cone => Kernel::Cone,
     };
+    let k = match a.k {
+        Some(k) => k,
+        None => {
+            let k = photonkit::refine::render_k(map, DEFAULT_K);
+            if k != DEFAULT_K {
+                super::note!("photonkit render: the map grew in refinement: K = {k} (-k sets it)");
+            }
+            k
+        }
+    };
     let estimator = match a.estimator {
-        EstimatorArg::Knn => Estimator::Knn { k: a.k, kernel, max_radius: a.max_radius },
+        EstimatorArg::Knn => Estimator::Knn { k, kernel, max_radius: a.max_radius },
         EstimatorArg::Diffusion => Estimator::Diffusion { k: a.diffusion_k, q: a.diffusion_q },
-        EstimatorArg::Variable => Estimator::Variable { k: a.k, kernel },
+        EstimatorArg::Variable => Estimator::Variable { k, kernel },
     };
     let framing = match (a.plane, scene) {
         (Some((axis, offset)), _) => Framing::Plane {

@@ -198,6 +198,32 @@ impl<'a> PhotonTable<'a> {
         }
     }
 
+    /// Every column of `view` followed by `extra` more photons: `appended[c]` holds their bytes
+    /// of `view`'s column c (owned, so the table copies the map's columns once).
+    pub fn carrying_appended(
+        view: &MapView<'a>,
+        info: MapInfo,
+        extra: usize,
+        appended: &[Vec<u8>],
+    ) -> Result<PhotonTable<'static>> {
+        let invalid = |message: String| FormatError::Invalid { file: view.file_name().to_string(), message };
+        if appended.len() != view.columns().len() {
+            return Err(invalid(format!("{} appended columns for {}", appended.len(), view.columns().len())));
+        }
+        let mut columns = Vec::with_capacity(appended.len());
+        for ((spec, bytes), more) in view.columns().iter().zip(appended) {
+            if more.len() as u64 != extra as u64 * spec.stride() {
+                return Err(invalid(format!(
+                    "column '{}': {} bytes appended for {extra} photons",
+                    spec.name,
+                    more.len()
+                )));
+            }
+            columns.push((spec.clone(), Bytes::of(&[*bytes, more.as_slice()].concat())));
+        }
+        Ok(PhotonTable { file: view.file_name().to_string(), info, columns, len: view.len() + extra })
+    }
+
     /// Number of photons.
     pub fn len(&self) -> usize {
         self.len

@@ -19,15 +19,17 @@
 //! 4. sets every primal photon's flux to its cell's estimate, scaled so the map's total flux
 //!    per channel is the total it had (energy is conserved exactly).
 
+mod grow;
 mod pass;
 #[cfg(test)]
 mod tests;
 
 use serde::{Deserialize, Serialize};
 
-pub use pass::{PassMeasure, Primal, Statistics, gather, relax_toward_flux, set_flux};
+pub use grow::{Cells, GrownRows, HierarchyColumns, Moments, Promoted, target_count};
+pub use pass::{PassMeasure, Primal, Statistics, gather, gather_cells, relax_toward_flux, set_flux};
 
-use crate::format::{FormatError, MapView, PhotonTable, StageRecord, name};
+use crate::format::{Element, FormatError, MapView, PhotonTable, StageRecord, name};
 use crate::scene::Scene;
 use crate::spatial::BoxTree;
 use crate::trace::{self, StorePolicy, TraceError, TraceOptions};
@@ -47,11 +49,22 @@ pub struct RefineParams {
     pub kf: usize,
     /// Largest step, as a fraction of the local photon spacing.
     pub step_limit: f32,
+    /// γ: the primal photons grow to N₀·p^γ after p passes by splitting the brightest cells
+    /// (docs/progressive.md, "Growth"); 0 keeps the map's photons.
+    #[serde(default)]
+    pub growth: f32,
 }
 
 impl Default for RefineParams {
     fn default() -> Self {
-        RefineParams { passes: 8, photons_per_pass: None, iterations: 0, kf: 16, step_limit: 0.25 }
+        RefineParams {
+            passes: 8,
+            photons_per_pass: None,
+            iterations: 0,
+            kf: 16,
+            step_limit: 0.25,
+            growth: 1.0 / 3.0,
+        }
     }
 }
 
@@ -85,6 +98,22 @@ pub mod column {
     pub const TAU: &str = "refine_tau";
     /// Passes the statistics hold, P_i (fewer than the run's after the photon moved). f32×1.
     pub const PASSES: &str = "refine_passes";
+    /// With growth: the photon whose cell this one split, u32::MAX for the map's own photons
+    /// (the roots); an added photon's `refine_tau` is what its region gathered since the
+    /// split. u32.
+    pub const SPLIT_OF: &str = "refine_split_of";
+    /// With growth: a root's site (its position before any split), or an added photon's
+    /// region's site, metres. f32×3.
+    pub const SITE: &str = "refine_site";
+    /// With growth: for an added photon, the site of the split photon's region made with it.
+    /// f32×3.
+    pub const SITE_KEPT: &str = "refine_site_kept";
+    /// With growth: for an added photon, what the split photon's region made with it gathered
+    /// since, W per channel. f32×3.
+    pub const TAU_KEPT: &str = "refine_tau_kept";
+    /// With growth: the flux-weighted moments of what each photon's cell gathered since it
+    /// was made (weight, first moment, second moments, count; [`super::Moments`]). f32×11.
+    pub const MOMENTS: &str = "refine_moments";
 }
 
 /// The record a refinement adds to the map's history (one per run; a resumed run adds one).
@@ -104,6 +133,10 @@ pub struct RefineRecord {
     pub total_flux: [f64; 3],
     /// Per pass of this run: its measures.
     pub measures: Vec<PassMeasure>,
+    /// Primal photons before the first pass, N₀ of the growth rule (0 in a record written
+    /// before growth: the map's count).
+    #[serde(default)]
+    pub primal_start: u64,
 }
 
 impl RefineRecord {
@@ -118,10 +151,12 @@ impl RefineRecord {
 struct Start {
     primal: Primal,
     stats: Statistics,
+    cells: Cells,
     passes_done: u64,
     next_emission: u64,
     fresh_stored: u64,
     total: [f64; 3],
+    primal_start: usize,
 }
 
 fn start(map: &MapView, per_pass: u64) -> Result<Start, RefineError> {
@@ -140,13 +175,20 @@ fn start(map: &MapView, per_pass: u64) -> Result<Start, RefineError> {
         }
         let stats = Statistics::from_map(map)?
             .ok_or_else(|| input("has a refine record but not its statistics columns".into()))?;
+        let cells = match hierarchy_columns(map, &stats)? {
+            Some(c) => Cells::rebuild(rec.primal_start as usize, &c)
+                .ok_or_else(|| input("its refine_* columns do not describe a hierarchy of cells".into()))?,
+            None => Cells::new(&primal.positions),
+        };
         return Ok(Start {
-            primal,
+            cells,
             stats,
             passes_done: rec.passes_done,
             next_emission: rec.next_emission,
             fresh_stored: rec.fresh_stored,
             total: rec.total_flux,
+            primal_start: if rec.primal_start > 0 { rec.primal_start as usize } else { primal.len() },
+            primal,
         });
     }
     let trace = map
@@ -156,7 +198,16 @@ fn start(map: &MapView, per_pass: u64) -> Result<Start, RefineError> {
     let next_emission = trace.report.emission_range.map_or(trace.report.emitted, |r| r[1]);
     let stats = Statistics::start(primal.len());
     let total = primal.total_flux();
-    Ok(Start { primal, stats, passes_done: 0, next_emission, fresh_stored: 0, total })
+    Ok(Start {
+        primal_start: primal.len(),
+        cells: Cells::new(&primal.positions),
+        primal,
+        stats,
+        passes_done: 0,
+        next_emission,
+        fresh_stored: 0,
+        total,
+    })
 }
 
 /// Refines `map` (its primal photons, with their constraint bases where it has them) in
@@ -186,8 +237,24 @@ pub fn refine<'a>(
             RefineError::Invalid("the map names no emitted count: give the photons per pass".into())
         })?,
     };
-    let Start { mut primal, mut stats, mut passes_done, mut next_emission, mut fresh_stored, total } =
-        start(map, per_pass)?;
+    if p.growth > 0.0 && p.iterations > 0 {
+        return Err(RefineError::Invalid(
+            "growth splits the photons' cells where they stand: it does not combine with relaxation iterations".into(),
+        ));
+    }
+    if !(p.growth >= 0.0 && p.growth <= 1.0) {
+        return Err(RefineError::Invalid("the growth exponent γ must lie in [0, 1]".into()));
+    }
+    let Start {
+        mut primal,
+        mut stats,
+        mut cells,
+        mut passes_done,
+        mut next_emission,
+        mut fresh_stored,
+        total,
+        primal_start,
+    } = start(map, per_pass)?;
     let topts = TraceOptions {
         seed: trace.as_ref().map_or(1, |t| t.parameters.seed),
         store: match trace.as_ref().map(|t| t.parameters.store.as_str()) {
@@ -204,9 +271,11 @@ pub fn refine<'a>(
         next_emission,
         fresh_stored,
         total,
+        primal_start,
     };
-    // The primal photons' index: rebuilt only when relaxation moves them.
-    let mut tree = BoxTree::build(&primal.positions);
+    // The index of the root photons (the map's own): rebuilt only when relaxation moves them.
+    let mut tree = BoxTree::build(&cells.root_sites());
+    let mut grown = GrownRows::default();
     let mut table = None;
     while passes_done < p.passes {
         let t = std::time::Instant::now();
@@ -221,8 +290,19 @@ pub fn refine<'a>(
         let fresh = traced.photons()?;
         next_emission = range.end;
         fresh_stored += fresh.len() as u64;
-        let gathered = gather(&mut stats, &primal, &tree, &fresh);
+        let (gathered, root) = gather_cells(&mut stats, &primal, &tree, &fresh);
+        let _owner = cells.descend(&fresh, &root);
         passes_done += 1;
+        let mut estimate = cells.leaf_flux(&stats);
+        let target = target_count(primal_start, passes_done, p.growth);
+        if target > primal.len() {
+            let add = target - primal.len();
+            let promoted = cells.split_brightest(&mut primal, &estimate, add);
+            stats.tau.resize(primal.len(), [0.0; 3]);
+            stats.passes.resize(primal.len(), 0.0);
+            grown.push(map, &promoted);
+            estimate = cells.leaf_flux(&stats);
+        }
         let mut moved = 0.0;
         for _ in 0..p.iterations {
             moved += relax_toward_flux(&mut primal, &mut stats, p);
@@ -230,7 +310,10 @@ pub fn refine<'a>(
         if p.iterations > 0 {
             tree = BoxTree::build(&primal.positions);
         }
-        let spread = set_flux(&mut primal, &stats, total);
+        if p.iterations > 0 {
+            estimate = cells.leaf_flux(&stats);
+        }
+        let spread = set_flux(&mut primal, &estimate, total);
         let m = PassMeasure {
             pass: passes_done,
             fresh_stored: fresh.len() as u64,
@@ -240,14 +323,8 @@ pub fn refine<'a>(
             seconds: crate::format::meta::reported_seconds(t.elapsed().as_secs_f64()).as_f64(),
         };
         measures.push(m);
-        let done = make_table(
-            map,
-            &primal,
-            &stats,
-            p,
-            counters(passes_done, next_emission, fresh_stored),
-            &measures,
-        )?;
+        let state = State { primal: &primal, stats: &stats, cells: &cells, grown: &grown };
+        let done = make_table(map, state, p, counters(passes_done, next_emission, fresh_stored), &measures)?;
         let go_on = after_pass(&m, &done)?;
         table = Some(done);
         if !go_on {
@@ -258,7 +335,8 @@ pub fn refine<'a>(
     match table {
         Some(t) => Ok(t),
         None => {
-            make_table(map, &primal, &stats, p, counters(passes_done, next_emission, fresh_stored), &measures)
+            let state = State { primal: &primal, stats: &stats, cells: &cells, grown: &grown };
+            make_table(map, state, p, counters(passes_done, next_emission, fresh_stored), &measures)
         }
     }
 }
@@ -271,14 +349,23 @@ struct Counters {
     next_emission: u64,
     fresh_stored: u64,
     total: [f64; 3],
+    primal_start: usize,
 }
 
 /// `map` with the primal photons' positions, flux and statistics replaced, and this run's
 /// refine record last in its history.
+/// What a pass leaves: the primal photons, their statistics and cells, and the rows growth added.
+#[derive(Clone, Copy)]
+struct State<'s> {
+    primal: &'s Primal,
+    stats: &'s Statistics,
+    cells: &'s Cells,
+    grown: &'s GrownRows,
+}
+
 fn make_table<'a>(
     map: &MapView<'a>,
-    primal: &Primal,
-    stats: &Statistics,
+    State { primal, stats, cells, grown }: State,
     p: &RefineParams,
     c: Counters,
     measures: &[PassMeasure],
@@ -292,14 +379,76 @@ fn make_table<'a>(
         fresh_stored: c.fresh_stored,
         total_flux: c.total,
         measures: measures.to_vec(),
+        primal_start: c.primal_start as u64,
     };
     let mut rec = StageRecord::now("refine", serde_json::to_value(p).unwrap_or_default());
     rec.report = serde_json::to_value(&record).unwrap_or_default();
     info.history.push(rec);
-    let mut table = PhotonTable::carrying(map, info);
+    let mut table = if grown.len == 0 {
+        PhotonTable::carrying(map, info)
+    } else {
+        PhotonTable::carrying_appended(map, info, grown.len, &grown.bytes)?
+    };
     table.set(name::POSITION, &primal.positions)?;
     table.set(name::FLUX, &primal.flux)?;
-    table.set(column::TAU, &stats.tau)?;
+    if p.growth > 0.0 || cells.roots() < primal.len() {
+        let c = cells.columns(stats);
+        table.set(column::TAU, &c.tau)?;
+        table.set(column::SPLIT_OF, &c.split_of)?;
+        table.set(column::SITE, &c.site)?;
+        table.set(column::SITE_KEPT, &c.site_kept)?;
+        table.set(column::TAU_KEPT, &c.tau_kept)?;
+        table.set_flat::<f32>(column::MOMENTS, 11, bytemuck::cast_slice(&c.moments))?;
+    } else {
+        table.set(column::TAU, &stats.tau)?;
+    }
     table.set(column::PASSES, &stats.passes)?;
     Ok(table)
+}
+
+/// K of the k-NN estimate that renders `map` as a map of its photons before refinement is
+/// rendered with `k`: k × N / N₀ for a map that growth took from N₀ to N photons (the kernel
+/// spans the area it did, and the cells in it, smaller, carry the flux more finely:
+/// docs/progressive.md, "Growth"); `k` for any other map.
+pub fn render_k(map: &MapView, k: usize) -> usize {
+    match RefineRecord::of(map) {
+        Some(rec) if rec.primal_start > 0 && map.len() as u64 > rec.primal_start => {
+            (k as f64 * map.len() as f64 / rec.primal_start as f64).round() as usize
+        }
+        _ => k,
+    }
+}
+
+/// The hierarchy's columns of a map refined with growth, if it has them (roots' τ from `stats`).
+fn hierarchy_columns(map: &MapView, stats: &Statistics) -> Result<Option<HierarchyColumns>, RefineError> {
+    let Some(split_of) = map.column::<u32>(column::SPLIT_OF)? else {
+        return Ok(None);
+    };
+    let missing = |c: &str| RefineError::Input {
+        file: map.file_name().to_string(),
+        message: format!("has {} but not {c}", column::SPLIT_OF),
+    };
+    let three = |c: &'static str| -> Result<Vec<[f32; 3]>, RefineError> {
+        Ok(map.column::<[f32; 3]>(c)?.ok_or_else(|| missing(c))?.to_vec())
+    };
+    let moments = match (map.spec(column::MOMENTS), map.column_bytes(column::MOMENTS)) {
+        (Some(spec), Some(bytes)) if spec.dtype == f32::DTYPE && spec.components == 11 => {
+            bytemuck::pod_collect_to_vec::<u8, Moments>(bytes)
+        }
+        (Some(_), _) => {
+            return Err(RefineError::Input {
+                file: map.file_name().to_string(),
+                message: format!("column {} must be f32×11", column::MOMENTS),
+            });
+        }
+        _ => return Err(missing(column::MOMENTS)),
+    };
+    Ok(Some(HierarchyColumns {
+        split_of: split_of.to_vec(),
+        site: three(column::SITE)?,
+        site_kept: three(column::SITE_KEPT)?,
+        tau: stats.tau.clone(),
+        tau_kept: three(column::TAU_KEPT)?,
+        moments,
+    }))
 }

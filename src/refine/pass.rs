@@ -119,6 +119,16 @@ const SIDE_SEARCH: usize = 8;
 /// cell's exact flux ∫ E dA. `tree` indexes `primal.positions` (built once, and again only
 /// after the photons move). Returns the mean number of fresh photons a primal photon gathered.
 pub fn gather(stats: &mut Statistics, primal: &Primal, tree: &BoxTree, fresh: &Photons) -> f64 {
+    gather_cells(stats, primal, tree, fresh).0
+}
+
+/// [`gather`], also returning each fresh photon's primal photon (`None`: none on its side).
+pub fn gather_cells(
+    stats: &mut Statistics,
+    primal: &Primal,
+    tree: &BoxTree,
+    fresh: &Photons,
+) -> (f64, Vec<Option<u32>>) {
     let normals = primal.normals.as_deref();
     let n = primal.len();
     // Queried in Z-order of the fresh photons, so consecutive searches walk the same leaves
@@ -165,7 +175,7 @@ pub fn gather(stats: &mut Statistics, primal: &Primal, tree: &BoxTree, fresh: &P
         }
         *passes += 1.0;
     }
-    gathered as f64 / n.max(1) as f64
+    (gathered as f64 / n.max(1) as f64, owner)
 }
 
 /// Each primal photon's squared distance to its Kf-th neighbour, and its neighbours, from one
@@ -255,16 +265,16 @@ pub fn relax_toward_flux(primal: &mut Primal, stats: &mut Statistics, p: &Refine
     sum / n.max(1) as f64
 }
 
-/// Step 4 of a pass: each primal photon's flux is its cell's estimate τ_i / P_i, scaled per
+/// Step 4 of a pass: each primal photon's flux is its cell's estimate `raw[i]` (τ_i / P_i, or
+/// the hierarchy's: [`super::Cells::leaf_flux`]), scaled per
 /// channel so the total is `total` (a channel with no estimate keeps its flux). Returns the
 /// coefficient of variation of the photons' flux luminance.
-pub fn set_flux(primal: &mut Primal, stats: &Statistics, total: [f64; 3]) -> f64 {
-    let raw: Vec<Vec3> = (0..primal.len()).map(|i| stats.cell_flux(i)).collect();
+pub fn set_flux(primal: &mut Primal, raw: &[Vec3], total: [f64; 3]) -> f64 {
     let sums = raw.iter().fold([0.0f64; 3], |s, f| [s[0] + f.x as f64, s[1] + f.y as f64, s[2] + f.z as f64]);
     for c in 0..3 {
         if sums[c] > 0.0 {
             let scale = total[c] / sums[c];
-            for (f, r) in primal.flux.iter_mut().zip(&raw) {
+            for (f, r) in primal.flux.iter_mut().zip(raw) {
                 f[c] = (r[c] as f64 * scale) as f32;
             }
         }

@@ -125,7 +125,8 @@ fn relaxation_draws_photons_toward_the_brighter_side_and_evens_their_flux() {
             for _ in 0..p.iterations {
                 relax_toward_flux(&mut primal, &mut stats, &p);
             }
-            cv = set_flux(&mut primal, &stats, total);
+            let raw: Vec<Vec3> = (0..primal.len()).map(|i| stats.cell_flux(i)).collect();
+            cv = set_flux(&mut primal, &raw, total);
             let after = primal.total_flux();
             for c in 0..3 {
                 assert!((after[c] / total[c] - 1.0).abs() < 1e-5, "energy: {after:?} against {total:?}");
@@ -193,8 +194,13 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let dir = tempfile::tempdir().unwrap();
     let (map, scene) = traced_map(dir.path());
     let total = Primal::from_map(&map.view()).unwrap().total_flux();
-    let p =
-        RefineParams { passes: 3, photons_per_pass: Some(30_000), iterations: 1, ..RefineParams::default() };
+    let p = RefineParams {
+        passes: 3,
+        photons_per_pass: Some(30_000),
+        iterations: 1,
+        growth: 0.0,
+        ..RefineParams::default()
+    };
     let mut seen = Vec::new();
     let whole = refine(&map.view(), &scene, &p, None, &mut |m, t| {
         let got = Primal::from_map(&t.view()).unwrap().total_flux();
@@ -228,4 +234,191 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let other = RefineParams { photons_per_pass: Some(10_000), ..p };
     let e = refine(&one.view(), &scene, &other, None, &mut |_, _| Ok(true)).unwrap_err();
     assert!(e.to_string().contains("other settings"), "{e}");
+}
+
+/// Runs `passes` passes of `fresh(pass)` over a grid of 10 × 10 root photons on the unit
+/// square, growing the photons as N₀·p^γ: the photons, their cells, and the leaf estimates.
+fn grown_grid(
+    passes: u64,
+    growth: f32,
+    fresh: impl Fn(u64) -> crate::trace::Photons,
+) -> (Primal, Cells, Statistics, Vec<Vec3>) {
+    let mut primal = grid_primal(10);
+    let roots = primal.len();
+    let mut stats = Statistics::start(roots);
+    let mut cells = Cells::new(&primal.positions);
+    let tree = BoxTree::build(&primal.positions);
+    let mut estimate = Vec::new();
+    for pass in 1..=passes {
+        let f = fresh(pass);
+        let (_, root) = gather_cells(&mut stats, &primal, &tree, &f);
+        cells.descend(&f, &root);
+        estimate = cells.leaf_flux(&stats);
+        let target = target_count(roots, pass, growth);
+        if target > primal.len() {
+            let add = target - primal.len();
+            cells.split_brightest(&mut primal, &estimate, add);
+            stats.tau.resize(primal.len(), [0.0; 3]);
+            stats.passes.resize(primal.len(), 0.0);
+            estimate = cells.leaf_flux(&stats);
+        }
+    }
+    (primal, cells, stats, estimate)
+}
+
+/// Each photon's cell in the hierarchy, measured by brute force: a 400 × 400 lattice of points
+/// on the unit square, each sent to its nearest root site and down the splits. Returns per
+/// photon its cell's area and the integral of `irradiance` over it.
+fn cell_integrals(cells: &Cells, photons: usize, irradiance: impl Fn(f32) -> f64) -> (Vec<f64>, Vec<f64>) {
+    let side = 400;
+    let sites = cells.root_sites();
+    let mut probe = crate::trace::Photons::default();
+    let mut root = Vec::new();
+    for k in 0..side * side {
+        let x = [((k % side) as f32 + 0.5) / side as f32, ((k / side) as f32 + 0.5) / side as f32, 0.0];
+        let nearest = (0..sites.len())
+            .min_by(|&a, &b| {
+                let d = |i: usize| Vec3::from(x).distance_squared(sites[i].into());
+                d(a).total_cmp(&d(b)).then(a.cmp(&b))
+            })
+            .unwrap();
+        probe.position.push(x);
+        probe.flux.push([0.0; 3]);
+        root.push(Some(nearest as u32));
+    }
+    let owner = cells.clone().descend(&probe, &root);
+    let (mut area, mut integral) = (vec![0.0; photons], vec![0.0; photons]);
+    let da = 1.0 / (side * side) as f64;
+    for (k, o) in owner.iter().enumerate() {
+        let i = o.unwrap() as usize;
+        area[i] += da;
+        integral[i] += da * irradiance(probe.position[k][0]);
+    }
+    (area, integral)
+}
+
+#[test]
+fn split_cells_estimate_the_flux_of_their_part_of_the_parent() {
+    // Irradiance 1/3 W/m² per channel on the left half of the square and 1 on the right
+    // (two_level_fresh: 2 W in all). The photons grow from 100 to 100·40^0.5 ≈ 632, the
+    // brightest cells first; every photon's estimate must match the integral of the
+    // irradiance over its cell, which the brute force measures.
+    let (primal, cells, _, estimate) = grown_grid(40, 0.5, |pass| two_level_fresh(20_000, 900 + pass));
+    assert_eq!(primal.len(), 632);
+    let e = |x: f32| if x < 0.5 { 1.0 / 3.0 } else { 1.0 };
+    let (area, exact) = cell_integrals(&cells, primal.len(), e);
+    let (mut e2, mut bias) = (0.0, 0.0);
+    for i in 0..primal.len() {
+        assert!(area[i] > 0.0, "photon {i} has an empty cell");
+        let rel = estimate[i].x as f64 / exact[i] - 1.0;
+        e2 += rel * rel;
+        bias += rel;
+    }
+    let n = primal.len() as f64;
+    let (rms, bias) = ((e2 / n).sqrt(), bias / n);
+    assert!(rms < 0.08, "relative RMS error {rms}");
+    assert!(bias.abs() < 0.01, "mean relative error {bias}");
+    // Each photon lies in its own cell (it moved to its site when split).
+    let (_, owner) = {
+        let mut c = cells.clone();
+        let sites = c.root_sites();
+        let mut probe = crate::trace::Photons::default();
+        let mut root = Vec::new();
+        for x in &primal.positions {
+            let nearest = (0..sites.len())
+                .min_by(|&a, &b| {
+                    let d = |i: usize| Vec3::from(*x).distance_squared(sites[i].into());
+                    d(a).total_cmp(&d(b)).then(a.cmp(&b))
+                })
+                .unwrap();
+            probe.position.push(*x);
+            probe.flux.push([0.0; 3]);
+            root.push(Some(nearest as u32));
+        }
+        ((), c.descend(&probe, &root))
+    };
+    let home = owner.iter().enumerate().filter(|(i, o)| **o == Some(*i as u32)).count();
+    assert!(home as f64 > 0.98 * n, "{home} of {n} photons lie in their own cell");
+    // The bright right half holds more photons: about three times as many per area.
+    let right = (0..primal.len()).filter(|&i| primal.positions[i][0] > 0.5).count() as f64;
+    assert!(right / (n - right) > 2.0, "{right} of {n} on the bright half");
+    // The children partition their parent: the leaves' estimates add up to the roots'.
+    let sum: f32 = estimate.iter().map(|f| f.x).sum();
+    let total: f64 = exact.iter().sum();
+    assert!((sum as f64 / total - 1.0).abs() < 0.01, "{sum} against {total}");
+}
+
+#[test]
+fn the_cells_rebuild_from_their_columns() {
+    let (_, cells, stats, _) = grown_grid(9, 1.0 / 3.0, |pass| uniform_fresh(5000, 700 + pass, 1.0));
+    assert!(cells.roots() < stats.tau.len());
+    let columns = cells.columns(&stats);
+    assert_eq!(Cells::rebuild(cells.roots(), &columns), Some(cells.clone()));
+    // A photon that names a later photon as the one it split is refused, and so is a root
+    // that names one.
+    let mut bad = columns.clone();
+    bad.split_of[cells.roots()] = cells.roots() as u32 + 1;
+    assert_eq!(Cells::rebuild(cells.roots(), &bad), None);
+    let mut bad = columns.clone();
+    bad.split_of[0] = 1;
+    assert_eq!(Cells::rebuild(cells.roots(), &bad), None);
+}
+
+#[test]
+fn the_photon_count_grows_as_the_power_law() {
+    assert_eq!(target_count(1000, 1, 1.0 / 3.0), 1000);
+    assert_eq!(target_count(1000, 8, 1.0 / 3.0), 2000);
+    assert_eq!(target_count(1000, 64, 1.0 / 3.0), 4000);
+    assert_eq!(target_count(1000, 64, 0.0), 1000);
+    assert_eq!(target_count(1000, 0, 0.5), 1000);
+}
+
+#[test]
+fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
+    let dir = tempfile::tempdir().unwrap();
+    let (map, scene) = traced_map(dir.path());
+    let n0 = map.len();
+    let total = Primal::from_map(&map.view()).unwrap().total_flux();
+    let p =
+        RefineParams { passes: 4, photons_per_pass: Some(200_000), growth: 0.5, ..RefineParams::default() };
+    let mut counts = Vec::new();
+    let whole = refine(&map.view(), &scene, &p, None, &mut |m, t| {
+        let got = Primal::from_map(&t.view()).unwrap().total_flux();
+        for c in 0..3 {
+            assert!((got[c] / total[c] - 1.0).abs() < 1e-5, "pass {}: {got:?} against {total:?}", m.pass);
+        }
+        counts.push(t.len());
+        Ok(true)
+    })
+    .unwrap();
+    // A cell splits once it has gathered enough fresh photons, so the count grows toward
+    // N₀·p^γ, no faster.
+    assert_eq!(counts[0], n0);
+    assert!(counts.windows(2).all(|w| w[0] <= w[1]), "{counts:?}");
+    assert!(counts[3] > n0 && counts[3] <= 2 * n0, "{counts:?}");
+    // The added photons carry every column of the map (their split photon's) and the
+    // hierarchy's.
+    let view = whole.view();
+    assert_eq!(view.columns().len(), map.view().columns().len() + 7);
+    let split_of = view.column::<u32>(column::SPLIT_OF).unwrap().unwrap();
+    assert!(split_of[..n0].iter().all(|&s| s == u32::MAX));
+    assert!(split_of[n0..].iter().enumerate().all(|(k, &s)| (s as usize) < n0 + k));
+
+    let first =
+        refine(&map.view(), &scene, &RefineParams { passes: 2, ..p }, None, &mut |_, _| Ok(true)).unwrap();
+    let path = dir.path().join("two.phm");
+    first.write(Output::Path(path.clone())).unwrap();
+    let two = PhotonMap::open_path(&path).unwrap();
+    let resumed = refine(&two.view(), &scene, &p, None, &mut |_, _| Ok(true)).unwrap();
+    for (spec, bytes) in view.columns() {
+        assert_eq!(
+            resumed.view().column_bytes(&spec.name),
+            Some(*bytes),
+            "{} differs after resuming",
+            spec.name
+        );
+    }
+    // Growth moves no photon: it does not combine with relaxation toward flux.
+    let e = refine(&map.view(), &scene, &RefineParams { iterations: 1, ..p }, None, &mut |_, _| Ok(true));
+    assert!(e.unwrap_err().to_string().contains("does not combine"));
 }

@@ -311,8 +311,9 @@ impl Seed<'_> {
         passes.dedup();
         let p = RefineParams {
             passes: *passes.last().expect("not empty"),
-            photons_per_pass: Some(o.photons),
+            photons_per_pass: Some(o.refine_photons_per_pass.unwrap_or(o.photons)),
             iterations: o.refine_iterations,
+            growth: o.refine_growth,
             kf: o.kf,
             ..RefineParams::default()
         };
@@ -335,16 +336,18 @@ impl Seed<'_> {
         )?;
         for (n, secs) in snapshots {
             let refined = PhotonMap::open_path(&self.file(&format!("refined-{n}.phm")))?;
-            let (img, render_secs) = self.render(&refined, self.fixed_k(o.k))?;
+            let k = crate::refine::render_k(&refined.view(), o.k);
+            let (img, render_secs) = self.render(&refined, self.fixed_k(k))?;
             let times = StageTimes::of(self.trace_secs, Some(det), Some(rel + secs), render_secs);
             let setting = format!(
-                "{}, then {n} passes of {} ({} iterations each), {}",
+                "{}, then {n} passes of {} ({} iterations each, growth γ = {}), {}",
                 method.name(),
-                o.photons,
+                o.refine_photons_per_pass.unwrap_or(o.photons),
                 o.refine_iterations,
-                self.k_label(o.k)
+                o.refine_growth,
+                self.k_label(k)
             );
-            let row = self.row(MethodKind::OursProgressive, setting, &refined, o.k, times, img);
+            let row = self.row(MethodKind::OursProgressive, setting, &refined, k, times, img);
             rows.push(Row { passes: Some(n), ..row });
         }
         Ok(())

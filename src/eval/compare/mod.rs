@@ -173,8 +173,12 @@ pub struct CompareOptions {
     pub refine_passes: Vec<u64>,
     /// Relaxation iterations toward constant flux per refinement pass.
     pub refine_iterations: usize,
+    /// γ of the refinement's growth (0: the map's photons stay).
+    pub refine_growth: f32,
     /// Photons per progressive pass (default: `photons`).
     pub ppm_photons_per_pass: Option<u64>,
+    /// Photons emitted per refinement pass (default: `photons`).
+    pub refine_photons_per_pass: Option<u64>,
     /// k of progressive photon mapping's initial radius at each point: the distance to the
     /// k-th nearest photon of its first pass (Hachisuka & Jensen: k in the tens); 0 for one
     /// radius over the image (the median 15-NN distance of the first pass's photons, which
@@ -212,7 +216,9 @@ impl Default for CompareOptions {
             ppm_passes: vec![1, 4, 16],
             refine_passes: vec![1, 4, 16],
             refine_iterations: RefineParams::default().iterations,
+            refine_growth: RefineParams::default().growth,
             ppm_photons_per_pass: None,
+            refine_photons_per_pass: None,
             ppm_k: 30,
             spp: 16,
             seeds: 4,

@@ -99,8 +99,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             .expect("valid template"),
     );
     let t = Instant::now();
-    let result = refine::refine(&map_view, &r.scene, &p, None, &mut |m, table| {
-        table.write(Output::Path(a.output.clone()))?;
+    let result = refine::refine(&map_view, &r.scene, &p, None, &mut |done| {
+        done.table()?.write(Output::Path(a.output.clone()))?;
+        let m = done.measure;
         bar.inc(1);
         bar.suspend(|| {
             super::note!(

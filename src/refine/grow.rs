@@ -17,6 +17,7 @@
 //! smaller, carry the flux more finely.
 
 use glam::Vec3;
+use rayon::prelude::*;
 
 use super::pass::{Primal, Statistics};
 use crate::format::MapView;
@@ -132,42 +133,62 @@ impl Cells {
     /// roots' sites) down to its leaf, adding its flux to every split region on the way and
     /// to its leaf's moments. Returns each fresh photon's photon.
     pub fn descend(&mut self, fresh: &Photons, root: &[Option<u32>]) -> Vec<Option<u32>> {
-        root.iter()
+        // Each fresh photon's leaf, the walks in parallel (they only read the hierarchy).
+        let regions = &self.regions;
+        let leaf: Vec<Option<u32>> = root
+            .par_iter()
             .enumerate()
             .map(|(j, r)| {
                 let mut r = (*r)? as usize;
                 let x = Vec3::from(fresh.position[j]);
                 let d = |site: [f32; 3]| x.distance_squared(site.into());
-                while let Some([a, b]) = self.regions[r].children {
-                    let (sa, sb) = (self.regions[a as usize].site, self.regions[b as usize].site);
+                while let Some([a, b]) = regions[r].children {
+                    let (sa, sb) = (regions[a as usize].site, regions[b as usize].site);
                     r = if d(sb) < d(sa) { b } else { a } as usize;
-                    for (t, f) in self.regions[r].tau.iter_mut().zip(fresh.flux[j]) {
-                        *t += f;
-                    }
                 }
-                let region = self.regions[r];
-                let w = luminance(Vec3::from(fresh.flux[j]));
-                let v = x - Vec3::from(region.site);
-                let m = &mut self.moments[region.photon as usize];
-                let add = [
-                    w,
-                    w * v.x,
-                    w * v.y,
-                    w * v.z,
-                    w * v.x * v.x,
-                    w * v.x * v.y,
-                    w * v.x * v.z,
-                    w * v.y * v.y,
-                    w * v.y * v.z,
-                    w * v.z * v.z,
-                    1.0,
-                ];
-                for (m, a) in m.iter_mut().zip(add) {
-                    *m += a;
-                }
-                Some(region.photon)
+                Some(r as u32)
             })
-            .collect()
+            .collect();
+        // What each leaf received, summed up the hierarchy: a region's children come after it,
+        // so in reverse order every region's subtree is summed before its parent reads it.
+        let mut deposit = vec![[0.0f64; 3]; self.regions.len()];
+        for (j, l) in leaf.iter().enumerate() {
+            let Some(l) = *l else { continue };
+            for (d, f) in deposit[l as usize].iter_mut().zip(fresh.flux[j]) {
+                *d += f as f64;
+            }
+            let region = self.regions[l as usize];
+            let w = luminance(Vec3::from(fresh.flux[j]));
+            let v = Vec3::from(fresh.position[j]) - Vec3::from(region.site);
+            let add = [
+                w,
+                w * v.x,
+                w * v.y,
+                w * v.z,
+                w * v.x * v.x,
+                w * v.x * v.y,
+                w * v.x * v.z,
+                w * v.y * v.y,
+                w * v.y * v.z,
+                w * v.z * v.z,
+                1.0,
+            ];
+            for (m, a) in self.moments[region.photon as usize].iter_mut().zip(add) {
+                *m += a;
+            }
+        }
+        for r in (self.roots..self.regions.len()).rev() {
+            if let Some([a, b]) = self.regions[r].children {
+                let (da, db) = (deposit[a as usize], deposit[b as usize]);
+                for c in 0..3 {
+                    deposit[r][c] += da[c] + db[c];
+                }
+            }
+            for (t, d) in self.regions[r].tau.iter_mut().zip(deposit[r]) {
+                *t = (*t as f64 + d) as f32;
+            }
+        }
+        leaf.iter().map(|l| l.map(|l| self.regions[l as usize].photon)).collect()
     }
 
     /// Each photon's cell flux per pass, W per channel: a root's τ/P, a child's its parent's

@@ -24,6 +24,8 @@ mod pass;
 #[cfg(test)]
 mod tests;
 
+use std::cell::OnceCell;
+
 use serde::{Deserialize, Serialize};
 
 pub use grow::{Cells, GrownRows, HierarchyColumns, Moments, Promoted, target_count};
@@ -212,8 +214,9 @@ fn start(map: &MapView, per_pass: u64) -> Result<Start, RefineError> {
 
 /// Refines `map` (its primal photons, with their constraint bases where it has them) in
 /// passes of fresh photons traced from `scene`, up to `p.passes` passes in all. After each
-/// pass `after_pass(table)` sees the refined map (to write it, so an interrupted run
-/// resumes from the last pass written); it returns `false` to stop. With `bounces`, only the
+/// pass `after_pass` sees its measures and, built only if asked for ([`PassDone::table`]), the
+/// refined map (to write it, so an interrupted run resumes from the last pass written); it
+/// returns `false` to stop. With `bounces`, only the
 /// fresh photons of these specular bounce counts are gathered (as the map's were chosen:
 /// [`crate::trace::Traced::retain_bounces`]).
 pub fn refine<'a>(
@@ -221,7 +224,7 @@ pub fn refine<'a>(
     scene: &Scene,
     p: &RefineParams,
     bounces: Option<&[u8]>,
-    after_pass: &mut dyn FnMut(&PassMeasure, &PhotonTable<'a>) -> Result<bool, RefineError>,
+    after_pass: &mut dyn FnMut(&PassDone<'_, 'a>) -> Result<bool, RefineError>,
 ) -> Result<PhotonTable<'a>, RefineError> {
     if p.kf == 0 {
         return Err(RefineError::Invalid("the repulsion needs at least one neighbour".into()));
@@ -324,20 +327,43 @@ pub fn refine<'a>(
         };
         measures.push(m);
         let state = State { primal: &primal, stats: &stats, cells: &cells, grown: &grown };
-        let done = make_table(map, state, p, counters(passes_done, next_emission, fresh_stored), &measures)?;
-        let go_on = after_pass(&m, &done)?;
-        table = Some(done);
+        let c = counters(passes_done, next_emission, fresh_stored);
+        let build = || make_table(map, state, p, c, &measures);
+        let done = PassDone { measure: &m, table: OnceCell::new(), build: &build };
+        let go_on = after_pass(&done)?;
+        table = done.table.into_inner();
         if !go_on {
             break;
         }
     }
-    // No pass to run (the map already holds `p.passes`): the map as it is, with this run's record.
+    // The last pass's map unless `after_pass` built it; with no pass to run (the map already
+    // holds `p.passes`), the map as it is, with this run's record.
     match table {
         Some(t) => Ok(t),
         None => {
             let state = State { primal: &primal, stats: &stats, cells: &cells, grown: &grown };
             make_table(map, state, p, counters(passes_done, next_emission, fresh_stored), &measures)
         }
+    }
+}
+
+/// A finished pass as `after_pass` sees it: its measures and, built when first asked for, the
+/// refined map.
+pub struct PassDone<'s, 'a> {
+    /// What the pass measured.
+    pub measure: &'s PassMeasure,
+    table: OnceCell<PhotonTable<'a>>,
+    build: &'s dyn Fn() -> Result<PhotonTable<'a>, RefineError>,
+}
+
+impl<'a> PassDone<'_, 'a> {
+    /// The map after this pass (built on the first call: a copy of every column).
+    pub fn table(&self) -> Result<&PhotonTable<'a>, RefineError> {
+        if let Some(t) = self.table.get() {
+            return Ok(t);
+        }
+        let t = (self.build)()?;
+        Ok(self.table.get_or_init(|| t))
     }
 }
 

@@ -202,7 +202,8 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
         ..RefineParams::default()
     };
     let mut seen = Vec::new();
-    let whole = refine(&map.view(), &scene, &p, None, &mut |m, t| {
+    let whole = refine(&map.view(), &scene, &p, None, &mut |done| {
+        let (m, t) = (done.measure, done.table()?);
         let got = Primal::from_map(&t.view()).unwrap().total_flux();
         for c in 0..3 {
             assert!((got[c] / total[c] - 1.0).abs() < 1e-5, "pass {}: {got:?} against {total:?}", m.pass);
@@ -218,11 +219,11 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
 
     // One pass, written; then the rest from the file.
     let first =
-        refine(&map.view(), &scene, &RefineParams { passes: 1, ..p }, None, &mut |_, _| Ok(true)).unwrap();
+        refine(&map.view(), &scene, &RefineParams { passes: 1, ..p }, None, &mut |_| Ok(true)).unwrap();
     let path = dir.path().join("one.phm");
     first.write(Output::Path(path.clone())).unwrap();
     let one = PhotonMap::open_path(&path).unwrap();
-    let resumed = refine(&one.view(), &scene, &p, None, &mut |_, _| Ok(true)).unwrap();
+    let resumed = refine(&one.view(), &scene, &p, None, &mut |_| Ok(true)).unwrap();
     for column in [name::POSITION, name::FLUX, column::TAU, column::PASSES] {
         assert_eq!(
             resumed.view().column_bytes(column),
@@ -232,7 +233,7 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     }
     // Other settings do not resume.
     let other = RefineParams { photons_per_pass: Some(10_000), ..p };
-    let e = refine(&one.view(), &scene, &other, None, &mut |_, _| Ok(true)).unwrap_err();
+    let e = refine(&one.view(), &scene, &other, None, &mut |_| Ok(true)).unwrap_err();
     assert!(e.to_string().contains("other settings"), "{e}");
 }
 
@@ -382,7 +383,8 @@ fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let p =
         RefineParams { passes: 4, photons_per_pass: Some(200_000), growth: 0.5, ..RefineParams::default() };
     let mut counts = Vec::new();
-    let whole = refine(&map.view(), &scene, &p, None, &mut |m, t| {
+    let whole = refine(&map.view(), &scene, &p, None, &mut |done| {
+        let (m, t) = (done.measure, done.table()?);
         let got = Primal::from_map(&t.view()).unwrap().total_flux();
         for c in 0..3 {
             assert!((got[c] / total[c] - 1.0).abs() < 1e-5, "pass {}: {got:?} against {total:?}", m.pass);
@@ -405,11 +407,11 @@ fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     assert!(split_of[n0..].iter().enumerate().all(|(k, &s)| (s as usize) < n0 + k));
 
     let first =
-        refine(&map.view(), &scene, &RefineParams { passes: 2, ..p }, None, &mut |_, _| Ok(true)).unwrap();
+        refine(&map.view(), &scene, &RefineParams { passes: 2, ..p }, None, &mut |_| Ok(true)).unwrap();
     let path = dir.path().join("two.phm");
     first.write(Output::Path(path.clone())).unwrap();
     let two = PhotonMap::open_path(&path).unwrap();
-    let resumed = refine(&two.view(), &scene, &p, None, &mut |_, _| Ok(true)).unwrap();
+    let resumed = refine(&two.view(), &scene, &p, None, &mut |_| Ok(true)).unwrap();
     for (spec, bytes) in view.columns() {
         assert_eq!(
             resumed.view().column_bytes(&spec.name),
@@ -419,6 +421,6 @@ fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
         );
     }
     // Growth moves no photon: it does not combine with relaxation toward flux.
-    let e = refine(&map.view(), &scene, &RefineParams { iterations: 1, ..p }, None, &mut |_, _| Ok(true));
+    let e = refine(&map.view(), &scene, &RefineParams { iterations: 1, ..p }, None, &mut |_| Ok(true));
     assert!(e.unwrap_err().to_string().contains("does not combine"));
 }

@@ -319,21 +319,16 @@ impl Seed<'_> {
         };
         let start = Instant::now();
         let (mut paused, mut snapshots) = (0.0, Vec::new());
-        crate::refine::refine(
-            &map.view(),
-            self.scene,
-            &p,
-            self.target.bounces.as_deref(),
-            &mut |m, table| {
-                if passes.contains(&m.pass) {
-                    let t = Instant::now();
-                    table.write(Output::Path(self.file(&format!("refined-{}.phm", m.pass))))?;
-                    snapshots.push((m.pass, start.elapsed().as_secs_f64() - paused));
-                    paused += t.elapsed().as_secs_f64();
-                }
-                Ok(true)
-            },
-        )?;
+        crate::refine::refine(&map.view(), self.scene, &p, self.target.bounces.as_deref(), &mut |done| {
+            let m = done.measure;
+            if passes.contains(&m.pass) {
+                let t = Instant::now();
+                done.table()?.write(Output::Path(self.file(&format!("refined-{}.phm", m.pass))))?;
+                snapshots.push((m.pass, start.elapsed().as_secs_f64() - paused));
+                paused += t.elapsed().as_secs_f64();
+            }
+            Ok(true)
+        })?;
         for (n, secs) in snapshots {
             let refined = PhotonMap::open_path(&self.file(&format!("refined-{n}.phm")))?;
             let k = crate::refine::render_k(&refined.view(), o.k);

@@ -330,6 +330,7 @@ pub fn compare<'py>(
         refine_passes: defaults.refine_passes.clone(),
         refine_iterations: defaults.refine_iterations,
         refine_growth: defaults.refine_growth,
+        refine_prior: defaults.refine_prior,
         spp,
         seeds,
         methods,

@@ -90,6 +90,10 @@ pub struct Args {
     /// cells holding the most flux (0: fixed) [default: 1/3]
     #[arg(long, value_name = "G", value_parser = super::finite_f32, default_value_t = photonkit::refine::RefineParams::default().growth, hide_default_value = true)]
     refine_growth: f32,
+    /// w of ours-progressive: the relaxed map's own photon fluxes count as w passes of its
+    /// cells' flux (0: the passes' photons alone)
+    #[arg(long, value_name = "W", value_parser = super::finite_f32, default_value_t = photonkit::refine::RefineParams::default().prior_passes)]
+    refine_prior: f32,
     /// Photons per progressive pass (default: --photons).
     #[arg(long, value_name = "N", value_parser = super::trace::parse_count)]
     ppm_photons: Option<u64>,
@@ -218,6 +222,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         refine_passes: a.refine_passes.clone(),
         refine_iterations: a.refine_iterations,
         refine_growth: a.refine_growth,
+        refine_prior: a.refine_prior,
         ppm_photons_per_pass: a.ppm_photons,
         refine_photons_per_pass: a.refine_photons,
         ppm_k: a.ppm_k,

@@ -44,6 +44,11 @@ pub struct Args {
     /// most flux (0: the map's photons stay; docs/progressive.md, "Growth") [default: 1/3]
     #[arg(value_parser = super::finite_f32, long, value_name = "G", default_value_t = RefineParams::default().growth, hide_default_value = true)]
     growth: f32,
+    /// w: the map's own photon fluxes count as w passes' worth of each cell's flux, so early
+    /// passes do not replace a good estimate by a noisy one (0: the passes' photons alone;
+    /// docs/progressive.md, "The prior")
+    #[arg(long, value_name = "W", value_parser = super::finite_f32, default_value_t = RefineParams::default().prior_passes)]
+    prior_passes: f32,
     /// Kf: neighbours of the repulsion (Eq. 8).
     #[arg(long, value_name = "N", default_value_t = RefineParams::default().kf)]
     kf: usize,
@@ -88,6 +93,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         kf: a.kf,
         step_limit: a.step_limit,
         growth: a.growth,
+        prior_passes: a.prior_passes,
     };
     let done = RefineRecord::of(&map_view).map_or(0, |r| r.passes_done);
     if done >= a.passes {

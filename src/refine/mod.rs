@@ -55,7 +55,15 @@ pub struct RefineParams {
     /// (docs/progressive.md, "Growth"); 0 keeps the map's photons.
     #[serde(default)]
     pub growth: f32,
+    /// Passes' worth of weight the map's own photon fluxes carry as each cell's first
+    /// estimate (docs/progressive.md, "The prior"): a photon's cell flux is
+    /// (w·φ_i + τ_i)/(w + P_i). 0: the passes' photons alone.
+    #[serde(default)]
+    pub prior_passes: f32,
 }
+
+/// The default weight of the map's own fluxes, in passes (docs/progressive.md, "The prior").
+pub const PRIOR_PASSES: f32 = 4.0;
 
 impl Default for RefineParams {
     fn default() -> Self {
@@ -66,6 +74,7 @@ impl Default for RefineParams {
             kf: 16,
             step_limit: 0.25,
             growth: 1.0 / 3.0,
+            prior_passes: PRIOR_PASSES,
         }
     }
 }
@@ -161,7 +170,7 @@ struct Start {
     primal_start: usize,
 }
 
-fn start(map: &MapView, per_pass: u64) -> Result<Start, RefineError> {
+fn start(map: &MapView, per_pass: u64, prior_passes: f32) -> Result<Start, RefineError> {
     let file = map.file_name();
     let input = |message: String| RefineError::Input { file: file.to_string(), message };
     let primal = Primal::from_map(map)?;
@@ -198,7 +207,7 @@ fn start(map: &MapView, per_pass: u64) -> Result<Start, RefineError> {
         .trace_record()
         .ok_or_else(|| input("names no trace: refinement continues the trace's emission sequence".into()))?;
     let next_emission = trace.report.emission_range.map_or(trace.report.emitted, |r| r[1]);
-    let stats = Statistics::start(primal.len());
+    let stats = Statistics::start(&primal.flux, prior_passes);
     let total = primal.total_flux();
     Ok(Start {
         primal_start: primal.len(),
@@ -257,7 +266,7 @@ pub fn refine<'a>(
         mut fresh_stored,
         total,
         primal_start,
-    } = start(map, per_pass)?;
+    } = start(map, per_pass, p.prior_passes)?;
     let topts = TraceOptions {
         seed: trace.as_ref().map_or(1, |t| t.parameters.seed),
         store: match trace.as_ref().map(|t| t.parameters.store.as_str()) {

@@ -69,9 +69,13 @@ pub struct Statistics {
 }
 
 impl Statistics {
-    /// Empty statistics for `n` photons.
-    pub fn start(n: usize) -> Statistics {
-        Statistics { tau: vec![[0.0; 3]; n], passes: vec![0.0; n] }
+    /// The statistics before the first pass: each photon's own flux φ_i standing for
+    /// `prior_passes` passes (τ_i = w·φ_i, P_i = w; none when w is 0).
+    pub fn start(flux: &[[f32; 3]], prior_passes: f32) -> Statistics {
+        Statistics {
+            tau: flux.iter().map(|f| f.map(|c| c * prior_passes)).collect(),
+            passes: vec![prior_passes; flux.len()],
+        }
     }
 
     /// The statistics a refined map carries, if it has them.

@@ -41,7 +41,7 @@ fn gather_gives_each_fresh_photon_to_its_nearest_primal_photon_on_its_side() {
             *n = [0.0, 0.0, -1.0];
         }
     }
-    let mut stats = Statistics::start(primal.len());
+    let mut stats = Statistics::start(&primal.flux, 0.0);
     let mut fresh = uniform_fresh(5000, 1, 1.0);
     // A few photons on a surface facing another way belong to no primal photon.
     for j in 0..50 {
@@ -73,7 +73,7 @@ fn the_cell_flux_converges_to_the_closed_form() {
     // 1 W per pass uniformly over the unit square: each of the 24² grid cells receives
     // (1/3)/576 W per channel. The error of the estimate falls as passes accumulate.
     let primal = grid_primal(24);
-    let mut stats = Statistics::start(primal.len());
+    let mut stats = Statistics::start(&primal.flux, 0.0);
     let tree = BoxTree::build(&primal.positions);
     let exact = 1.0 / 3.0 / 576.0;
     let rms = |s: &Statistics| {
@@ -94,6 +94,43 @@ fn the_cell_flux_converges_to_the_closed_form() {
     assert!(errors[2] < 0.05, "{errors:?}");
 }
 
+#[test]
+fn the_map_s_own_flux_is_a_prior_worth_w_passes() {
+    // Each cell's estimate is (w·φ_i + τ_i)/(w + P). The same passes gathered without a prior
+    // give τ_i/P, so the two must agree with that formula; with the exact flux as φ the first
+    // pass's error falls to a fifth (w = 4); a prior 30 % too high fades as 0.3·w/(w + P).
+    let primal = grid_primal(24);
+    let tree = BoxTree::build(&primal.positions);
+    let exact = 1.0f32 / 3.0 / 576.0;
+    let w = 4.0;
+    let run = |phi: f32, passes: u64| {
+        let mut plain = Statistics::start(&primal.flux, 0.0);
+        let mut prior = Statistics::start(&vec![[phi; 3]; primal.len()], w);
+        for pass in 0..passes {
+            let fresh = uniform_fresh(5000, 100 + pass, 1.0);
+            gather(&mut plain, &primal, &tree, &fresh);
+            gather(&mut prior, &primal, &tree, &fresh);
+        }
+        let p = passes as f32;
+        let (mut e_plain, mut e_prior, mut bias) = (0.0f64, 0.0f64, 0.0f64);
+        for i in 0..primal.len() {
+            let want = (w * phi + p * plain.cell_flux(i).x) / (w + p);
+            let got = prior.cell_flux(i).x;
+            assert!((got / want - 1.0).abs() < 1e-5, "photon {i}: {got} against {want}");
+            e_plain += ((plain.cell_flux(i).x / exact - 1.0) as f64).powi(2);
+            e_prior += ((got / exact - 1.0) as f64).powi(2);
+            bias += (got / exact - 1.0) as f64;
+        }
+        let n = primal.len() as f64;
+        ((e_plain / n).sqrt(), (e_prior / n).sqrt(), bias / n)
+    };
+    let (plain, prior, _) = run(exact, 1);
+    assert!(prior < 0.25 * plain, "one pass: {prior} with the prior against {plain}");
+    let (_, _, bias) = run(1.3 * exact, 60);
+    let want = 0.3 * 4.0 / 64.0;
+    assert!((bias - want).abs() < 0.01, "bias {bias} against {want}");
+}
+
 /// `n` fresh photons on the unit square with irradiance 1 on the left half and 3 on the right.
 fn two_level_fresh(n: usize, seed: u64) -> crate::trace::Photons {
     let mut p = uniform_fresh(n, seed, 2.0);
@@ -111,7 +148,7 @@ fn relaxation_draws_photons_toward_the_brighter_side_and_evens_their_flux() {
     // carry the field's contrast.
     let run = |iterations: usize| {
         let mut primal = grid_primal(24);
-        let mut stats = Statistics::start(primal.len());
+        let mut stats = Statistics::start(&primal.flux, 0.0);
         let total = primal.total_flux();
         let p = RefineParams { iterations, ..RefineParams::default() };
         let mut cv = 0.0;
@@ -246,7 +283,7 @@ fn grown_grid(
 ) -> (Primal, Cells, Statistics, Vec<Vec3>) {
     let mut primal = grid_primal(10);
     let roots = primal.len();
-    let mut stats = Statistics::start(roots);
+    let mut stats = Statistics::start(&primal.flux, 0.0);
     let mut cells = Cells::new(&primal.positions);
     let tree = BoxTree::build(&primal.positions);
     let mut estimate = Vec::new();

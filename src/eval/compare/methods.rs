@@ -314,6 +314,7 @@ impl Seed<'_> {
             photons_per_pass: Some(o.refine_photons_per_pass.unwrap_or(o.photons)),
             iterations: o.refine_iterations,
             growth: o.refine_growth,
+            prior_passes: o.refine_prior,
             kf: o.kf,
             ..RefineParams::default()
         };
@@ -335,11 +336,12 @@ impl Seed<'_> {
             let (img, render_secs) = self.render(&refined, self.fixed_k(k))?;
             let times = StageTimes::of(self.trace_secs, Some(det), Some(rel + secs), render_secs);
             let setting = format!(
-                "{}, then {n} passes of {} ({} iterations each, growth γ = {}), {}",
+                "{}, then {n} passes of {} ({} iterations each, growth γ = {:.3}, prior of {} passes), {}",
                 method.name(),
                 o.refine_photons_per_pass.unwrap_or(o.photons),
                 o.refine_iterations,
                 o.refine_growth,
+                o.refine_prior,
                 self.k_label(k)
             );
             let row = self.row(MethodKind::OursProgressive, setting, &refined, k, times, img);

@@ -175,6 +175,8 @@ pub struct CompareOptions {
     pub refine_iterations: usize,
     /// γ of the refinement's growth (0: the map's photons stay).
     pub refine_growth: f32,
+    /// Passes' worth of weight of the relaxed map's own fluxes in the refinement.
+    pub refine_prior: f32,
     /// Photons per progressive pass (default: `photons`).
     pub ppm_photons_per_pass: Option<u64>,
     /// Photons emitted per refinement pass (default: `photons`).
@@ -217,6 +219,7 @@ impl Default for CompareOptions {
             refine_passes: vec![1, 4, 16],
             refine_iterations: RefineParams::default().iterations,
             refine_growth: RefineParams::default().growth,
+            refine_prior: RefineParams::default().prior_passes,
             ppm_photons_per_pass: None,
             refine_photons_per_pass: None,
             ppm_k: 30,

@@ -342,11 +342,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     Ok(ExitCode::SUCCESS)
 }
 
-/// Renders `map` as the arguments ask, through `scene` (its name for the header) unless they
-/// ask for a plane, and writes the EXR and its preview.
 /// K of the k-NN estimate when `-k` is not given (the paper's).
 const DEFAULT_K: usize = 15;
 
+/// Renders `map` as the arguments ask, through `scene` (its name for the header) unless they
+/// ask for a plane, and writes the EXR and its preview.
 pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>) -> anyhow::Result<()> {
     for p in [Some(a.output.clone()), a.common.outputs(&a.output).png].into_iter().flatten() {
         super::refuse_input_as_output(&p.to_string_lossy())?;

@@ -129,14 +129,11 @@ impl Cells {
         self.regions[..self.roots].iter().map(|r| r.site).collect()
     }
 
-    /// Sends each fresh photon from its root (`root[j]`, from [`super::gather_cells`] over the
-    /// roots' sites) down to its leaf, adding its flux to every split region on the way and
-    /// to its leaf's moments. Returns each fresh photon's photon.
-    pub fn descend(&mut self, fresh: &Photons, root: &[Option<u32>]) -> Vec<Option<u32>> {
-        // Each fresh photon's leaf, the walks in parallel (they only read the hierarchy).
+    /// Each fresh photon's leaf region, walked down from its root (`root[j]`, from
+    /// [`super::gather_cells`] over the roots' sites), the walks in parallel.
+    fn leaves(&self, fresh: &Photons, root: &[Option<u32>]) -> Vec<Option<u32>> {
         let regions = &self.regions;
-        let leaf: Vec<Option<u32>> = root
-            .par_iter()
+        root.par_iter()
             .enumerate()
             .map(|(j, r)| {
                 let mut r = (*r)? as usize;
@@ -148,7 +145,19 @@ impl Cells {
                 }
                 Some(r as u32)
             })
-            .collect();
+            .collect()
+    }
+
+    /// The photon whose cell each fresh photon falls in (`root` as for [`Self::descend`]).
+    pub fn owners(&self, fresh: &Photons, root: &[Option<u32>]) -> Vec<Option<u32>> {
+        self.leaves(fresh, root).iter().map(|l| l.map(|l| self.regions[l as usize].photon)).collect()
+    }
+
+    /// Sends each fresh photon from its root (`root[j]`, from [`super::gather_cells`] over the
+    /// roots' sites) down to its leaf, adding its flux to every split region on the way and
+    /// to its leaf's moments.
+    pub fn descend(&mut self, fresh: &Photons, root: &[Option<u32>]) {
+        let leaf = self.leaves(fresh, root);
         // What each leaf received, summed up the hierarchy: a region's children come after it,
         // so in reverse order every region's subtree is summed before its parent reads it.
         let mut deposit = vec![[0.0f64; 3]; self.regions.len()];
@@ -188,7 +197,6 @@ impl Cells {
                 *t = (*t as f64 + d) as f32;
             }
         }
-        leaf.iter().map(|l| l.map(|l| self.regions[l as usize].photon)).collect()
     }
 
     /// Each photon's cell flux per pass, W per channel: a root's τ/P, a child's its parent's

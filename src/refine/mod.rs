@@ -225,9 +225,8 @@ fn start(map: &MapView, per_pass: u64, prior_passes: f32) -> Result<Start, Refin
 /// passes of fresh photons traced from `scene`, up to `p.passes` passes in all. After each
 /// pass `after_pass` sees its measures and, built only if asked for ([`PassDone::table`]), the
 /// refined map (to write it, so an interrupted run resumes from the last pass written); it
-/// returns `false` to stop. With `bounces`, only the
-/// fresh photons of these specular bounce counts are gathered (as the map's were chosen:
-/// [`crate::trace::Traced::retain_bounces`]).
+/// returns `false` to stop. With `bounces`, only the fresh photons of these specular bounce
+/// counts are gathered (as the map's were chosen: [`crate::trace::Traced::retain_bounces`]).
 pub fn refine<'a>(
     map: &MapView<'a>,
     scene: &Scene,
@@ -303,7 +302,7 @@ pub fn refine<'a>(
         next_emission = range.end;
         fresh_stored += fresh.len() as u64;
         let (gathered, root) = gather_cells(&mut stats, &primal, &tree, &fresh);
-        let _owner = cells.descend(&fresh, &root);
+        cells.descend(&fresh, &root);
         passes_done += 1;
         let mut estimate = cells.leaf_flux(&stats);
         let target = target_count(primal_start, passes_done, p.growth);
@@ -321,8 +320,6 @@ pub fn refine<'a>(
         }
         if p.iterations > 0 {
             tree = BoxTree::build(&primal.positions);
-        }
-        if p.iterations > 0 {
             estimate = cells.leaf_flux(&stats);
         }
         let spread = set_flux(&mut primal, &estimate, total);
@@ -387,8 +384,6 @@ struct Counters {
     primal_start: usize,
 }
 
-/// `map` with the primal photons' positions, flux and statistics replaced, and this run's
-/// refine record last in its history.
 /// What a pass leaves: the primal photons, their statistics and cells, and the rows growth added.
 #[derive(Clone, Copy)]
 struct State<'s> {
@@ -398,6 +393,8 @@ struct State<'s> {
     grown: &'s GrownRows,
 }
 
+/// `map` with the primal photons' positions, flux and statistics replaced (and the rows growth
+/// added), and this run's refine record last in its history.
 fn make_table<'a>(
     map: &MapView<'a>,
     State { primal, stats, cells, grown }: State,

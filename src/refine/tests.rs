@@ -30,6 +30,14 @@ fn grid_primal(side: usize) -> Primal {
     }
 }
 
+/// Asserts that the map after `pass` carries `total` flux per channel (energy is kept).
+fn assert_energy(t: &crate::format::PhotonTable, total: [f64; 3], pass: u64) {
+    let got = Primal::from_map(&t.view()).unwrap().total_flux();
+    for c in 0..3 {
+        assert!((got[c] / total[c] - 1.0).abs() < 1e-5, "pass {pass}: {got:?} against {total:?}");
+    }
+}
+
 #[test]
 fn gather_gives_each_fresh_photon_to_its_nearest_primal_photon_on_its_side() {
     let mut primal = grid_primal(20);
@@ -241,10 +249,7 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let mut seen = Vec::new();
     let whole = refine(&map.view(), &scene, &p, None, &mut |done| {
         let (m, t) = (done.measure, done.table()?);
-        let got = Primal::from_map(&t.view()).unwrap().total_flux();
-        for c in 0..3 {
-            assert!((got[c] / total[c] - 1.0).abs() < 1e-5, "pass {}: {got:?} against {total:?}", m.pass);
-        }
+        assert_energy(t, total, m.pass);
         seen.push(m.pass);
         Ok(true)
     })
@@ -324,7 +329,7 @@ fn cell_integrals(cells: &Cells, photons: usize, irradiance: impl Fn(f32) -> f64
         probe.flux.push([0.0; 3]);
         root.push(Some(nearest as u32));
     }
-    let owner = cells.clone().descend(&probe, &root);
+    let owner = cells.owners(&probe, &root);
     let (mut area, mut integral) = (vec![0.0; photons], vec![0.0; photons]);
     let da = 1.0 / (side * side) as f64;
     for (k, o) in owner.iter().enumerate() {
@@ -357,9 +362,8 @@ fn split_cells_estimate_the_flux_of_their_part_of_the_parent() {
     assert!(rms < 0.08, "relative RMS error {rms}");
     assert!(bias.abs() < 0.01, "mean relative error {bias}");
     // Each photon lies in its own cell (it moved to its site when split).
-    let (_, owner) = {
-        let mut c = cells.clone();
-        let sites = c.root_sites();
+    let owner = {
+        let sites = cells.root_sites();
         let mut probe = crate::trace::Photons::default();
         let mut root = Vec::new();
         for x in &primal.positions {
@@ -373,7 +377,7 @@ fn split_cells_estimate_the_flux_of_their_part_of_the_parent() {
             probe.flux.push([0.0; 3]);
             root.push(Some(nearest as u32));
         }
-        ((), c.descend(&probe, &root))
+        cells.owners(&probe, &root)
     };
     let home = owner.iter().enumerate().filter(|(i, o)| **o == Some(*i as u32)).count();
     assert!(home as f64 > 0.98 * n, "{home} of {n} photons lie in their own cell");
@@ -422,10 +426,7 @@ fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let mut counts = Vec::new();
     let whole = refine(&map.view(), &scene, &p, None, &mut |done| {
         let (m, t) = (done.measure, done.table()?);
-        let got = Primal::from_map(&t.view()).unwrap().total_flux();
-        for c in 0..3 {
-            assert!((got[c] / total[c] - 1.0).abs() < 1e-5, "pass {}: {got:?} against {total:?}", m.pass);
-        }
+        assert_energy(t, total, m.pass);
         counts.push(t.len());
         Ok(true)
     })

@@ -107,10 +107,32 @@ pub(super) const CHUNK: usize = 4096;
 pub struct Scratch {
     step: Vec<[f32; 3]>,
     nn: Vec<f32>,
+    ratio: Vec<f32>,
     /// Local spacing per slot of the last iteration.
     spacing: Vec<f32>,
+    /// The farthest distance each slot's computation read (∞: it found fewer photons than it
+    /// asked for).
+    read: Vec<f32>,
     /// Per photon: the first positive spacing seen (∞ until then).
     limit: Vec<f32>,
+    /// Per photon, of the last iteration: what [`PerPhoton`] describes.
+    per_photon: PerPhoton,
+}
+
+/// What the last iteration measured of each photon, in photon order: the per-iteration
+/// report is a function of these alone ([`IterationMeasure::of`]), so the parts of a tiled
+/// run give the whole map's report (docs/tiles.md).
+#[derive(Clone, Debug, Default)]
+pub struct PerPhoton {
+    /// Distance to the nearest neighbour (0 with none).
+    pub nn: Vec<f32>,
+    /// That distance over the distance to the Kf-th (NaN where r_K = 0).
+    pub ratio: Vec<f32>,
+    /// Length of the step (before any return to a surface).
+    pub step: Vec<f32>,
+    /// The farthest distance from the photon its step read (its Kf-th neighbour, or the 4 Kf-th
+    /// when those all sat on it); ∞ when its search found fewer photons than it asked for.
+    pub read: Vec<f32>,
 }
 
 impl Scratch {
@@ -118,12 +140,63 @@ impl Scratch {
     pub fn first_spacing(&self) -> &[f32] {
         &self.limit
     }
+
+    /// What the last iteration measured of each photon.
+    pub fn per_photon(&self) -> &PerPhoton {
+        &self.per_photon
+    }
+}
+
+/// What an iteration reads of the whole map besides a photon's neighbours, computed once from
+/// the whole map so that a tile's photons move exactly as in the whole map (docs/tiles.md).
+#[derive(Clone, Copy, Debug)]
+pub struct MapWide<'a> {
+    /// Each photon's label in the whole map's working order (its Z-order rank), which fixes
+    /// the direction coincident photons are pushed apart in; `None`: the photon's index.
+    pub labels: Option<&'a [u32]>,
+    /// The whole map's mean photon spacing ([`map_spacing`]), metres.
+    pub spacing: f32,
+    /// Whether every photon of the map sits on one point (nothing moves).
+    pub coincident: bool,
+}
+
+impl MapWide<'_> {
+    /// The quantities of the map `positions` (the whole map, labelled by index).
+    pub fn of(positions: &[[f32; 3]]) -> MapWide<'static> {
+        MapWide {
+            labels: None,
+            spacing: map_spacing(positions),
+            coincident: positions.iter().all(|x| *x == positions[0]),
+        }
+    }
+}
+
+impl IterationMeasure {
+    /// The measures of iteration `iteration` from each photon's nearest-neighbour distance,
+    /// its ratio to r_K (NaN: none) and its step length, summed in the order given (the
+    /// whole map's working order, so that tiles merge to the same sums).
+    pub fn of(iteration: usize, nn: &[f32], ratio: &[f32], step: &[f32]) -> IterationMeasure {
+        let n = nn.len();
+        let ratio: Vec<f32> = ratio.iter().copied().filter(|q| !q.is_nan()).collect();
+        let (mut sum, mut max) = (0.0f64, 0.0f64);
+        for &l in step {
+            sum += l as f64;
+            max = max.max(l as f64);
+        }
+        IterationMeasure {
+            iteration,
+            nn_cv: coefficient_of_variation(nn),
+            local_nn_cv: coefficient_of_variation(&ratio),
+            mean_displacement: if n > 0 { sum / n as f64 } else { 0.0 },
+            max_displacement: max,
+            separated: if n > 1 { nn.iter().filter(|&&d| d == 0.0).count() } else { 0 },
+        }
+    }
 }
 
 /// One Jacobi iteration: computes every photon's step from `pos` with neighbours from `index`,
-/// then moves all photons. Returns the measures of the iteration.
-// Long because the per-photon step is computed inside one parallel loop over chunks whose
-// buffers, prefetches and constraint a separate function would take a dozen arguments for.
+/// then moves all photons. Returns the measures of the iteration. The map-wide quantities are
+/// taken from `pos` ([`MapWide::of`]); [`iterate_in`] is given them.
 pub fn iterate(
     pos: &mut [[f32; 3]],
     index: &dyn NeighbourSearch,
@@ -132,40 +205,73 @@ pub fn iterate(
     iteration: usize,
     scratch: &mut Scratch,
 ) -> IterationMeasure {
+    let wide = MapWide::of(pos);
+    iterate_in(pos, index, constraint, p, iteration, scratch, &wide)
+}
+
+/// [`iterate`] for photons that are all or part of a map whose map-wide quantities are `wide`:
+/// Eq. 8's repulsion over each photon's Kf nearest neighbours (summed nearest first, ties by
+/// label, so the sum does not depend on the index), projected by Eq. 9 and clamped.
+// Long because the per-photon step is computed inside one parallel loop over chunks whose
+// buffers, prefetches and constraint a separate function would take a dozen arguments for.
+#[allow(clippy::too_many_arguments)]
+pub fn iterate_in(
+    pos: &mut [[f32; 3]],
+    index: &dyn NeighbourSearch,
+    constraint: Constraint<'_>,
+    p: &RelaxParams,
+    iteration: usize,
+    scratch: &mut Scratch,
+    wide: &MapWide,
+) -> IterationMeasure {
     let n = pos.len();
+    // Kf as asked (capped at the whole map by the caller): a search that finds fewer did not
+    // see all it needed, which a tile must know.
+    let wanted = p.kf;
     let p = &p.capped(n);
-    let Scratch { step, nn, spacing: spacing_slot, limit } = scratch;
+    let Scratch { step, nn, ratio, spacing: spacing_slot, read, limit, per_photon } = scratch;
     step.resize(n, [0.0; 3]);
     nn.resize(n, 0.0);
+    ratio.clear();
+    ratio.resize(n, f32::NAN);
     spacing_slot.resize(n, 0.0);
+    read.resize(n, 0.0);
     if limit.len() != n {
         limit.clear();
         limit.resize(n, f32::INFINITY);
     }
-    let limit_of: &[f32] = limit;
-    let mut ratio = vec![f32::NAN; n];
+    let out = per_photon;
+    for v in [&mut out.nn, &mut out.step, &mut out.read] {
+        v.clear();
+        v.resize(n, 0.0);
+    }
+    out.ratio.clear();
+    out.ratio.resize(n, f32::NAN);
     // Photons that all sit on one point have no length to be separated by: nothing moves.
-    if pos.iter().all(|x| *x == pos[0]) {
+    if wide.coincident {
         return IterationMeasure { iteration, ..Default::default() };
     }
+    let limit_of: &[f32] = limit;
     let snapshot: &[[f32; 3]] = pos;
-    let mean_spacing = std::sync::OnceLock::new();
+    let label = |i: usize| wide.labels.map_or(i, |l| l[i] as usize);
     // Steps are computed in the index's order (slot k is photon order[k]), then applied.
     let order = index.order().filter(|o| o.len() == n).unwrap_or_else(|| (0..n as u32).collect());
     step.par_chunks_mut(CHUNK)
         .zip(nn.par_chunks_mut(CHUNK))
         .zip(ratio.par_chunks_mut(CHUNK))
         .zip(spacing_slot.par_chunks_mut(CHUNK))
+        .zip(read.par_chunks_mut(CHUNK))
         .enumerate()
-        .for_each(|(c, (((steps, nns), ratios), spacings))| {
+        .for_each(|(c, ((((steps, nns), ratios), spacings), reads))| {
             let mut xs = Vec::with_capacity(p.kf + 1);
-            // A fresh buffer per chunk: the order neighbours come in depends only on the chunk.
-            let mut found = crate::spatial::Neighbours::unordered(0);
-            for (o, (((s, d1), q), sp)) in steps
+            // Ordered: neighbours nearest first, ties by label, whatever the index.
+            let mut found = crate::spatial::Neighbours::with_capacity(p.kf + 1);
+            for (o, ((((s, d1), q), sp), rd)) in steps
                 .iter_mut()
                 .zip(nns.iter_mut())
                 .zip(ratios.iter_mut())
                 .zip(spacings.iter_mut())
+                .zip(reads.iter_mut())
                 .enumerate()
             {
                 let i = order[c * CHUNK + o] as usize;
@@ -186,12 +292,13 @@ pub fn iterate(
                 }
                 index.neighbours_at(i, p.kf, snapshot, &mut found, &mut xs);
                 let xi = Vec3::from(snapshot[i]);
-                // The farthest and nearest neighbour (the search need not sort them).
+                // The farthest and nearest neighbour.
                 let (near, far) = xs.iter().fold((f32::INFINITY, 0.0f32), |(lo, hi), &x| {
                     let d = xi.distance_squared(x);
                     (lo.min(d), hi.max(d))
                 });
                 let r_k = far.sqrt();
+                *rd = if xs.len() < wanted { f32::INFINITY } else { r_k };
                 *d1 = if xs.is_empty() { 0.0 } else { near.sqrt() };
                 if r_k > 0.0 {
                     *q = *d1 / r_k;
@@ -199,17 +306,19 @@ pub fn iterate(
                 let mut f = repulsion(xi, &xs, r_k, p.epsilon);
                 if *d1 == 0.0 {
                     // Photons stacked on one point feel identical forces and would stay stacked:
-                    // give each its own direction (fixed by its index, so runs are reproducible),
-                    // scaled by the nearest distinct photon (looking a little further if all Kf
-                    // coincide, then taking the map's mean spacing: a crowd of any size costs
-                    // a bounded search per photon).
+                    // give each its own direction (fixed by its label, so runs are reproducible
+                    // and a tile pushes it as the whole map does), scaled by the nearest
+                    // distinct photon (looking a little further if all Kf coincide, then taking
+                    // the map's mean spacing: a crowd of any size costs a bounded search per
+                    // photon).
                     let scale = if r_k > 0.0 {
                         r_k
                     } else {
-                        distinct_distance(index, i, xi, snapshot, p.kf)
-                            .unwrap_or_else(|| *mean_spacing.get_or_init(|| map_spacing(snapshot)))
+                        let (d, farthest) = distinct_distance(index, i, xi, snapshot, p.kf, wanted);
+                        *rd = rd.max(farthest);
+                        d.unwrap_or(wide.spacing)
                     };
-                    f += nudge(i) * (0.25 * scale);
+                    f += nudge(label(i)) * (0.25 * scale);
                 }
                 let fb = match constraint {
                     Constraint::Basis { u, v } => project_on_basis(f, u[i].into(), v[i].into()),
@@ -223,29 +332,21 @@ pub fn iterate(
                 *s = if reach.is_finite() { clamp_step(fb, p.step_limit * reach).into() } else { fb.into() };
             }
         });
-    for (&i, &sp) in order.iter().zip(spacing_slot.iter()) {
-        let l = &mut limit[i as usize];
-        if *l == f32::INFINITY && sp > 0.0 {
-            *l = sp;
+    for (k, &i) in order.iter().enumerate() {
+        let i = i as usize;
+        let l = &mut limit[i];
+        if *l == f32::INFINITY && spacing_slot[k] > 0.0 {
+            *l = spacing_slot[k];
         }
+        let s = Vec3::from(step[k]);
+        out.step[i] = s.length();
+        out.nn[i] = nn[k];
+        out.ratio[i] = ratio[k];
+        out.read[i] = read[k];
+        let x = &mut pos[i];
+        *x = (Vec3::from(*x) + s).into();
     }
-    ratio.retain(|q| !q.is_nan());
-    let (mut sum, mut max) = (0.0f64, 0.0f64);
-    for (&i, s) in order.iter().zip(step.iter()) {
-        let l = Vec3::from(*s).length() as f64;
-        sum += l;
-        max = max.max(l);
-        let x = &mut pos[i as usize];
-        *x = (Vec3::from(*x) + Vec3::from(*s)).into();
-    }
-    IterationMeasure {
-        iteration,
-        nn_cv: coefficient_of_variation(nn),
-        local_nn_cv: coefficient_of_variation(&ratio),
-        mean_displacement: if n > 0 { sum / n as f64 } else { 0.0 },
-        max_displacement: max,
-        separated: if n > 1 { nn.iter().filter(|&&d| d == 0.0).count() } else { 0 },
-    }
+    IterationMeasure::of(iteration, &out.nn, &out.ratio, &out.step)
 }
 
 /// [`NeighbourSearch`] over a [`crate::spatial::SpatialIndex`] built over `points`, excluding
@@ -387,23 +488,27 @@ pub fn diffuse_flux(flux: &mut [[f32; 3]], search: &dyn NeighbourSearch, kf: usi
 
 /// Distance from photon `i` to the nearest photon not on top of it among its 4 Kf nearest;
 /// `None` when all of those sit on it (a crowd, which would otherwise cost a search as large
-/// as itself per photon: issue 31).
+/// as itself per photon: issue 31). Also the farthest distance the search read (∞ when it
+/// found fewer than 4 `wanted`).
 fn distinct_distance(
     index: &dyn NeighbourSearch,
     i: usize,
     xi: Vec3,
     pos: &[[f32; 3]],
     kf: usize,
-) -> Option<f32> {
+    wanted: usize,
+) -> (Option<f32>, f32) {
     let mut ids = Vec::new();
     index.neighbours(i, kf.max(1) * 4, &mut ids);
-    ids.iter().map(|&j| xi.distance(pos[j as usize].into())).find(|&d| d > 0.0)
+    let d: Vec<f32> = ids.iter().map(|&j| xi.distance(pos[j as usize].into())).collect();
+    let farthest = if ids.len() < wanted.max(1) * 4 { f32::INFINITY } else { d.iter().fold(0.0f32, |m, &x| m.max(x)) };
+    (d.iter().copied().find(|&d| d > 0.0), farthest)
 }
 
 /// The mean photon spacing of a map, √(A / n), with A the area of the bounding box's two
 /// largest extents (photons lie on surfaces); the largest extent / n when the photons lie on
 /// a line, and 0 when they all sit on one point (which leaves nothing to separate them by).
-pub(super) fn map_spacing(pos: &[[f32; 3]]) -> f32 {
+pub fn map_spacing(pos: &[[f32; 3]]) -> f32 {
     let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
     for p in pos {
         for a in 0..3 {

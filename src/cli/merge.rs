@@ -6,7 +6,8 @@ use anyhow::Context;
 use photonkit::format::{Output, PhotonMap};
 
 /// Join the shards written by `photonkit trace --shard i/n` into one photon map, or, with
-/// `--map`, the tile parts written by `photonkit detect MAP --tile i/n` into MAP detected.
+/// `--map`, the tile parts written by `photonkit detect MAP --tile i/n` into MAP detected (or
+/// those of `photonkit relax MAP --tile i/n` into MAP relaxed).
 ///
 /// Shards: give every shard of one trace (same scene, seed and --photons), in any order. The
 /// result holds the same photons, in the same order and with the same flux, as a single run of
@@ -23,7 +24,7 @@ pub struct Args {
     /// Output photon map (`-` for standard output).
     #[arg(short, long, value_name = "FILE")]
     output: String,
-    /// The map the tile parts were detected from: merge detect tile parts onto it.
+    /// The map the tile parts were detected or relaxed from: merge the tile parts onto it.
     #[arg(long, value_name = "MAP")]
     map: Option<String>,
 }
@@ -34,6 +35,18 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         let source = PhotonMap::open(source)?;
         super::refuse_input_as_output(&a.output)?;
         let parts: Vec<_> = maps.iter().map(|m| m.view()).collect();
+        if parts.first().is_some_and(photonkit::relax::part::is_relax_part) {
+            let (table, r) = photonkit::relax::merge_parts(&source.view(), &parts)?;
+            table.write(Output::parse(&a.output)).context("writing the relaxed map")?;
+            super::note!(
+                "photonkit merge: {} relax tile parts, {} photons, {} iterations",
+                maps.len(),
+                r.positions.len(),
+                r.measures.len()
+            );
+            super::print_record(&a.output)?;
+            return Ok(ExitCode::SUCCESS);
+        }
         let (table, d) = photonkit::detect::merge_parts(&source.view(), &parts)?;
         table.write(Output::parse(&a.output)).context("writing the detected map")?;
         super::note!(

@@ -8,6 +8,7 @@ use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::format::{Output, PhotonMap, State};
 use photonkit::relax::{self, RelaxParams, RelaxSpace};
 use photonkit::scene::Scene;
+use photonkit::tiles::{TileSpec, Tiling};
 
 /// Relax photons toward a blue-noise distribution (Eq. 8–9).
 ///
@@ -44,6 +45,17 @@ pub struct Args {
     /// flux as traced.
     #[arg(value_parser = super::finite_f32, long, value_name = "RATE", default_value_t = 0.0)]
     flux_diffusion: f32,
+    /// Relax only tile i of n (from 0) and write a tile part: the tile's photons relaxed, with
+    /// their indices in the map and what the report needs of each, for `photonkit merge --map
+    /// INPUT PART…`. The tiles are detect's (2 → 2×1, 4 → 2×2, 9 → 3×3); each is relaxed with a
+    /// halo whose every step is certified, so the merged map is the one `relax INPUT -o OUT`
+    /// writes (docs/tiles.md). Not with --flux-diffusion, nor more than 64 iterations.
+    #[arg(long, value_name = "i/n", value_parser = parse_tile)]
+    tile: Option<TileSpec>,
+}
+
+fn parse_tile(s: &str) -> Result<TileSpec, String> {
+    s.parse().map_err(|e: photonkit::tiles::TileError| e.to_string())
 }
 
 /// The scene given, or the one the map's trace record names when it is found
@@ -99,6 +111,27 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     );
     let t = Instant::now();
     let scene = scene_for(&map, a.scene.as_deref())?;
+    if let Some(tile) = a.tile {
+        bar.finish_and_clear();
+        let tiling = Tiling::new(map.positions(), tile.grid());
+        let part = relax::relax_tile(&map.view(), &p, scene.as_ref(), &tiling, tile.index)?;
+        let seconds = t.elapsed().as_secs_f64();
+        relax::tile_part(&map.view(), &part, &p, tile, seconds)?
+            .write(Output::parse(&a.output))
+            .context("writing the tile part")?;
+        let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
+        super::note!(
+            "relaxed tile {tile} ({}×{}): {} of {} photons in {seconds:.2} s; photons pending per round of \
+             halos / working set: {}",
+            tiling.counts[0],
+            tiling.counts[1],
+            part.indices.len(),
+            map.len(),
+            if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") },
+        );
+        super::print_record(&a.output)?;
+        return Ok(ExitCode::SUCCESS);
+    }
     let relaxed = relax::relax_map_on(&map.view(), &p, scene.as_ref(), |m| {
         bar.inc(1);
         // Printed whether or not the bar is drawn (stderr may not be a terminal).

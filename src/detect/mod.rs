@@ -653,4 +653,4 @@ mod tiled;
 pub use tiled::{TileDetection, assemble, detect_tile, tiled};
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;

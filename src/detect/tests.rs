@@ -9,7 +9,7 @@ use rand_pcg::Pcg64Mcg;
 use super::*;
 
 mod maps;
-mod tiles;
+pub(crate) mod tiles;
 
 fn rng(seed: u64) -> Pcg64Mcg {
     Pcg64Mcg::seed_from_u64(seed)

@@ -501,7 +501,8 @@ fn distinct_distance(
     let mut ids = Vec::new();
     index.neighbours(i, kf.max(1) * 4, &mut ids);
     let d: Vec<f32> = ids.iter().map(|&j| xi.distance(pos[j as usize].into())).collect();
-    let farthest = if ids.len() < wanted.max(1) * 4 { f32::INFINITY } else { d.iter().fold(0.0f32, |m, &x| m.max(x)) };
+    let farthest =
+        if ids.len() < wanted.max(1) * 4 { f32::INFINITY } else { d.iter().fold(0.0f32, |m, &x| m.max(x)) };
     (d.iter().copied().find(|&d| d > 0.0), farthest)
 }
 

@@ -9,22 +9,26 @@
 
 mod force;
 mod iteration;
+pub mod part;
 mod surface;
 #[cfg(test)]
 mod tests;
+pub mod tiled;
 
 use serde::Serialize;
 
 pub use force::{clamp_step, project_on_basis, project_on_tangent, repulsion};
 pub use iteration::{
-    Constraint, IndexSearch, IterationMeasure, NeighbourSearch, REBUILD_EVERY, Scratch,
-    coefficient_of_variation, diffuse_flux, index_positions, iterate,
+    Constraint, IndexSearch, IterationMeasure, MapWide, NeighbourSearch, PerPhoton, REBUILD_EVERY, Scratch,
+    coefficient_of_variation, diffuse_flux, index_positions, iterate, iterate_in, map_spacing,
 };
+pub use part::{merge_parts, tile_part};
 use surface::back_to_surfaces;
 pub use surface::return_to_surface;
+pub use tiled::{TileRelaxed, relax_tile};
 
 /// Relaxation parameters; defaults are the paper's.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]
 pub struct RelaxParams {
     /// R: number of iterations.
     pub iterations: usize,
@@ -90,7 +94,7 @@ impl RelaxParams {
 }
 
 /// Which neighbours relaxation uses, from the map's state.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RelaxSpace {
     /// Before collapse: world-space neighbours within each photon's r_param in parameter
@@ -133,110 +137,241 @@ pub fn relax_map(
 /// [`relax_map`], and with a scene, photons that moved are returned to their surface (the
 /// `surface` column names it) by [`return_to_surface`], and their normals follow: photons on
 /// curved receivers stay on them. A move whose surface is not found is refused.
-// Long because it is Algorithm 1's relax stage read top to bottom: the columns relabelled
-// into spatial order, the iterations, and the results put back in the map's order.
 pub fn relax_map_on(
     map: &crate::format::MapView,
     p: &RelaxParams,
     scene: Option<&crate::scene::Scene>,
     mut on_iteration: impl FnMut(&IterationMeasure),
 ) -> Result<Relaxed, RelaxError> {
-    use crate::format::{State, name};
-    use crate::spatial::order::{locality_order, permuted, unpermuted};
-    use crate::spatial::{ParamColumn, PointSet, Space, SpatialIndex};
-    let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
-    if p.kf == 0 {
-        return Err(input("Kf must be at least 1".into()));
-    }
-    if p.iterations > MAX_ITERATIONS {
-        return Err(input(format!(
-            "{} iterations requested; at most {MAX_ITERATIONS} are allowed (relaxation settles within tens)",
-            p.iterations
-        )));
-    }
-    let p = &p.capped(map.len());
-    let meta = map.info();
+    use crate::spatial::order::{locality_order, unpermuted};
+    let setup = Setup::of(map, p, scene.is_some())?;
     // Photons are worked on in spatial order (see [`crate::spatial::order`]): every column
     // the iterations read is relabelled here, and what they change is put back at the end.
     let order = locality_order(map.positions());
-    let sorted = |column: Option<&[[f32; 3]]>| column.map(|c| permuted(c, &order, 1));
-    let basis_u = sorted(map.column::<[f32; 3]>(name::BASIS_U)?);
-    let basis_v = sorted(map.column::<[f32; 3]>(name::BASIS_V)?);
-    let normal = sorted(map.column::<[f32; 3]>(name::NORMAL)?);
-    let (basis_u, basis_v, normal) = (basis_u.as_deref(), basis_v.as_deref(), normal.as_deref());
-    let constraint = match (basis_u, basis_v, normal) {
-        (Some(u), Some(v), _) => Constraint::Basis { u, v },
-        (_, _, Some(normal)) => Constraint::Tangent { normal },
-        _ => {
+    let mut columns = Columns::of(map, &order, &setup)?;
+    let wide = MapWide { labels: None, spacing: setup.spacing, coincident: setup.coincident };
+    let run = run(map, &mut columns, &setup, scene, &wide, &order, |_, m, _| {
+        on_iteration(m);
+        true
+    })?;
+    Ok(Relaxed {
+        positions: unpermuted(&columns.unscaled_positions(&setup), &order),
+        space: setup.space,
+        constrained: columns.constrained(),
+        measures: run.measures,
+        normals: columns.normals.map(|n| unpermuted(&n, &order)),
+        refused_moves: run.refused_moves,
+        flux: columns.flux.map(|f| unpermuted(&f, &order)),
+    })
+}
+
+/// What a relax run takes from the whole map before it starts: the parameters checked and
+/// capped, the space, and the map-wide quantities every tile must share (docs/tiles.md).
+#[derive(Clone, Debug)]
+pub(crate) struct Setup {
+    /// The parameters, Kf capped at the map's photons.
+    pub p: RelaxParams,
+    pub space: RelaxSpace,
+    /// The power of two the positions are worked on scaled by ([`working_scale`]).
+    pub scale: f32,
+    /// The map's mean spacing in working units ([`iteration::map_spacing`]).
+    pub spacing: f32,
+    /// Whether all the map's photons sit on one point.
+    pub coincident: bool,
+}
+
+impl Setup {
+    pub fn of(map: &crate::format::MapView, p: &RelaxParams, with_scene: bool) -> Result<Setup, RelaxError> {
+        use crate::format::{State, name};
+        let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
+        if p.kf == 0 {
+            return Err(input("Kf must be at least 1".into()));
+        }
+        if p.iterations > MAX_ITERATIONS {
+            return Err(input(format!(
+                "{} iterations requested; at most {MAX_ITERATIONS} are allowed (relaxation settles within tens)",
+                p.iterations
+            )));
+        }
+        let space = match (map.info().state, map.spec(name::R_PARAM), map.spec(name::PARAMS)) {
+            (State::Detected, Some(_), Some(_)) => RelaxSpace::WorldParams,
+            _ => RelaxSpace::World,
+        };
+        let positions = map.positions();
+        // Coordinates far from 1 (near 1e30, or 1e-30) overflow or underflow squared distances in
+        // f32; without a scene to return to, the photons are worked on scaled by a power of two
+        // (exact) and scaled back at the end (issue 31, item 7).
+        let scale = if with_scene { 1.0 } else { working_scale(positions) };
+        let spacing = if scale == 1.0 {
+            iteration::map_spacing(positions)
+        } else {
+            let scaled: Vec<[f32; 3]> = positions.iter().map(|x| x.map(|v| v * scale)).collect();
+            iteration::map_spacing(&scaled)
+        };
+        let coincident = positions.iter().all(|x| *x == positions[0]);
+        Ok(Setup { p: p.capped(map.len()), space, scale, spacing, coincident })
+    }
+}
+
+/// The columns relaxation reads and changes, for some photons of a map (all of them, or a
+/// tile's working set) in the whole map's working order; positions scaled to working units.
+pub(crate) struct Columns {
+    pub positions: Vec<[f32; 3]>,
+    basis_u: Option<Vec<[f32; 3]>>,
+    basis_v: Option<Vec<[f32; 3]>>,
+    normal: Option<Vec<[f32; 3]>>,
+    r_param: Option<Vec<f32>>,
+    /// Parameters (wavelength components scaled as detect measured them) and their stride.
+    params: Option<(Vec<f32>, usize)>,
+    dims: Vec<u32>,
+    emitters: Option<Vec<u16>>,
+    surfaces: Option<Vec<u32>>,
+    /// New normals, when photons are returned to their surfaces.
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// Diffused flux, when `flux_diffusion` > 0.
+    pub flux: Option<Vec<[f32; 3]>>,
+}
+
+impl Columns {
+    /// The columns of photons `work` (file indices) of `map`.
+    pub fn of(map: &crate::format::MapView, work: &[u32], setup: &Setup) -> Result<Columns, RelaxError> {
+        use crate::format::name;
+        use crate::spatial::ParamColumn;
+        use crate::spatial::order::permuted;
+        let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
+        let meta = map.info();
+        let sorted = |column: Option<&[[f32; 3]]>| column.map(|c| permuted(c, work, 1));
+        let basis_u = sorted(map.column::<[f32; 3]>(name::BASIS_U)?);
+        let basis_v = sorted(map.column::<[f32; 3]>(name::BASIS_V)?);
+        let normal = sorted(map.column::<[f32; 3]>(name::NORMAL)?);
+        if !(basis_u.is_some() && basis_v.is_some() || normal.is_some()) {
             return Err(input(
                 "relax needs a constraint basis (run `photonkit detect`) or a 'normal' column to keep \
                  photons on their surfaces"
                     .into(),
             ));
         }
-    };
-    let r_param = map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, &order, 1));
-    let r_param = r_param.as_deref();
-    let params = match map.spec(name::PARAMS) {
-        Some(c) => {
-            let values = bytemuck::try_cast_slice::<u8, f32>(map.column_bytes(name::PARAMS).unwrap_or(&[]))
-                .map_err(|e| input(format!("params column: {e}")))?;
-            let stride = c.components as usize;
-            if values.len() != stride * order.len() {
-                return Err(input(format!(
-                    "params column holds {} values, expected {}",
-                    values.len(),
-                    stride * order.len()
-                )));
+        let r_param = map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, work, 1));
+        let params = match map.spec(name::PARAMS) {
+            Some(c) => {
+                let values =
+                    bytemuck::try_cast_slice::<u8, f32>(map.column_bytes(name::PARAMS).unwrap_or(&[]))
+                        .map_err(|e| input(format!("params column: {e}")))?;
+                let stride = c.components as usize;
+                if values.len() != stride * map.len() {
+                    return Err(input(format!(
+                        "params column holds {} values, expected {}",
+                        values.len(),
+                        stride * map.len()
+                    )));
+                }
+                Some((permuted(values, work, stride), stride))
             }
-            Some((permuted(values, &order, stride), stride))
+            None => None,
+        };
+        let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
+        let emitters = map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, work, 1));
+        // A wavelength component enters distances with the scale detect gave it (the one its
+        // r_param was measured in; docs/spectral.md).
+        let params = match params {
+            Some((values, stride)) if meta.emitters.iter().any(|e| e.is_spectral()) => {
+                let factors: Vec<Vec<f32>> = meta.emitters.iter().map(|e| e.param_scales()).collect();
+                let column = ParamColumn { values: &values, stride, dims: &dims };
+                Some((column.scaled(emitters.as_deref(), &factors), stride))
+            }
+            p => p,
+        };
+        let mut positions = permuted(map.positions(), work, 1);
+        if setup.scale != 1.0 {
+            positions.iter_mut().flatten().for_each(|x| *x *= setup.scale);
         }
-        None => None,
-    };
-    let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
-    let emitters = map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, &order, 1));
-    let emitters = emitters.as_deref();
-    // A wavelength component enters distances with the scale detect gave it (the one its
-    // r_param was measured in; docs/spectral.md).
-    let params = match params {
-        Some((values, stride)) if meta.emitters.iter().any(|e| e.is_spectral()) => {
-            let factors: Vec<Vec<f32>> = meta.emitters.iter().map(|e| e.param_scales()).collect();
-            let column = ParamColumn { values: &values, stride, dims: &dims };
-            Some((column.scaled(emitters, &factors), stride))
-        }
-        p => p,
-    };
-    let params = params.as_ref().map(|(v, s)| (v.as_slice(), *s));
-    let space = match (meta.state, r_param, params) {
-        (State::Detected, Some(_), Some(_)) => RelaxSpace::WorldParams,
-        _ => RelaxSpace::World,
-    };
-    let mut positions = permuted(map.positions(), &order, 1);
-    // Coordinates far from 1 (near 1e30, or 1e-30) overflow or underflow squared distances in
-    // f32; without a scene to return to, the photons are worked on scaled by a power of two
-    // (exact) and scaled back at the end (issue 31, item 7).
-    let scale = if scene.is_none() { working_scale(&positions) } else { 1.0 };
-    if scale != 1.0 {
-        positions.iter_mut().flatten().for_each(|x| *x *= scale);
+        let surfaces = map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, work, 1));
+        let flux = (setup.p.flux_diffusion > 0.0).then(|| permuted(map.flux(), work, 1));
+        Ok(Columns {
+            positions,
+            basis_u,
+            basis_v,
+            normal,
+            r_param,
+            params,
+            dims,
+            emitters,
+            surfaces,
+            normals: None,
+            flux,
+        })
     }
-    let mut next = positions.clone();
-    let surfaces = map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, &order, 1));
-    let surfaces = surfaces.as_deref();
-    let mut normals: Option<Vec<[f32; 3]>> = match (scene, surfaces, normal) {
-        (Some(_), Some(_), Some(n)) => Some(n.to_vec()),
-        _ => None,
+
+    /// Whether motion is constrained by a basis (else by the tangent plane).
+    pub fn constrained(&self) -> bool {
+        self.basis_u.is_some() && self.basis_v.is_some()
+    }
+
+    /// The positions in metres.
+    pub fn unscaled_positions(&self, setup: &Setup) -> Vec<[f32; 3]> {
+        let mut x = self.positions.clone();
+        if setup.scale != 1.0 {
+            x.iter_mut().flatten().for_each(|v| *v /= setup.scale);
+        }
+        x
+    }
+}
+
+/// What [`run`] reports besides the moved columns.
+pub(crate) struct Run {
+    pub measures: Vec<IterationMeasure>,
+    pub refused_moves: u64,
+}
+
+/// Algorithm 1's relax stage over `columns`: the iterations, each followed by
+/// `after(scratch, measure, positions the iteration started from)`, which stops the run by returning false. `order` turns a working
+/// label back into a file index for errors.
+pub(crate) fn run(
+    map: &crate::format::MapView,
+    columns: &mut Columns,
+    setup: &Setup,
+    scene: Option<&crate::scene::Scene>,
+    wide: &MapWide,
+    order: &[u32],
+    mut after: impl FnMut(&Scratch, &IterationMeasure, &[[f32; 3]]) -> bool,
+) -> Result<Run, RelaxError> {
+    use crate::spatial::{ParamColumn, PointSet, Space, SpatialIndex};
+    let p = &setup.p;
+    let space = setup.space;
+    let Columns {
+        positions,
+        basis_u,
+        basis_v,
+        normal,
+        r_param,
+        params,
+        dims,
+        emitters,
+        surfaces,
+        normals,
+        flux,
+    } = columns;
+    let constraint = match (basis_u.as_deref(), basis_v.as_deref(), normal.as_deref()) {
+        (Some(u), Some(v), _) => Constraint::Basis { u, v },
+        (_, _, Some(normal)) => Constraint::Tangent { normal },
+        _ => unreachable!("checked by Columns::of"),
     };
+    if let (Some(_), Some(_), Some(n)) = (scene, surfaces.as_ref(), normal.as_ref()) {
+        *normals = Some(n.clone());
+    }
+    let params = params.as_ref().map(|(v, s)| (v.as_slice(), *s));
+    let (r_param, emitters, surfaces) = (r_param.as_deref(), emitters.as_deref(), surfaces.as_deref());
+    let mut next = positions.clone();
     let mut refused_moves = 0u64;
-    let mut flux: Option<Vec<[f32; 3]>> = (p.flux_diffusion > 0.0).then(|| permuted(map.flux(), &order, 1));
     let mut scratch = Scratch::default();
     let mut measures = Vec::with_capacity(p.iterations);
     let mut index: Option<SpatialIndex> = None;
     for it in 0..p.iterations {
         let points = PointSet {
-            positions: &positions,
+            positions,
             params: match space {
                 RelaxSpace::WorldParams => {
-                    params.map(|(values, stride)| ParamColumn { values, stride, dims: &dims })
+                    params.map(|(values, stride)| ParamColumn { values, stride, dims })
                 }
                 RelaxSpace::World => None,
             },
@@ -246,7 +381,7 @@ pub fn relax_map_on(
         let separated = measures.last().is_some_and(|m: &IterationMeasure| m.separated > 0);
         index_positions(&mut index, &points, sp, it, separated).map_err(|e| RelaxError::Photons {
             file: map.file_name().to_string(),
-            source: e.in_file_order(&order),
+            source: e.in_file_order(order),
         })?;
         let search = IndexSearch {
             index: index.as_ref().expect("built above"),
@@ -254,35 +389,28 @@ pub fn relax_map_on(
             radius: if space == RelaxSpace::WorldParams { r_param } else { None },
         };
         // The index borrows `positions`; `iterate` moves a copy, then the two swap.
-        next.copy_from_slice(&positions);
-        let m = iterate(&mut next, &search, constraint, p, it, &mut scratch);
+        next.copy_from_slice(positions);
+        let m = iterate_in(&mut next, &search, constraint, p, it, &mut scratch, wide);
         if let Some(f) = flux.as_mut() {
             diffuse_flux(f, &search, p.kf, p.flux_diffusion);
         }
         if let (Some(scene), Some(surf), Some(ns)) = (scene, surfaces, normals.as_mut()) {
-            refused_moves += back_to_surfaces(scene, surf, &positions, &mut next, ns);
+            refused_moves += back_to_surfaces(scene, surf, positions, &mut next, ns);
         }
-        std::mem::swap(&mut positions, &mut next);
+        std::mem::swap(positions, &mut next);
+        let scale = setup.scale as f64;
         let m = IterationMeasure {
-            mean_displacement: m.mean_displacement / scale as f64,
-            max_displacement: m.max_displacement / scale as f64,
+            mean_displacement: m.mean_displacement / scale,
+            max_displacement: m.max_displacement / scale,
             ..m
         };
-        on_iteration(&m);
         measures.push(m);
+        // `next` now holds the positions the iteration started from.
+        if !after(&scratch, &m, &next) {
+            break;
+        }
     }
-    if scale != 1.0 {
-        positions.iter_mut().flatten().for_each(|x| *x /= scale);
-    }
-    Ok(Relaxed {
-        positions: unpermuted(&positions, &order),
-        space,
-        constrained: matches!(constraint, Constraint::Basis { .. }),
-        measures,
-        normals: normals.map(|n| unpermuted(&n, &order)),
-        refused_moves,
-        flux: flux.map(|f| unpermuted(&f, &order)),
-    })
+    Ok(Run { measures, refused_moves })
 }
 
 /// The power of two relax scales `positions` by so that their largest coordinate lies within

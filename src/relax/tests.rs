@@ -605,3 +605,5 @@ fn return_to_surface_holds_at_micrometre_scale() {
         assert!(at.z.abs() <= 1e-6 * s && (at.x - moved.x).abs() <= 1e-6 * s && n == Vec3::Z, "{s}: {at}");
     }
 }
+
+mod tiles;

@@ -89,7 +89,7 @@ fn tiles_equal_the_whole_map_for_every_method_and_option() {
 /// folded onto it), so that the first column's cut is the box's low side and the tiles of that
 /// column are empty; an L with a fold (two sheets over one strip) so that the parameter ball
 /// matters; and rows of photons on x = ½ and y = ½ (ties).
-fn bordered_map() -> crate::synthetic::SyntheticMap {
+pub(crate) fn bordered_map() -> crate::synthetic::SyntheticMap {
     let mut m = crate::synthetic::SyntheticMap {
         param_dims: 2,
         emitters: vec![crate::synthetic::collimated_emitter(0, 1.0)],

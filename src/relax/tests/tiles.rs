@@ -1,0 +1,156 @@
+//! Relaxation tile by tile against the whole map (the oracle): bit for bit on collimated and
+//! point emitters and two emitters, before collapse (parameter-restricted neighbours) and after
+//! (world space), for 2×1, 2×2 and 3×3 tilings, with empty tiles and photons exactly on the
+//! cuts (docs/tiles.md); a halo too small and not certified differs.
+
+use super::*;
+use crate::format::{MapView, PhotonMap};
+use crate::relax::tiled::{Options, relax_tile_with};
+use crate::tiles::{TileSpec, Tiling};
+
+const GRIDS: [[usize; 2]; 3] = [[2, 1], [2, 2], [3, 3]];
+
+/// The merge of every tile of `grid` relaxed with `opts`, through the part files' tables.
+fn tiled(map: &MapView, p: &RelaxParams, grid: [usize; 2], opts: Options) -> (Relaxed, Vec<TileRelaxed>) {
+    let tiling = Tiling::new(map.positions(), grid);
+    let tiles: Vec<TileRelaxed> =
+        (0..tiling.len()).map(|t| relax_tile_with(map, p, None, &tiling, t, opts).unwrap()).collect();
+    let parts: Vec<_> = tiles
+        .iter()
+        .enumerate()
+        .map(|(t, r)| tile_part(map, r, p, TileSpec { index: t, count: tiling.len() }, 0.0).unwrap())
+        .collect();
+    let views: Vec<MapView> = parts.iter().map(|t| t.view()).collect();
+    let (_, merged) = merge_parts(map, &views).unwrap();
+    (merged, tiles)
+}
+
+/// The first photon whose position differs in its bits, if any.
+fn first_difference(a: &Relaxed, b: &Relaxed) -> Option<usize> {
+    let bits = |x: &[f32; 3]| x.map(f32::to_bits);
+    (0..a.positions.len()).find(|&i| bits(&a.positions[i]) != bits(&b.positions[i]))
+}
+
+/// Asserts every tiling of `map` relaxes to the whole map's bits and report; returns the most
+/// rounds a tile took.
+fn check_tilings(map: &MapView, p: &RelaxParams, what: &str) -> u32 {
+    let want = relax_map(map, p, |_| {}).unwrap();
+    let mut rounds = 0;
+    for grid in GRIDS {
+        let (got, tiles) = tiled(map, p, grid, Options::default());
+        let what = format!("{what}, {}×{}", grid[0], grid[1]);
+        assert_eq!(got.positions.len(), want.positions.len(), "{what}");
+        if let Some(i) = first_difference(&want, &got) {
+            panic!("{what}: photon {i}: {:?} vs {:?}", want.positions[i], got.positions[i]);
+        }
+        assert_eq!(got.measures, want.measures, "{what}: measures");
+        assert_eq!((got.space, got.constrained), (want.space, want.constrained), "{what}");
+        rounds = tiles.iter().map(|t| t.rounds).fold(rounds, u32::max);
+    }
+    rounds
+}
+
+/// `m` written, detected (param-pca), and collapsed, in `dir`: the maps of both phases.
+fn phases(dir: &std::path::Path, name: &str, m: &crate::synthetic::SyntheticMap) -> [PhotonMap; 2] {
+    let raw = map_in(dir, &format!("{name}.phm"), m);
+    let detected = detect_to(&raw, dir, &format!("{name}-d.phm"));
+    let path = dir.join(format!("{name}-c.phm"));
+    collapse(&detected.view()).unwrap().write(crate::format::Output::Path(path.clone())).unwrap();
+    [detected, PhotonMap::open_path(&path).unwrap()]
+}
+
+#[test]
+fn tiles_equal_the_whole_map_in_both_phases() {
+    let dir = tempfile::tempdir().unwrap();
+    let p = RelaxParams::default();
+    for (name, m) in [
+        ("collimated", crate::synthetic::collimated_cusp(2500, 41)),
+        ("point", crate::synthetic::point_ring(2500, 42)),
+        ("two", crate::synthetic::two_emitters(2500, 43)),
+    ] {
+        let [detected, collapsed] = phases(dir.path(), name, &m);
+        assert_eq!(relax_map(&detected.view(), &p, |_| {}).unwrap().space, RelaxSpace::WorldParams);
+        check_tilings(&detected.view(), &p, &format!("{name}, before collapse"));
+        assert_eq!(relax_map(&collapsed.view(), &p, |_| {}).unwrap().space, RelaxSpace::World);
+        check_tilings(&collapsed.view(), &p, &format!("{name}, after collapse"));
+    }
+}
+
+#[test]
+fn empty_tiles_and_photons_on_cuts() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut m = crate::detect::tests::tiles::bordered_map();
+    let n = m.position.len();
+    // The columns a traced map has and the detect oracle's map leaves out.
+    m.incident = vec![[0.0, 0.0, -1.0]; n];
+    m.path_length = vec![1.0; n];
+    m.bounces = vec![1; n];
+    m.emission_index = (0..n as u64).collect();
+    let [detected, collapsed] = phases(dir.path(), "bordered", &m);
+    for map in [&detected, &collapsed] {
+        let map = map.view();
+        for grid in [[2, 2], [3, 3]] {
+            let tiling = Tiling::new(map.positions(), grid);
+            let mut counts = vec![0usize; tiling.len()];
+            map.positions().iter().for_each(|&x| counts[tiling.tile_of(x)] += 1);
+            assert_eq!(counts[0], 0, "{grid:?}: {counts:?}");
+            let on_cut = map.positions().iter().filter(|x| {
+                (0..tiling.len()).any(|t| {
+                    let (lo, _) = tiling.cell(t);
+                    (0..2).any(|k| x[tiling.axes[k]] as f64 == lo[k])
+                })
+            });
+            assert!(on_cut.count() > 0);
+        }
+        check_tilings(&map, &RelaxParams::default(), "bordered");
+    }
+}
+
+#[test]
+fn a_small_first_halo_is_grown_until_certified_and_without_certificate_differs() {
+    let dir = tempfile::tempdir().unwrap();
+    let [detected, collapsed] = phases(dir.path(), "cusp", &crate::synthetic::collimated_cusp(3000, 44));
+    let p = RelaxParams::default();
+    for map in [&detected, &collapsed] {
+        let map = map.view();
+        let want = relax_map(&map, &p, |_| {}).unwrap();
+        let small = Options { halo_scale: 0.02, certify: true };
+        let (got, tiles) = tiled(&map, &p, [2, 2], small);
+        assert_eq!(first_difference(&want, &got), None);
+        assert!(
+            tiles.iter().any(|t| t.rounds > 1),
+            "{:?}",
+            tiles.iter().map(|t| t.rounds).collect::<Vec<_>>()
+        );
+        let (wrong, _) = tiled(&map, &p, [2, 2], Options { certify: false, ..small });
+        assert!(
+            first_difference(&want, &wrong).is_some(),
+            "an uncertified small halo gave the whole map's result"
+        );
+    }
+}
+
+#[test]
+fn flux_diffusion_and_bad_parts_are_refused() {
+    let dir = tempfile::tempdir().unwrap();
+    let [detected, _] = phases(dir.path(), "small", &crate::synthetic::point_ring(600, 45));
+    let map = detected.view();
+    let tiling = Tiling::new(map.positions(), [2, 1]);
+    let p = RelaxParams { flux_diffusion: 0.1, ..Default::default() };
+    assert!(relax_tile(&map, &p, None, &tiling, 0).is_err());
+    let p = RelaxParams::default();
+    let part = |t: usize, p: &RelaxParams| {
+        let r = relax_tile(&map, p, None, &tiling, t).unwrap();
+        tile_part(&map, &r, p, TileSpec { index: t, count: 2 }, 0.0).unwrap()
+    };
+    let (a, b) = (part(0, &p), part(1, &p));
+    let other = part(1, &RelaxParams { kf: 12, ..p });
+    assert!(merge_parts(&map, &[a.view(), b.view()]).is_ok());
+    for (what, parts) in [
+        ("missing", vec![a.view()]),
+        ("twice", vec![a.view(), a.view()]),
+        ("other parameters", vec![a.view(), other.view()]),
+    ] {
+        assert!(merge_parts(&map, &parts).is_err(), "{what}");
+    }
+}

@@ -1,0 +1,311 @@
+//! Relaxation tile by tile, exact against the whole map (docs/tiles.md).
+//!
+//! A tile's interior photons are relaxed with the photons within a halo around the tile, and
+//! every step of every photon is certified: a photon's position after iteration t is the whole
+//! map's if its position at t was, and if every photon its step read (its Kf nearest) lies
+//! closer than anything whose position at t may differ from the whole map's. What may differ is
+//! bounded by how far each photon can move per iteration (a fraction of its first spacing,
+//! [`super::Scratch`]), so it lies outside the halo box shrunk by an advance that grows with t.
+//! Interior photons not certified through every iteration are relaxed again with the halo
+//! doubled, until the halo holds the whole map.
+
+use rayon::prelude::*;
+
+use super::{Columns, MapWide, RelaxError, RelaxParams, RelaxSpace, Setup, run};
+use crate::format::MapView;
+use crate::spatial::order::locality_order;
+use crate::tiles::{HaloBox, Tiling};
+
+/// The relaxation of one tile's interior photons, in file order, with what the whole map's
+/// per-iteration report needs of each ([`super::merge_parts`] puts tiles together).
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TileRelaxed {
+    /// The interior photons' indices in the map, ascending.
+    pub indices: Vec<u32>,
+    /// Their relaxed positions, metres.
+    pub positions: Vec<[f32; 3]>,
+    /// Their normals, when photons were returned to their surfaces.
+    pub normals: Option<Vec<[f32; 3]>>,
+    /// Iterations run (R): the three per-photon series below hold R values per photon.
+    pub iterations: usize,
+    /// Per photon and iteration (photon-major): the nearest-neighbour distance, in working
+    /// units ([`Self::scale`]).
+    pub nn: Vec<f32>,
+    /// Per photon and iteration: that distance over r_K (NaN where r_K = 0).
+    pub ratio: Vec<f32>,
+    /// Per photon and iteration: the step length, in working units.
+    pub step: Vec<f32>,
+    /// The power of two the whole map's positions were worked on scaled by.
+    pub scale: f32,
+    /// Moves refused because the photon's surface was not found (the tile's photons).
+    pub refused_moves: u64,
+    /// Rounds (1: the first halo certified every photon).
+    pub rounds: u32,
+    /// The most photons one round worked on (interior and halo).
+    pub working_set: usize,
+    /// Per round: interior photons still to certify, and the working set.
+    pub per_round: Vec<[usize; 2]>,
+}
+
+/// The most iterations a tiled run takes: a part stores one value per photon and iteration in
+/// a column, and a column holds at most 64 components.
+pub const MAX_TILE_ITERATIONS: usize = 64;
+
+/// Rounds after which the halo is the whole map (a guard: doubling reaches it long before).
+const MAX_ROUNDS: u32 = 48;
+
+/// How [`relax_tile_with`] sizes and checks its halos (for tests: the defaults are the only
+/// exact choice of `certify`).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Options {
+    /// The first halo's width as a multiple of the default.
+    pub halo_scale: f64,
+    /// Whether steps are certified; without, the first halo's results are kept.
+    pub certify: bool,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Options { halo_scale: 1.0, certify: true }
+    }
+}
+
+/// Relaxation of tile `tile` of `tiling` of `map` with parameters `p` (and `scene`, as
+/// [`super::relax_map_on`]): each interior photon ends bit for bit where the whole map's
+/// relaxation puts it (docs/tiles.md). Flux diffusion, which rescales the whole map's flux, is
+/// refused.
+pub fn relax_tile(
+    map: &MapView,
+    p: &RelaxParams,
+    scene: Option<&crate::scene::Scene>,
+    tiling: &Tiling,
+    tile: usize,
+) -> Result<TileRelaxed, RelaxError> {
+    relax_tile_with(map, p, scene, tiling, tile, Options::default())
+}
+
+/// [`relax_tile`] with [`Options`].
+// Long because it is one loop of rounds whose certificate reads every quantity set up before.
+pub(crate) fn relax_tile_with(
+    map: &MapView,
+    p: &RelaxParams,
+    scene: Option<&crate::scene::Scene>,
+    tiling: &Tiling,
+    tile: usize,
+    opts: Options,
+) -> Result<TileRelaxed, RelaxError> {
+    let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
+    let setup = Setup::of(map, p, scene.is_some())?;
+    if setup.p.flux_diffusion > 0.0 {
+        return Err(input(
+            "flux diffusion rescales the whole map's flux: it can not run tile by tile".into(),
+        ));
+    }
+    if setup.p.iterations > MAX_TILE_ITERATIONS {
+        return Err(input(format!("a tiled relax runs at most {MAX_TILE_ITERATIONS} iterations")));
+    }
+    if tile >= tiling.len() {
+        return Err(input(format!("tile {tile} of a tiling of {}", tiling.len())));
+    }
+    let iterations = setup.p.iterations;
+    let pos = map.positions();
+    let n = pos.len();
+    let interior: Vec<u32> =
+        (0..n as u32).into_par_iter().filter(|&i| tiling.tile_of(pos[i as usize]) == tile).collect();
+    let mut out = TileRelaxed { iterations, scale: setup.scale, ..Default::default() };
+    // The whole map's working order: a photon's label is its rank in it.
+    let order = locality_order(pos);
+    if interior.is_empty() {
+        // Checked as the whole map is, so a tile fails where the whole map fails.
+        Columns::of(map, &[], &setup)?;
+        return Ok(out);
+    }
+    let mut label = vec![0u32; n];
+    for (l, &i) in order.iter().enumerate() {
+        label[i as usize] = l as u32;
+    }
+    if iterations == 0 {
+        out.positions = interior.iter().map(|&i| pos[i as usize]).collect();
+        out.indices = interior;
+        return Ok(out);
+    }
+    let (moves, slack) = move_bounds(map, &setup, &order, scene.is_some())?;
+    let scale = setup.scale as f64;
+    let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
+    let mut h = opts.halo_scale
+        * 2.0
+        * (iterations as f64 + 1.0)
+        * extent
+        * (setup.p.kf as f64 / (std::f64::consts::PI * n as f64)).sqrt();
+    let r = iterations;
+    out.nn = vec![0.0; interior.len() * r];
+    out.ratio = vec![f32::NAN; interior.len() * r];
+    out.step = vec![0.0; interior.len() * r];
+    out.positions = vec![[0.0; 3]; interior.len()];
+    let mut normals = vec![[0.0f32; 3]; interior.len()];
+    let mut with_normals = false;
+    let mut pending: Vec<bool> = vec![true; interior.len()];
+    let mut left = interior.len();
+    while left > 0 {
+        out.rounds += 1;
+        let halo = tiling.halo_box(tile, if out.rounds >= MAX_ROUNDS { f64::INFINITY } else { h });
+        let whole = halo.is_whole() || !opts.certify;
+        // Depth of a position (working units) in the halo box: its distance inside it, negative
+        // outside (a photon moving by s changes it by at most s).
+        let depth = |x: [f32; 3]| depth_in(&halo, x, scale);
+        let members: Vec<u32> = order.iter().copied().filter(|&i| halo.contains(pos[i as usize])).collect();
+        out.working_set = out.working_set.max(members.len());
+        out.per_round.push([left, members.len()]);
+        // How deep into the box the photons outside it may have come after t iterations.
+        let outside: Vec<f64> = if whole {
+            vec![f64::NEG_INFINITY; r.max(1)]
+        } else {
+            (0..n)
+                .into_par_iter()
+                .filter(|&i| !halo.contains(pos[i]))
+                .fold(
+                    || vec![f64::NEG_INFINITY; r.max(1)],
+                    |mut a, i| {
+                        let d = depth(scaled(pos[i], setup.scale));
+                        let m = moves[label[i] as usize];
+                        for (t, at) in a.iter_mut().enumerate() {
+                            *at = at.max(advance(d, t, m));
+                        }
+                        a
+                    },
+                )
+                .reduce(
+                    || vec![f64::NEG_INFINITY; r.max(1)],
+                    |a, b| a.iter().zip(&b).map(|(x, y)| x.max(*y)).collect(),
+                )
+        };
+        let slot: Vec<Option<usize>> =
+            members.iter().map(|&i| interior.binary_search(&i).ok().filter(|&q| pending[q])).collect();
+        let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
+        let mut columns = Columns::of(map, &members, &setup)?;
+        let start_depth: Vec<f64> = columns.positions.iter().map(|&x| depth(x)).collect();
+        let mut member_moves: Vec<f64> = labels.iter().map(|&l| moves[l as usize]).collect();
+        let mut certified = vec![true; members.len()];
+        let wide = MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: setup.coincident };
+        let mut t = 0usize;
+        let result = run(map, &mut columns, &setup, scene, &wide, &members, |scratch, _, before| {
+            let per = scratch.per_photon();
+            if t == 0 {
+                // The tile's own photons move within their tile-computed first spacing too.
+                let own = scratch.first_spacing();
+                for (m, &s) in member_moves.iter_mut().zip(own) {
+                    *m = m.max(bound(setup.p.step_limit, s, scene.is_some(), slack));
+                }
+            }
+            let advance_t = if whole {
+                f64::NEG_INFINITY
+            } else {
+                certified
+                    .iter()
+                    .zip(&start_depth)
+                    .zip(&member_moves)
+                    .filter(|((c, _), _)| !**c)
+                    .fold(outside[t], |a, ((_, &d), &m)| a.max(advance(d, t, m)))
+            };
+            for k in 0..members.len() {
+                if certified[k] && !whole {
+                    let read = per.read[k] as f64;
+                    certified[k] = read.is_finite() && read * (1.0 + 1e-5) < depth(before[k]) - advance_t;
+                }
+                if let Some(q) = slot[k] {
+                    out.nn[q * r + t] = per.nn[k];
+                    out.ratio[q * r + t] = per.ratio[k];
+                    out.step[q * r + t] = per.step[k];
+                }
+            }
+            t += 1;
+            // Nothing more to learn once no pending interior photon is certified.
+            slot.iter().zip(&certified).any(|(s, &c)| s.is_some() && c)
+        })?;
+        let ran_all = t == r;
+        out.refused_moves += result.refused_moves;
+        let moved = columns.unscaled_positions(&setup);
+        with_normals = columns.normals.is_some();
+        for k in 0..members.len() {
+            if let Some(q) = slot[k]
+                && certified[k]
+                && ran_all
+            {
+                out.positions[q] = moved[k];
+                if let Some(ns) = &columns.normals {
+                    normals[q] = ns[k];
+                }
+                pending[q] = false;
+                left -= 1;
+            }
+        }
+        h *= 2.0;
+    }
+    out.normals = with_normals.then_some(normals);
+    out.indices = interior;
+    Ok(out)
+}
+
+/// `x` scaled by `s` (the working units).
+fn scaled(x: [f32; 3], s: f32) -> [f32; 3] {
+    if s == 1.0 { x } else { x.map(|v| v * s) }
+}
+
+/// The depth of `x` (working units, positions scaled by `scale`) in `halo` (metres): its
+/// distance to the outside, negative outside, +∞ in a whole box.
+fn depth_in(halo: &HaloBox, x: [f32; 3], scale: f64) -> f64 {
+    (0..2)
+        .map(|k| {
+            let v = x[halo.axes[k]] as f64;
+            (v - halo.lo[k] * scale).min(halo.hi[k] * scale - v)
+        })
+        .fold(f64::INFINITY, f64::min)
+}
+
+/// The deepest a photon that started at depth `d` can be after `t` iterations of moves of at
+/// most `m` each.
+fn advance(d: f64, t: usize, m: f64) -> f64 {
+    if t == 0 { d } else { d + t as f64 * m }
+}
+
+/// The most a photon whose first spacing is `first` (working units; ∞ while it has none) moves
+/// in one iteration: `step_limit`·first (Eq. 8's clamp, [`super::Scratch`]), widened for the
+/// rounding of the move, and with a scene, the return to the surface (which searches 2 steps
+/// along the normal, plus 10⁻⁵ of the coordinates: [`super::return_to_surface`]).
+fn bound(step_limit: f32, first: f32, scene: bool, slack: f64) -> f64 {
+    let s = step_limit as f64 * first as f64;
+    if !s.is_finite() {
+        return f64::INFINITY;
+    }
+    (if scene { 3.0 * s } else { s }) * (1.0 + 1e-4) + slack
+}
+
+/// Per photon of the map (by label): the most it moves in one iteration of the whole map's
+/// relaxation, in working units, from its first spacing, which iteration 0 over the whole map
+/// measures (∞ for a photon whose Kf nearest all sit on it: its first spacing comes later).
+/// Widened by the rounding of a coordinate (and the return to a surface) as [`bound`] says.
+fn move_bounds(
+    map: &MapView,
+    setup: &Setup,
+    order: &[u32],
+    scene: bool,
+) -> Result<(Vec<f64>, f64), RelaxError> {
+    let mut columns = Columns::of(map, order, setup)?;
+    let far = columns.positions.iter().flatten().fold(0f32, |m, v| m.max(v.abs())) as f64;
+    // A position is rounded to half an ulp of its largest coordinate per axis on each move;
+    // 10⁻⁵ of the coordinates for the surface's search margin.
+    let slack = far * (4.0 * f32::EPSILON as f64 + if scene { 1e-5 } else { 0.0 });
+    let wide = MapWide { labels: None, spacing: setup.spacing, coincident: setup.coincident };
+    let mut first = Vec::new();
+    run(map, &mut columns, setup, None, &wide, order, |scratch, _, _| {
+        first = scratch.first_spacing().to_vec();
+        false
+    })?;
+    Ok((first.iter().map(|&f| bound(setup.p.step_limit, f, scene, slack)).collect(), slack))
+}
+
+/// The relax record's space and constraint for `map` (also for a tile with no photons).
+pub(crate) fn space_of(map: &MapView, setup: &Setup) -> (RelaxSpace, bool) {
+    use crate::format::name;
+    (setup.space, map.spec(name::BASIS_U).is_some() && map.spec(name::BASIS_V).is_some())
+}

@@ -1,6 +1,7 @@
-//! `photonkit detect --tile i/n` and `photonkit merge --map`: the parts of every tiling merge
-//! into the file `photonkit detect` writes, byte for byte; the local runner runs the same
-//! commands; bad tiles and bad parts are refused without output (docs/tiles.md).
+//! `photonkit detect --tile i/n`, `photonkit relax --tile i/n` and `photonkit merge --map`: the
+//! parts of every tiling merge into the file `photonkit detect` (or `relax`) writes, byte for
+//! byte; the local runner runs the same commands; bad tiles and bad parts are refused without
+//! output (docs/tiles.md).
 
 use std::path::Path;
 use std::process::Command;
@@ -22,11 +23,16 @@ fn run(args: &[&str]) {
 
 /// The parts of `map` in `n` tiles, written into `dir`, with `extra` detect options.
 fn parts(map: &str, n: usize, dir: &Path, extra: &[&str]) -> Vec<String> {
+    stage_parts("detect", map, n, dir, extra)
+}
+
+/// The parts of `map` in `n` tiles of `stage`, written into `dir`, with `extra` options.
+fn stage_parts(stage: &str, map: &str, n: usize, dir: &Path, extra: &[&str]) -> Vec<String> {
     (0..n)
         .map(|i| {
             let part = dir.join(format!("part-{i}-of-{n}.phm")).display().to_string();
             let tile = format!("{i}/{n}");
-            let mut args = vec!["detect", map, "--tile", &tile, "-o", &part];
+            let mut args = vec![stage, map, "--tile", &tile, "-o", &part];
             args.extend(extra);
             run(&args);
             part
@@ -101,6 +107,41 @@ fn merged_tile_parts_equal_the_untiled_detection_byte_for_byte() {
 }
 
 #[test]
+fn merged_relax_tile_parts_equal_the_untiled_relax_byte_for_byte_in_both_phases() {
+    let dir = tempfile::tempdir().unwrap();
+    let walled = walled(dir.path());
+    let maps = [
+        sample_path("two-emitters.phm").display().to_string(),
+        sample_path("point-ring.phm").display().to_string(),
+        walled,
+    ];
+    for (k, map) in maps.iter().enumerate() {
+        let detected = dir.path().join(format!("detected-{k}.phm")).display().to_string();
+        let collapsed = dir.path().join(format!("collapsed-{k}.phm")).display().to_string();
+        run(&["detect", map, "-o", &detected]);
+        run(&["collapse", &detected, "-o", &collapsed]);
+        for phase in [&detected, &collapsed] {
+            for (n, extra) in [(2, &[][..]), (4, &["--iterations", "4"][..]), (9, &["--kf", "10"][..])] {
+                let whole = dir.path().join("whole.phm").display().to_string();
+                let mut args = vec!["relax", phase.as_str(), "-o", &whole];
+                args.extend(extra);
+                run(&args);
+                let parts = stage_parts("relax", phase, n, dir.path(), extra);
+                let merged = dir.path().join("merged.phm").display().to_string();
+                let mut args = vec!["merge", "--map", phase.as_str(), "-o", &merged];
+                args.extend(parts.iter().rev().map(String::as_str));
+                run(&args);
+                let (a, b) = (std::fs::read(&whole).unwrap(), std::fs::read(&merged).unwrap());
+                assert!(
+                    a == b,
+                    "{phase}, {n} tiles {extra:?}: the merged relax parts differ from the untiled run"
+                );
+            }
+        }
+    }
+}
+
+#[test]
 fn the_local_runner_runs_the_tiles_in_parallel_and_merges_them() {
     let dir = tempfile::tempdir().unwrap();
     let map = sample_path("collimated-cusp.phm").display().to_string();
@@ -122,6 +163,22 @@ fn the_local_runner_runs_the_tiles_in_parallel_and_merges_them() {
     // Its parts are gone; a bad tile count is refused.
     let left: Vec<_> = std::fs::read_dir(dir.path()).unwrap().map(|e| e.unwrap().file_name()).collect();
     assert_eq!(left.len(), 2, "{left:?}");
+    // The same for relax, on the detected map.
+    let relaxed = dir.path().join("relaxed.phm").display().to_string();
+    run(&["relax", &whole, "-o", &relaxed]);
+    let o = Command::new("bash")
+        .arg(root().join("tools/cluster/run-local.sh"))
+        .args([&whole, &out, "4", "2"])
+        .env("PHOTONKIT", env!("CARGO_BIN_EXE_photonkit"))
+        .env("SOURCE_DATE_EPOCH", "1700000000")
+        .env("STAGE", "relax")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        std::fs::read(&relaxed).unwrap() == std::fs::read(&out).unwrap(),
+        "run-local.sh differs from relax"
+    );
     let o = Command::new("bash")
         .arg(root().join("tools/cluster/run-local.sh"))
         .args([&map, &out, "0"])

@@ -3,16 +3,19 @@
 //! A tile's interior photons are relaxed with the photons within a halo around the tile, and
 //! every step of every photon is certified: a photon's position after iteration t is the whole
 //! map's if its position at t was, and if every photon its step read (its Kf nearest) lies
-//! closer than anything whose position at t may differ from the whole map's. What may differ is
-//! bounded by how far each photon can move per iteration (a fraction of its first spacing,
-//! [`super::Scratch`]), so it lies outside the halo box shrunk by an advance that grows with t.
-//! Interior photons not certified through every iteration are relaxed again with the halo
-//! doubled, until the halo holds the whole map.
+//! closer than anything whose position at t may differ from the whole map's. What may differ
+//! (photons outside the halo box, and photons of the box not certified) is bounded per photon:
+//! it lies within its step at iteration 0 plus t − 1 times its later step bound (a fraction of
+//! its first spacing, [`super::Scratch`]) of where it started. The test is spatial, photon by
+//! photon ([`Uncertain`]), so a sparse photon that moves far holds back only the photons it
+//! could reach. Interior photons not certified through every iteration are relaxed again with
+//! the halo doubled, until the halo holds the whole map.
 
 use rayon::prelude::*;
 
 use super::{Columns, MapWide, RelaxError, RelaxParams, RelaxSpace, Setup, run};
 use crate::format::MapView;
+use crate::spatial::BoxTree;
 use crate::spatial::order::locality_order;
 use crate::tiles::{HaloBox, Tiling};
 
@@ -129,7 +132,7 @@ pub(crate) fn relax_tile_with(
         out.indices = interior;
         return Ok(out);
     }
-    let (moves, slack) = move_bounds(map, &setup, &order, scene.is_some())?;
+    let (moves, slack) = move_bounds(map, &setup, &order, scene)?;
     let scale = setup.scale as f64;
     let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
     let mut h = opts.halo_scale
@@ -156,63 +159,79 @@ pub(crate) fn relax_tile_with(
         let members: Vec<u32> = order.iter().copied().filter(|&i| halo.contains(pos[i as usize])).collect();
         out.working_set = out.working_set.max(members.len());
         out.per_round.push([left, members.len()]);
-        // How deep into the box the photons outside it may have come after t iterations.
-        let outside: Vec<f64> = if whole {
-            vec![f64::NEG_INFINITY; r.max(1)]
+        // The photons outside the box that may come within reach of a member: any other lies
+        // farther from the box than the most it moves in the whole run plus the halo's width,
+        // which bounds the reach a member may be certified with.
+        let reach_cap = h * scale;
+        let outside: Vec<(u32, Moves)> = if whole {
+            Vec::new()
         } else {
-            (0..n)
+            (0..n as u32)
                 .into_par_iter()
-                .filter(|&i| !halo.contains(pos[i]))
-                .fold(
-                    || vec![f64::NEG_INFINITY; r.max(1)],
-                    |mut a, i| {
-                        let d = depth(scaled(pos[i], setup.scale));
-                        let m = moves[label[i] as usize];
-                        for (t, at) in a.iter_mut().enumerate() {
-                            *at = at.max(advance(d, t, m));
-                        }
-                        a
-                    },
-                )
-                .reduce(
-                    || vec![f64::NEG_INFINITY; r.max(1)],
-                    |a, b| a.iter().zip(&b).map(|(x, y)| x.max(*y)).collect(),
-                )
+                .filter_map(|i| {
+                    let x = pos[i as usize];
+                    if halo.contains(x) {
+                        return None;
+                    }
+                    let m = moves[label[i as usize] as usize];
+                    (-depth(scaled(x, setup.scale)) < m.after(r) + reach_cap).then_some((i, m))
+                })
+                .collect()
         };
+        let outside =
+            Uncertain::of(outside.iter().map(|&(i, m)| (scaled(pos[i as usize], setup.scale), m)), depth, r);
         let slot: Vec<Option<usize>> =
             members.iter().map(|&i| interior.binary_search(&i).ok().filter(|&q| pending[q])).collect();
         let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
         let mut columns = Columns::of(map, &members, &setup)?;
-        let start_depth: Vec<f64> = columns.positions.iter().map(|&x| depth(x)).collect();
-        let mut member_moves: Vec<f64> = labels.iter().map(|&l| moves[l as usize]).collect();
+        let start: Vec<[f32; 3]> = columns.positions.clone();
+        let mut member_moves: Vec<Moves> = labels.iter().map(|&l| moves[l as usize]).collect();
         let mut certified = vec![true; members.len()];
         let wide = MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: setup.coincident };
         let mut t = 0usize;
         let result = run(map, &mut columns, &setup, scene, &wide, &members, |scratch, _, before| {
             let per = scratch.per_photon();
+            // The tile's own photons move as far as the tile's run moves them too (an
+            // uncertified photon's tile position may differ from the whole map's).
             if t == 0 {
-                // The tile's own photons move within their tile-computed first spacing too.
-                let own = scratch.first_spacing();
-                for (m, &s) in member_moves.iter_mut().zip(own) {
-                    *m = m.max(bound(setup.p.step_limit, s, scene.is_some(), slack));
+                for (m, &s) in member_moves.iter_mut().zip(&per.step) {
+                    m.first = m.first.max(widen(s as f64, scene.is_some(), slack));
+                }
+            } else if t == 1 {
+                for (m, &s) in member_moves.iter_mut().zip(scratch.first_spacing()) {
+                    m.later = m.later.max(bound(setup.p.step_limit, s, scene.is_some(), slack));
                 }
             }
-            let advance_t = if whole {
-                f64::NEG_INFINITY
-            } else {
-                certified
-                    .iter()
-                    .zip(&start_depth)
-                    .zip(&member_moves)
-                    .filter(|((c, _), _)| !**c)
-                    .fold(outside[t], |a, ((_, &d), &m)| a.max(advance(d, t, m)))
-            };
-            for k in 0..members.len() {
-                if certified[k] && !whole {
-                    let read = per.read[k] as f64;
-                    certified[k] = read.is_finite() && read * (1.0 + 1e-5) < depth(before[k]) - advance_t;
-                }
-                if let Some(q) = slot[k] {
+            if !whole {
+                // Where the members whose position may differ from the whole map's started.
+                let unsure = Uncertain::of(
+                    certified
+                        .iter()
+                        .zip(&start)
+                        .zip(&member_moves)
+                        .filter(|((c, _), _)| !**c)
+                        .map(|((_, &x), &m)| (x, m)),
+                    depth,
+                    r,
+                );
+                let per_read = &per.read;
+                let keep: Vec<bool> = (0..members.len())
+                    .into_par_iter()
+                    .map(|k| {
+                        let read = per_read[k] as f64 * (1.0 + 1e-5);
+                        let at = depth(before[k]);
+                        certified[k]
+                            && read.is_finite()
+                            && read <= reach_cap
+                            && at >= 0.0
+                            && outside.clear_of(before[k], at, read, t)
+                            && unsure.clear_of(before[k], at, read, t)
+                    })
+                    .collect();
+                certified = keep;
+            }
+            for (k, q) in slot.iter().enumerate() {
+                if let &Some(q) = q {
                     out.nn[q * r + t] = per.nn[k];
                     out.ratio[q * r + t] = per.ratio[k];
                     out.step[q * r + t] = per.step[k];
@@ -246,6 +265,91 @@ pub(crate) fn relax_tile_with(
     Ok(out)
 }
 
+/// Photons whose position at an iteration may differ from the whole map's: where each started
+/// (working units) and the most it moves per iteration, grouped by that bound (powers of two)
+/// so a query visits, per group, only those that could have come within its reach.
+struct Uncertain {
+    groups: Vec<Group>,
+    /// Per iteration t, the deepest into the halo box any of them may be (−∞: none).
+    front: Vec<f64>,
+}
+
+struct Group {
+    tree: BoxTree,
+    start: Vec<[f32; 3]>,
+    moves: Vec<Moves>,
+    most: Moves,
+}
+
+impl Uncertain {
+    /// The photons (start, moves), with `depth` their depth in the halo box, for iterations
+    /// up to `iterations`.
+    fn of(
+        photons: impl Iterator<Item = ([f32; 3], Moves)>,
+        depth: impl Fn([f32; 3]) -> f64,
+        iterations: usize,
+    ) -> Uncertain {
+        let mut by_bound: std::collections::BTreeMap<i32, (Vec<[f32; 3]>, Vec<Moves>)> = Default::default();
+        let mut front = vec![f64::NEG_INFINITY; iterations + 1];
+        for (x, m) in photons {
+            let d = depth(x);
+            for (t, f) in front.iter_mut().enumerate() {
+                *f = f.max(d + m.after(t));
+            }
+            let b = m.first.max(m.later);
+            let key = if b.is_finite() && b > 0.0 {
+                b.log2().floor() as i32
+            } else if b > 0.0 {
+                i32::MAX
+            } else {
+                i32::MIN
+            };
+            let g = by_bound.entry(key).or_default();
+            g.0.push(x);
+            g.1.push(m);
+        }
+        let groups = by_bound
+            .into_values()
+            .map(|(start, moves)| Group {
+                tree: BoxTree::build(&start),
+                most: moves.iter().fold(Moves { first: 0.0, later: 0.0 }, |a, m| Moves {
+                    first: a.first.max(m.first),
+                    later: a.later.max(m.later),
+                }),
+                start,
+                moves,
+            })
+            .collect();
+        Uncertain { groups, front }
+    }
+
+    /// Whether none of these photons can be within `read` of `x` after `t` iterations: each
+    /// lies farther from `x` than `read` plus the most it moves in `t` iterations.
+    /// `depth` is x's depth in the halo box: when `read` stays inside the part of the box none
+    /// of them can have reached, no search is needed.
+    fn clear_of(&self, x: [f32; 3], depth: f64, read: f64, t: usize) -> bool {
+        if read < depth - self.front[t] {
+            return true;
+        }
+        self.groups.iter().all(|g| {
+            let reach = read + g.most.after(t);
+            if !reach.is_finite() {
+                return false;
+            }
+            let r2 = (reach * (1.0 + 1e-5)).powi(2) as f32 * (1.0 + 1e-5);
+            let mut clear = true;
+            g.tree.within(x, r2, &mut |j, _| {
+                let a = g.start[j as usize];
+                let d2: f64 = (0..3).map(|c| (x[c] as f64 - a[c] as f64).powi(2)).sum();
+                if d2.sqrt() <= read + g.moves[j as usize].after(t) {
+                    clear = false;
+                }
+            });
+            clear
+        })
+    }
+}
+
 /// `x` scaled by `s` (the working units).
 fn scaled(x: [f32; 3], s: f32) -> [f32; 3] {
     if s == 1.0 { x } else { x.map(|v| v * s) }
@@ -262,10 +366,29 @@ fn depth_in(halo: &HaloBox, x: [f32; 3], scale: f64) -> f64 {
         .fold(f64::INFINITY, f64::min)
 }
 
-/// The deepest a photon that started at depth `d` can be after `t` iterations of moves of at
-/// most `m` each.
-fn advance(d: f64, t: usize, m: f64) -> f64 {
-    if t == 0 { d } else { d + t as f64 * m }
+/// How far a photon may move (working units): `first` in the first iteration, `later` in each
+/// one after it.
+#[derive(Clone, Copy, Debug)]
+struct Moves {
+    first: f64,
+    later: f64,
+}
+
+impl Moves {
+    /// The farthest from where it started that the photon may be after `t` iterations.
+    fn after(&self, t: usize) -> f64 {
+        match t {
+            0 => 0.0,
+            1 => self.first,
+            _ => self.first + (t - 1) as f64 * self.later,
+        }
+    }
+}
+
+/// A step of length `s` (working units) as far as it moves the photon: widened for the
+/// rounding of the move, and with a scene, for the return to the surface (as [`bound`]).
+fn widen(s: f64, scene: bool, slack: f64) -> f64 {
+    (if scene { 3.0 * s } else { s }) * (1.0 + 1e-4) + slack
 }
 
 /// The most a photon whose first spacing is `first` (working units; ∞ while it has none) moves
@@ -277,31 +400,44 @@ fn bound(step_limit: f32, first: f32, scene: bool, slack: f64) -> f64 {
     if !s.is_finite() {
         return f64::INFINITY;
     }
-    (if scene { 3.0 * s } else { s }) * (1.0 + 1e-4) + slack
+    widen(s, scene, slack)
 }
 
-/// Per photon of the map (by label): the most it moves in one iteration of the whole map's
-/// relaxation, in working units, from its first spacing, which iteration 0 over the whole map
-/// measures (∞ for a photon whose Kf nearest all sit on it: its first spacing comes later).
-/// Widened by the rounding of a coordinate (and the return to a surface) as [`bound`] says.
+/// Per photon of the map (by label): how far it moves in the whole map's relaxation, in
+/// working units: in the first iteration its step (which iteration 0 over the whole map
+/// measures), in each later one at most `step_limit` times its first spacing (known after
+/// iteration 1: a photon whose Kf nearest all sat on it at iteration 0 was nudged off them;
+/// ∞ for one that is still in a crowd). Widened by the rounding of a coordinate (and the
+/// return to a surface) as [`bound`] says; the rounding slack is returned too.
 fn move_bounds(
     map: &MapView,
     setup: &Setup,
     order: &[u32],
-    scene: bool,
-) -> Result<(Vec<f64>, f64), RelaxError> {
+    scene: Option<&crate::scene::Scene>,
+) -> Result<(Vec<Moves>, f64), RelaxError> {
     let mut columns = Columns::of(map, order, setup)?;
     let far = columns.positions.iter().flatten().fold(0f32, |m, v| m.max(v.abs())) as f64;
     // A position is rounded to half an ulp of its largest coordinate per axis on each move;
     // 10⁻⁵ of the coordinates for the surface's search margin.
-    let slack = far * (4.0 * f32::EPSILON as f64 + if scene { 1e-5 } else { 0.0 });
+    let on_surface = scene.is_some();
+    let slack = far * (4.0 * f32::EPSILON as f64 + if on_surface { 1e-5 } else { 0.0 });
     let wide = MapWide { labels: None, spacing: setup.spacing, coincident: setup.coincident };
-    let mut first = Vec::new();
-    run(map, &mut columns, setup, None, &wide, order, |scratch, _, _| {
-        first = scratch.first_spacing().to_vec();
-        false
+    let mut moves = vec![Moves { first: 0.0, later: f64::INFINITY }; order.len()];
+    let mut t = 0;
+    run(map, &mut columns, setup, scene, &wide, order, |scratch, _, _| {
+        if t == 0 {
+            for (m, &s) in moves.iter_mut().zip(&scratch.per_photon().step) {
+                m.first = widen(s as f64, on_surface, slack);
+            }
+        } else {
+            for (m, &f) in moves.iter_mut().zip(scratch.first_spacing()) {
+                m.later = bound(setup.p.step_limit, f, on_surface, slack);
+            }
+        }
+        t += 1;
+        t < 2
     })?;
-    Ok((first.iter().map(|&f| bound(setup.p.step_limit, f, scene, slack)).collect(), slack))
+    Ok((moves, slack))
 }
 
 /// The relax record's space and constraint for `map` (also for a tile with no photons).

@@ -154,3 +154,54 @@ fn flux_diffusion_and_bad_parts_are_refused() {
         assert!(merge_parts(&map, &parts).is_err(), "{what}");
     }
 }
+
+/// A map with a sparse surround (an annulus 10-20 times the caustic's size away, its photons'
+/// spacing several times the caustic's size): every tiling is exact, and the middle tile of
+/// the caustic is certified in its first halo (a photon is held back only by photons that could
+/// have come within its reach).
+#[test]
+fn a_sparse_surround_does_not_hold_back_a_dense_tile() {
+    let dir = tempfile::tempdir().unwrap();
+    let mut m = crate::synthetic::collimated_cusp(3000, 46);
+    let dense = m.position.len();
+    let (lo, hi) = m.position.iter().fold(([f32::MAX; 3], [f32::MIN; 3]), |(lo, hi), x| {
+        (std::array::from_fn(|k| lo[k].min(x[k])), std::array::from_fn(|k| hi[k].max(x[k])))
+    });
+    let c: [f32; 3] = std::array::from_fn(|k| 0.5 * (lo[k] + hi[k]));
+    let size = (hi[0] - lo[0]).max(hi[1] - lo[1]);
+    let dims = m.param_dims as usize;
+    let halton = crate::sampling::halton::Halton::new(7);
+    for j in 0..400usize {
+        // Uniform on the annulus (Halton points in radius² and angle).
+        let [a, b, _, _] = halton.point(j as u64);
+        let r = size * (100.0 + 300.0 * a).sqrt();
+        let phi = std::f32::consts::TAU * b;
+        let mut x = c;
+        x[0] += r * phi.cos();
+        x[1] += r * phi.sin();
+        let from = j % dense;
+        m.position.push(x);
+        m.normal.push(m.normal[from]);
+        m.flux.push(m.flux[from]);
+        m.params.extend_from_within(from * dims..(from + 1) * dims);
+        m.emitter.push(m.emitter[from]);
+        m.incident.push(m.incident[from]);
+        m.path_length.push(m.path_length[from]);
+        m.bounces.push(m.bounces[from]);
+        m.emission_index.push(10_000_000 + j as u64);
+    }
+    let [_, collapsed] = phases(dir.path(), "surround", &m);
+    let map = collapsed.view();
+    let p = RelaxParams::default();
+    check_tilings(&map, &p, "surround");
+    // The caustic's photons fill the middle tile of a 3×3 tiling cut at quantiles.
+    let tiling = Tiling::new(map.positions(), [3, 3]);
+    let r = relax_tile(&map, &p, None, &tiling, 4).unwrap();
+    let after_first = r.per_round.get(1).map_or(0, |x| x[0]);
+    assert!(
+        after_first * 20 <= r.indices.len(),
+        "{after_first} of {} photons left after the first halo ({:?})",
+        r.indices.len(),
+        r.per_round
+    );
+}

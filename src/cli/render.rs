@@ -356,17 +356,20 @@ pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>
         KernelArg::Disc => Kernel::Disc,
         KernelArg::Cone => Kernel::Cone,
     };
-    let k = match a.k {
-        Some(k) => k,
-        None => {
-            let k = photonkit::refine::render_k(map, DEFAULT_K);
-            if k != DEFAULT_K {
-                super::note!("photonkit render: the map grew in refinement: K = {k} (-k sets it)");
-            }
-            k
-        }
-    };
+    let k = a.k.unwrap_or(DEFAULT_K);
+    // A map grown in refinement: each estimate gathers within the distance of the K-th nearest
+    // of its photons before it grew (docs/progressive.md).
+    let grown = a.k.is_none()
+        && a.max_radius.is_none()
+        && matches!(a.estimator, EstimatorArg::Knn)
+        && photonkit::refine::first_photons(map).is_some();
+    if grown {
+        super::note!(
+            "photonkit render: the map grew in refinement: each estimate gathers within the distance of the {k}th nearest of its photons before it grew (-k sets a plain k-NN estimate)"
+        );
+    }
     let estimator = match a.estimator {
+        EstimatorArg::Knn if grown => Estimator::LocalRadius { k, scale: 1.0, kernel },
         EstimatorArg::Knn => Estimator::Knn { k, kernel, max_radius: a.max_radius },
         EstimatorArg::Diffusion => Estimator::Diffusion { k: a.diffusion_k, q: a.diffusion_q },
         EstimatorArg::Variable => Estimator::Variable { k, kernel },

@@ -438,16 +438,18 @@ fn make_table<'a>(
     Ok(table)
 }
 
-/// K of the k-NN estimate that renders `map` as a map of its photons before refinement is
-/// rendered with `k`: k × N / N₀ for a map that growth took from N₀ to N photons (the kernel
-/// spans the area it did, and the cells in it, smaller, carry the flux more finely:
-/// docs/progressive.md, "Growth"); `k` for any other map.
-pub fn render_k(map: &MapView, k: usize) -> usize {
+/// The first N₀ photons of a map that growth took from N₀ to N photons: the map's photons before
+/// it grew, each where refinement left it (a photon whose cell split stands at one half's
+/// site). `render` gathers each estimate within the distance of the K-th nearest of these
+/// ([`crate::render::Estimator::LocalRadius`]), so the kernel keeps, wherever the map grew, about
+/// the area it had before refinement, and the finer cells in it carry the flux more exactly
+/// (docs/progressive.md, "Rendering a grown map"). `None` for any other map.
+pub fn first_photons<'a>(map: &MapView<'a>) -> Option<&'a [[f32; 3]]> {
     match RefineRecord::of(map) {
         Some(rec) if rec.primal_start > 0 && map.len() as u64 > rec.primal_start => {
-            (k as f64 * map.len() as f64 / rec.primal_start as f64).round() as usize
+            Some(&map.positions()[..rec.primal_start as usize])
         }
-        _ => k,
+        _ => None,
     }
 }
 

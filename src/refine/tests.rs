@@ -255,6 +255,8 @@ fn refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     })
     .unwrap();
     assert_eq!(seen, [1, 2, 3]);
+    // Without growth the map renders as any other (no radius map of its first photons).
+    assert_eq!(first_photons(&whole.view()), None);
     let rec = RefineRecord::of(&whole.view()).unwrap();
     assert_eq!((rec.passes_done, rec.next_emission), (3, 60_000 + 3 * 30_000));
     assert!(rec.measures.iter().all(|m| m.gathered_per_photon > 0.3), "{:?}", rec.measures);
@@ -443,6 +445,9 @@ fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let split_of = view.column::<u32>(column::SPLIT_OF).unwrap().unwrap();
     assert!(split_of[..n0].iter().all(|&s| s == u32::MAX));
     assert!(split_of[n0..].iter().enumerate().all(|(k, &s)| (s as usize) < n0 + k));
+    // Render's radius map: the map's photons before it grew; none before refinement.
+    assert_eq!(first_photons(&view).map(<[_]>::len), Some(n0));
+    assert_eq!(first_photons(&map.view()), None);
 
     let first =
         refine(&map.view(), &scene, &RefineParams { passes: 2, ..p }, None, &mut |_| Ok(true)).unwrap();

@@ -247,7 +247,16 @@ pub fn render_map(
             "{file}: no photon lies within {tolerance} m of the plane"
         )));
     }
-    let photons = PhotonLookup::new(file, data)?.prepared_for(&request.estimator);
+    let mut photons = PhotonLookup::new(file, data)?.prepared_for(&request.estimator);
+    if let Estimator::LocalRadius { .. } = request.estimator {
+        // A grown map's estimate takes its radius from the photons before it grew.
+        let sites = crate::refine::first_photons(map).ok_or_else(|| {
+            RenderError::Invalid(format!(
+                "{file}: the local-radius estimate needs a map grown by `photonkit refine --growth`"
+            ))
+        })?;
+        photons = photons.with_own_radius_map(sites);
+    }
     let diagnostic = match (diagnostic, &near_plane) {
         (Some(d), Some(keep)) => {
             Some(Diagnostics { colours: keep.iter().map(|&i| d.colours[i as usize]).collect(), ..d })

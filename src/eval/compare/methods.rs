@@ -125,7 +125,13 @@ impl Seed<'_> {
         let t = Instant::now();
         let normals = map.column::<[f32; 3]>(crate::format::name::NORMAL)?;
         let data = PhotonData { positions: map.positions(), flux: map.flux(), normals };
-        let lookup = PhotonLookup::new(map.file_name(), data)?.prepared_for(&estimator);
+        let mut lookup = PhotonLookup::new(map.file_name(), data)?.prepared_for(&estimator);
+        if let Estimator::LocalRadius { .. } = estimator {
+            // A grown map: the radius comes from its photons before it grew.
+            let view = map.view();
+            lookup =
+                lookup.with_own_radius_map(crate::refine::first_photons(&view).unwrap_or(map.positions()));
+        }
         let renderer = Renderer {
             view: View::Scene { scene: self.scene, camera: self.target.camera.clone() },
             photons: Some(&lookup),
@@ -332,8 +338,14 @@ impl Seed<'_> {
         })?;
         for (n, secs) in snapshots {
             let refined = PhotonMap::open_path(&self.file(&format!("refined-{n}.phm")))?;
-            let k = crate::refine::render_k(&refined.view(), o.k);
-            let (img, render_secs) = self.render(&refined, self.fixed_k(k))?;
+            let k = o.k;
+            // A grown map keeps its kernel's first area wherever it grew (docs/progressive.md).
+            let grown = !o.variable_kernel && crate::refine::first_photons(&refined.view()).is_some();
+            let estimator = match grown {
+                true => Estimator::LocalRadius { k, scale: 1.0, kernel: Kernel::Epanechnikov },
+                false => self.fixed_k(k),
+            };
+            let (img, render_secs) = self.render(&refined, estimator)?;
             let times = StageTimes::of(self.trace_secs, Some(det), Some(rel + secs), render_secs);
             let setting = format!(
                 "{}, then {n} passes of {} ({} iterations each, growth γ = {:.3}, prior of {} passes), {}",
@@ -342,7 +354,10 @@ impl Seed<'_> {
                 o.refine_iterations,
                 o.refine_growth,
                 o.refine_prior,
-                self.k_label(k)
+                match grown {
+                    true => format!("within the {k}th nearest photon's distance before growth"),
+                    false => self.k_label(k),
+                }
             );
             let row = self.row(MethodKind::OursProgressive, setting, &refined, k, times, img);
             rows.push(Row { passes: Some(n), ..row });

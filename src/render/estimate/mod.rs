@@ -135,7 +135,10 @@ impl Estimator {
             Estimator::Diffusion { k, q } => format!("diffusion, {k} neighbours, q = {q}"),
             Estimator::Radius { radius, kernel } => format!("radius {radius} m, {} kernel", kernel.name()),
             Estimator::LocalRadius { k, scale, kernel } => {
-                format!("radius {scale} × the {k}-NN distance of the first pass, {} kernel", kernel.name())
+                format!(
+                    "radius {scale} × the {k}-NN distance of the radius map (a progressive reference's first pass, a grown map's photons before it grew), {} kernel",
+                    kernel.name()
+                )
             }
             Estimator::Variable { k, kernel } => {
                 format!("variable kernel, each photon's radius its {k}-NN distance, {} kernel", kernel.name())
@@ -175,9 +178,26 @@ pub struct PhotonLookup<'a> {
     index: Option<BoxTree>,
     grid: Option<Grid>,
     /// The photons whose k-th nearest distance sets [`Estimator::LocalRadius`]'s radius.
-    radius_map: Option<&'a BoxTree>,
+    radius_map: Option<RadiusMap<'a>>,
     /// Each photon's own kernel radius, for [`Estimator::Variable`].
     variable: Option<VariableKernels>,
+}
+
+/// The photons that set [`Estimator::LocalRadius`]'s radius: the caller's (a progressive
+/// reference's first pass, kept across passes) or the lookup's own (a grown map's photons as
+/// they were before it grew, [`PhotonLookup::with_own_radius_map`]).
+enum RadiusMap<'a> {
+    Borrowed(&'a BoxTree),
+    Owned(BoxTree),
+}
+
+impl RadiusMap<'_> {
+    fn tree(&self) -> &BoxTree {
+        match self {
+            RadiusMap::Borrowed(t) => t,
+            RadiusMap::Owned(t) => t,
+        }
+    }
 }
 
 /// Per-thread buffers reused across lookups.
@@ -214,9 +234,17 @@ impl<'a> PhotonLookup<'a> {
             data,
             index: Some(index),
             grid: None,
-            radius_map: Some(radius_map),
+            radius_map: Some(RadiusMap::Borrowed(radius_map)),
             variable: None,
         })
+    }
+
+    /// These photons, for [`Estimator::LocalRadius`] lookups whose radius at a point comes from
+    /// the points `sites` (a map grown by refinement: its photons before it grew,
+    /// [`crate::refine::first_photons`]).
+    pub fn with_own_radius_map(mut self, sites: &[[f32; 3]]) -> Self {
+        self.radius_map = Some(RadiusMap::Owned(BoxTree::build(sites)));
+        self
     }
 
     /// Photons for fixed-radius lookups of `radius` ([`Estimator::Radius`]) only: a uniform
@@ -355,7 +383,9 @@ impl<'a> PhotonLookup<'a> {
         n: Vec3,
         s: &mut Scratch,
     ) -> Vec3 {
-        let (Some(map), Some(index)) = (self.radius_map, &self.index) else { return Vec3::ZERO };
+        let (Some(map), Some(index)) = (self.radius_map.as_ref().map(RadiusMap::tree), &self.index) else {
+            return Vec3::ZERO;
+        };
         s.last = None;
         map.knn(x.to_array(), k, f32::INFINITY, &mut s.nb);
         let Some(kth) = s.nb.last().filter(|_| s.nb.len() == k) else { return Vec3::ZERO };

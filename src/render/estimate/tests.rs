@@ -408,3 +408,40 @@ fn the_variable_kernel_keeps_the_flux() {
     }
     assert!((total - 1.0).abs() < 0.005, "flux {total} W per channel, expected 1");
 }
+
+/// A grown map's estimate ([`PhotonLookup::with_own_radius_map`]): the radius at x is the
+/// distance to the k-th nearest of the map's photons before it grew, and every photon of the
+/// grown map within it counts, against a brute-force sum.
+#[test]
+fn a_grown_map_gathers_within_its_first_photons_radius() {
+    let (roots, _) = uniform_square(2_000, 1.0, 1.0, 21);
+    // The map grew on the left: four photons where each root of x < 0 was.
+    let mut rng = PhotonRng::new(22, 0);
+    let mut pos = roots.clone();
+    for r in roots.iter().filter(|r| r[0] < 0.0) {
+        for _ in 0..3 {
+            pos.push([r[0] + 0.01 * (rng.next_f32() - 0.5), r[1] + 0.01 * (rng.next_f32() - 0.5), 0.0]);
+        }
+    }
+    let flux: Vec<[f32; 3]> = (0..pos.len()).map(|i| [1e-3 * (1.0 + (i % 7) as f32), 1e-3, 1e-3]).collect();
+    let lookup = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None })
+        .unwrap()
+        .with_own_radius_map(&roots);
+    let est = Estimator::LocalRadius { k: 15, scale: 1.0, kernel: Kernel::Epanechnikov };
+    assert!(lookup.serves(&est));
+    let mut s = Scratch::default();
+    let d2 = |a: [f32; 3], b: Vec3| (Vec3::from(a) - b).length_squared();
+    for j in 0..50 {
+        let x = Vec3::new(-0.45 + 0.9 * rng.next_f32(), -0.45 + 0.9 * rng.next_f32(), 0.0);
+        let mut to_roots: Vec<f32> = roots.iter().map(|&r| d2(r, x)).collect();
+        to_roots.sort_by(f32::total_cmp);
+        let r2 = to_roots[14];
+        let want: f64 = pos
+            .iter()
+            .zip(&flux)
+            .map(|(&p, f)| f[0] as f64 * Kernel::Epanechnikov.weight(d2(p, x), r2) as f64)
+            .sum();
+        let got = lookup.irradiance(&est, x, Vec3::Z, &mut s).x as f64;
+        assert!((got - want).abs() <= 1e-4 * want.abs() + 1e-9, "point {j}: {got} vs {want}");
+    }
+}

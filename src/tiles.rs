@@ -272,6 +272,97 @@ pub fn within_margin(far2: f32, margin: f64) -> bool {
     margin == f64::INFINITY || (far2 as f64).sqrt() * (1.0 + 1e-5) < margin
 }
 
+/// CRC-32 of a map's position column: which map a tile part was cut from (a part's record
+/// carries it as `source_position_crc32`).
+pub fn position_crc(map: &crate::format::MapView) -> u32 {
+    crc32fast::hash(bytemuck::cast_slice(map.positions()))
+}
+
+/// What a tile part's last record says about it (`photonkit STAGE --tile`).
+pub struct PartRecord<'p> {
+    /// Its tile.
+    pub tile: TileSpec,
+    /// The stage's parameters.
+    pub parameters: &'p serde_json::Value,
+    /// The stage's report.
+    pub report: &'p serde_json::Value,
+    /// Seconds the tile took.
+    pub seconds: f64,
+}
+
+/// The record of `part`, a tile part of `map` written by `stage` (`--tile` of `command`), or
+/// what is wrong with it: not such a part, not a tile, or cut from another map.
+pub fn part_record<'p>(
+    map: &crate::format::MapView,
+    part: &crate::format::MapView<'p>,
+    stage: &str,
+    command: &str,
+) -> Result<PartRecord<'p>, String> {
+    use serde_json::Value;
+    let rec = part
+        .info()
+        .history
+        .last()
+        .filter(|r| r.stage == stage && r.report.get("tile").is_some())
+        .ok_or_else(|| format!("not a tile part: its last record is not `{command} --tile`"))?;
+    let r = &rec.report;
+    let num =
+        |key: &str| r.get(key).and_then(Value::as_u64).ok_or_else(|| format!("its record has no {key}"));
+    let (index, count) = (num("tile")?, num("tiles")?);
+    if count == 0 || index >= count {
+        return Err(format!("tile {index}/{count} is not a tile"));
+    }
+    if num("source_photons")? != map.len() as u64 || num("source_position_crc32")? != position_crc(map) as u64
+    {
+        return Err(format!("cut from another map than {}", map.file_name()));
+    }
+    Ok(PartRecord {
+        tile: TileSpec { index: index as usize, count: count as usize },
+        parameters: &rec.parameters,
+        report: r,
+        seconds: r.get("seconds").and_then(Value::as_f64).unwrap_or(0.0),
+    })
+}
+
+/// The record fields every tile part's report starts with: the time, the tile, its photons,
+/// and which map it was cut from ([`part_record`] reads them back).
+pub fn part_report(
+    map: &crate::format::MapView,
+    tile: TileSpec,
+    photons: usize,
+    seconds: f64,
+) -> serde_json::Map<String, serde_json::Value> {
+    let mut r = serde_json::Map::new();
+    r.insert("seconds".into(), crate::format::meta::reported_seconds(seconds));
+    r.insert("tile".into(), tile.index.into());
+    r.insert("tiles".into(), tile.count.into());
+    r.insert("photons".into(), photons.into());
+    r.insert("source_photons".into(), map.len().into());
+    r.insert("source_position_crc32".into(), position_crc(map).into());
+    r
+}
+
+/// Every column of `map` but those named in `except`, for the photons `indices` (in that
+/// order): a tile part's copy of the map's columns.
+pub fn part_columns(
+    map: &crate::format::MapView,
+    indices: &[u32],
+    except: &[&str],
+) -> Vec<(crate::format::ColumnSpec, Vec<u8>)> {
+    map.columns()
+        .iter()
+        .filter(|(spec, _)| !except.contains(&spec.name.as_str()))
+        .map(|(spec, bytes)| {
+            let w = spec.stride() as usize;
+            let mut out = Vec::with_capacity(indices.len() * w);
+            for &i in indices {
+                out.extend_from_slice(&bytes[i as usize * w..][..w]);
+            }
+            (spec.clone(), out)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

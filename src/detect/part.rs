@@ -15,7 +15,7 @@ use super::{
     record_parameters,
 };
 use crate::format::{MapView, PhotonTable, StageRecord, State, name};
-use crate::tiles::TileSpec;
+use crate::tiles::{TileSpec, part_columns, part_record, part_report};
 
 /// A part's column of each photon's index in the source map (u64).
 pub const PHOTON_INDEX: &str = "photon_index";
@@ -23,11 +23,6 @@ pub const PHOTON_INDEX: &str = "photon_index";
 pub const FACTOR: &str = "detect_factor";
 /// A part's column of each photon's [`Outcome::code`] (u8), for the whole map's report.
 pub const OUTCOME: &str = "detect_outcome";
-
-/// CRC-32 of a map's position column: which map a part was cut from.
-fn position_crc(map: &MapView) -> u32 {
-    crc32fast::hash(bytemuck::cast_slice(map.positions()))
-}
 
 /// The part file of tile `tile` of `map`, detected as `t` with parameters `p` (the wavelength
 /// scales `scales` as [`super::PreparedInput::scales`] found them) in `seconds`.
@@ -43,37 +38,26 @@ pub fn tile_part(
     info.state = State::Detected;
     with_spectral_scales(&mut info, scales);
     let mut rec = StageRecord::now("detect", record_parameters(p, scales));
-    rec.report = json!({
-        "seconds": crate::format::meta::reported_seconds(seconds),
-        "tile": tile.index,
-        "tiles": tile.count,
-        "photons": t.indices.len(),
-        "source_photons": map.len(),
-        "source_position_crc32": position_crc(map),
-        "spectral_scales": scales,
-        "rounds": t.rounds,
-        "param_rounds": t.param_rounds,
-        "working_set": t.working_set,
-        "per_round": t.per_round,
-    });
+    let mut report = part_report(map, tile, t.indices.len(), seconds);
+    report.extend(
+        json!({
+            "spectral_scales": scales,
+            "rounds": t.rounds,
+            "param_rounds": t.param_rounds,
+            "working_set": t.working_set,
+            "per_round": t.per_round,
+        })
+        .as_object()
+        .cloned()
+        .unwrap_or_default(),
+    );
+    rec.report = report.into();
     info.history.push(rec);
     // Every column of the map for the tile's photons (a part is the tile's map), then the
     // detection's, replacing any from an earlier run.
     let detection =
         [name::BASIS_U, name::BASIS_V, name::LAMBDA2, name::R_PARAM, PHOTON_INDEX, FACTOR, OUTCOME];
-    let columns: Vec<(crate::format::ColumnSpec, Vec<u8>)> = map
-        .columns()
-        .iter()
-        .filter(|(spec, _)| !detection.contains(&spec.name.as_str()))
-        .map(|(spec, bytes)| {
-            let w = spec.stride() as usize;
-            let mut out = Vec::with_capacity(t.indices.len() * w);
-            for &i in &t.indices {
-                out.extend_from_slice(&bytes[i as usize * w..][..w]);
-            }
-            (spec.clone(), out)
-        })
-        .collect();
+    let columns = part_columns(map, &t.indices, &detection);
     let borrowed: Vec<(crate::format::ColumnSpec, &[u8])> =
         columns.iter().map(|(s, b)| (s.clone(), &b[..])).collect();
     let mut table = PhotonTable::from_columns(map.file_name(), info, &borrowed)?.into_owned();
@@ -99,31 +83,10 @@ struct PartInfo<'p> {
 
 fn part_info<'p>(map: &MapView, part: &MapView<'p>) -> Result<PartInfo<'p>, DetectError> {
     let bad = |message: String| DetectError::Input { file: part.file_name().to_string(), message };
-    let rec = part
-        .info()
-        .history
-        .last()
-        .filter(|r| r.stage == "detect" && r.report.get("tile").is_some())
-        .ok_or_else(|| bad("not a tile part: its last record is not `photonkit detect --tile`".into()))?;
-    let r = &rec.report;
-    let num =
-        |key: &str| r.get(key).and_then(Value::as_u64).ok_or_else(|| bad(format!("its record has no {key}")));
-    let (index, count) = (num("tile")?, num("tiles")?);
-    if count == 0 || index >= count {
-        return Err(bad(format!("tile {index}/{count} is not a tile")));
-    }
-    if num("source_photons")? != map.len() as u64 || num("source_position_crc32")? != position_crc(map) as u64
-    {
-        return Err(bad(format!("cut from another map than {}", map.file_name())));
-    }
-    let scales = serde_json::from_value(r.get("spectral_scales").cloned().unwrap_or(json!([])))
+    let rec = part_record(map, part, "detect", "photonkit detect").map_err(bad)?;
+    let scales = serde_json::from_value(rec.report.get("spectral_scales").cloned().unwrap_or(json!([])))
         .map_err(|e| bad(format!("its spectral_scales: {e}")))?;
-    Ok(PartInfo {
-        tile: TileSpec { index: index as usize, count: count as usize },
-        parameters: &rec.parameters,
-        scales,
-        seconds: r.get("seconds").and_then(Value::as_f64).unwrap_or(0.0),
-    })
+    Ok(PartInfo { tile: rec.tile, parameters: rec.parameters, scales, seconds: rec.seconds })
 }
 
 /// A part's photons as a [`TileDetection`].

@@ -15,7 +15,7 @@ use super::{
     IterationMeasure, RelaxError, RelaxParams, RelaxSpace, Relaxed, Setup, TileRelaxed, relaxed_map,
 };
 use crate::format::{ColumnSpec, DType, MapView, PhotonTable, StageRecord, name};
-use crate::tiles::TileSpec;
+use crate::tiles::{PartRecord, TileSpec, part_columns, part_record, part_report};
 
 pub use crate::detect::PHOTON_INDEX;
 /// A part's column of each photon's nearest-neighbour distance per iteration (f32 × R,
@@ -26,11 +26,6 @@ pub const NN: &str = "relax_nn";
 pub const RATIO: &str = "relax_nn_ratio";
 /// A part's column of each photon's step length per iteration (f32 × R, working units).
 pub const STEP: &str = "relax_step";
-
-/// CRC-32 of a map's position column: which map a part was cut from.
-fn position_crc(map: &MapView) -> u32 {
-    crc32fast::hash(bytemuck::cast_slice(map.positions()))
-}
 
 /// The part file of tile `tile` of `map`, relaxed as `t` with parameters `p` in `seconds`.
 pub fn tile_part(
@@ -44,38 +39,26 @@ pub fn tile_part(
     let (space, constrained) = super::tiled::space_of(map, &setup);
     let mut info = map.info().clone();
     let mut rec = StageRecord::now("relax", serde_json::to_value(setup.p).unwrap_or_default());
-    rec.report = json!({
-        "seconds": crate::format::meta::reported_seconds(seconds),
-        "tile": tile.index,
-        "tiles": tile.count,
-        "photons": t.indices.len(),
-        "source_photons": map.len(),
-        "source_position_crc32": position_crc(map),
-        "space": space,
-        "constrained": constrained,
-        "working_scale": t.scale,
-        "iterations": t.iterations,
-        "refused_moves": t.refused_moves,
-        "returned_to_surfaces": t.normals.is_some(),
-        "rounds": t.rounds,
-        "working_set": t.working_set,
-        "per_round": t.per_round,
-    });
-    info.history.push(rec);
-    let own = [PHOTON_INDEX, NN, RATIO, STEP];
-    let mut columns: Vec<(ColumnSpec, Vec<u8>)> = map
-        .columns()
-        .iter()
-        .filter(|(spec, _)| !own.contains(&spec.name.as_str()))
-        .map(|(spec, bytes)| {
-            let w = spec.stride() as usize;
-            let mut out = Vec::with_capacity(t.indices.len() * w);
-            for &i in &t.indices {
-                out.extend_from_slice(&bytes[i as usize * w..][..w]);
-            }
-            (spec.clone(), out)
+    let mut report = part_report(map, tile, t.indices.len(), seconds);
+    report.extend(
+        json!({
+            "space": space,
+            "constrained": constrained,
+            "working_scale": t.scale,
+            "iterations": t.iterations,
+            "refused_moves": t.refused_moves,
+            "returned_to_surfaces": t.normals.is_some(),
+            "rounds": t.rounds,
+            "working_set": t.working_set,
+            "per_round": t.per_round,
         })
-        .collect();
+        .as_object()
+        .cloned()
+        .unwrap_or_default(),
+    );
+    rec.report = report.into();
+    info.history.push(rec);
+    let mut columns = part_columns(map, &t.indices, &[PHOTON_INDEX, NN, RATIO, STEP]);
     if t.iterations > 0 {
         for (column, values) in [(NN, &t.nn), (RATIO, &t.ratio), (STEP, &t.step)] {
             columns.push((
@@ -96,41 +79,9 @@ pub fn tile_part(
     Ok(table.into_owned())
 }
 
-/// What a part says about itself.
-struct PartInfo<'p> {
-    tile: TileSpec,
-    parameters: &'p Value,
-    report: &'p Value,
-    seconds: f64,
-}
-
-fn part_info<'p>(map: &MapView, part: &MapView<'p>) -> Result<PartInfo<'p>, RelaxError> {
-    let bad = |message: String| RelaxError::Input { file: part.file_name().to_string(), message };
-    let rec = part
-        .info()
-        .history
-        .last()
-        .filter(|r| r.stage == "relax" && r.report.get("tile").is_some())
-        .ok_or_else(
-            || bad("not a relax tile part: its last record is not `photonkit relax --tile`".into()),
-        )?;
-    let r = &rec.report;
-    let num =
-        |key: &str| r.get(key).and_then(Value::as_u64).ok_or_else(|| bad(format!("its record has no {key}")));
-    let (index, count) = (num("tile")?, num("tiles")?);
-    if count == 0 || index >= count {
-        return Err(bad(format!("tile {index}/{count} is not a tile")));
-    }
-    if num("source_photons")? != map.len() as u64 || num("source_position_crc32")? != position_crc(map) as u64
-    {
-        return Err(bad(format!("cut from another map than {}", map.file_name())));
-    }
-    Ok(PartInfo {
-        tile: TileSpec { index: index as usize, count: count as usize },
-        parameters: &rec.parameters,
-        report: r,
-        seconds: r.get("seconds").and_then(Value::as_f64).unwrap_or(0.0),
-    })
+fn part_info<'p>(map: &MapView, part: &MapView<'p>) -> Result<PartRecord<'p>, RelaxError> {
+    part_record(map, part, "relax", "photonkit relax")
+        .map_err(|message| RelaxError::Input { file: part.file_name().to_string(), message })
 }
 
 /// Whether `part`'s last record is a relax tile part's (for `merge --map` to choose).

@@ -187,7 +187,7 @@ def render(
     mode: Optional[Literal["full", "caustic", "direct", "irradiance"]] = None,
     estimator: Literal["knn", "diffusion", "variable"] = "knn",
     kernel: Literal["epanechnikov", "disc", "cone"] = "epanechnikov",
-    k: int = 15,
+    k: Optional[int] = None,
     max_radius: Optional[float] = None,
     diffusion_k: int = 500,
     diffusion_q: float = 0.02,
@@ -219,7 +219,9 @@ def render(
     W/m² with ``mode="irradiance"`` or a ``plane`` ("z=0": a scene-less top view). The scene is
     ``scene``, else the one the map's trace record names, else the embedded default. With
     ``output`` (an .exr) the EXR and its PNG preview are written as ``photonkit render -o``
-    writes them."""
+    writes them. ``k`` defaults to 15 (the k-NN estimate); on a map grown by refinement, when
+    ``k`` is not given, each estimate gathers within the distance of the 15th nearest of the
+    map's first photons, as ``photonkit render`` does."""
 
 def compare(
     scene: Optional[PathLike] = None,

@@ -48,7 +48,7 @@ fn plane(s: &str) -> Result<(usize, f32), Failure> {
 /// `photonkit render -o` does.
 #[pyfunction]
 #[pyo3(signature = (map, output=None, *, scene=None, mode=None, estimator="knn", kernel="epanechnikov",
-    k=15, max_radius=None, diffusion_k=500, diffusion_q=0.02, diagnostic=None, threshold=0.5,
+    k=None, max_radius=None, diffusion_k=500, diffusion_q=0.02, diagnostic=None, threshold=0.5,
     dot_radius=None, plane=None, rect=None, plane_tolerance=1e-3, png=None, no_png=false, exposure=0.0,
     fixed_exposure=false, width=None, height=None, spp=4, specular="split", max_depth=16, eye=None,
     look_at=None, up=None, fov=None, ortho=None, seed=0, threads=None))]
@@ -61,7 +61,7 @@ pub fn render<'py>(
     mode: Option<&str>,
     estimator: &str,
     kernel: &str,
-    k: usize,
+    k: Option<usize>,
     max_radius: Option<f32>,
     diffusion_k: usize,
     diffusion_q: f32,
@@ -140,9 +140,18 @@ pub fn render<'py>(
         "cone" => Kernel::Cone,
         _ => Kernel::Epanechnikov,
     };
-    let estimator = match options::choice("estimator", estimator, &["knn", "diffusion", "variable"])? {
+    let estimator = options::choice("estimator", estimator, &["knn", "diffusion", "variable"])?;
+    // A map grown in refinement, with no k asked for: each estimate gathers within the distance
+    // of the 15th nearest of its first photons, as `photonkit render` does (docs/progressive.md).
+    let grown = k.is_none()
+        && max_radius.is_none()
+        && estimator == "knn"
+        && photonkit::refine::first_photons(&map.view()).is_some();
+    let k = k.unwrap_or(15);
+    let estimator = match estimator {
         "diffusion" => Estimator::Diffusion { k: diffusion_k, q: diffusion_q },
         "variable" => Estimator::Variable { k, kernel },
+        _ if grown => Estimator::LocalRadius { k, scale: 1.0, kernel },
         _ => Estimator::Knn { k, kernel, max_radius },
     };
     let diagnostic = diagnostic

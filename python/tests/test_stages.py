@@ -149,6 +149,25 @@ def test_render_writes_the_command_lines_images(tmp_path, traced, run_cli):
     assert not (tmp_path / "py-plane.png").exists()
 
 
+def test_render_of_a_grown_map_gathers_as_the_command_line_does(tmp_path, traced, run_cli):
+    # A map refined with growth: without k both render within the distance of the 15th nearest
+    # of its first photons; k=15 asks for the plain k-NN estimate, another image.
+    run_cli("detect", traced, "-o", "d.phm")
+    run_cli("relax", "d.phm", "-o", "r.phm")
+    run_cli("collapse", "r.phm", "-o", "c.phm")
+    run_cli("relax", "c.phm", "-o", "rr.phm")
+    run_cli("refine", "rr.phm", "-o", "grown.phm", "--passes", 4)
+    grown = tmp_path / "grown.phm"
+    assert len(photonkit.open(grown)) > len(photonkit.open(tmp_path / "rr.phm"))
+    args = ["--width", 48, "--height", 32, "--spp", 1, "--no-png"]
+    run_cli("render", grown, "-o", "cli.exr", *args)
+    photonkit.render(grown, tmp_path / "py.exr", width=48, height=32, spp=1, no_png=True)
+    assert exr_parts(tmp_path / "cli.exr") == exr_parts(tmp_path / "py.exr")
+    knn = photonkit.render(grown, width=48, height=32, spp=1, k=15)
+    local = photonkit.render(grown, width=48, height=32, spp=1)
+    assert not np.array_equal(knn, local)
+
+
 def test_stages_release_the_interpreter(traced):
     """Python threads run while a stage does: a counter in this thread advances meanwhile."""
     m = photonkit.detect(traced)

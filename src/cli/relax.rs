@@ -16,8 +16,8 @@ use photonkit::tiles::{TileSpec, Tiling};
 /// the push onto its constraint basis from `detect` (Eq. 9), moves all photons at once and
 /// updates the neighbour index (exact neighbours every iteration). Before `collapse`,
 /// neighbours are restricted to the photon's parameter-space radius exactly as `detect`
-/// restricted them; after it, they are found in world space. Without constraint columns photons move freely in their tangent plane
-/// (the map says so in its history). Flux is never changed: the total is preserved exactly.
+/// restricted them; after it, they are found in world space. Without constraint columns photons
+/// move freely in their tangent plane (the map says so in its history). Flux is never changed: the total is preserved exactly.
 #[derive(clap::Args)]
 pub struct Args {
     /// Input photon map (`-` for standard input).

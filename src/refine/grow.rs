@@ -13,8 +13,8 @@
 //! fresh photon descends it, so children partition their parent exactly and a child's flux is
 //! its parent's times its share of what the two gathered since the split: no guess about the
 //! split survives the passes after it. Rendered within the distance of the K-th nearest of the
-//! map's photons before it grew ([`super::first_photons`]), the kernel keeps its first area and the cells in it, more and
-//! smaller, carry the flux more finely.
+//! map's photons before it grew ([`super::first_photons`]), the kernel keeps its first area
+//! and the cells in it, more and smaller, carry the flux more finely.
 
 use glam::Vec3;
 use rayon::prelude::*;

@@ -324,8 +324,8 @@ pub(crate) struct Run {
 }
 
 /// Algorithm 1's relax stage over `columns`: the iterations, each followed by
-/// `after(scratch, measure, positions the iteration started from)`, which stops the run by returning false. `order` turns a working
-/// label back into a file index for errors.
+/// `after(scratch, measure, positions the iteration started from)`, which stops the run by
+/// returning false. `order` turns a working label back into a file index for errors.
 pub(crate) fn run(
     map: &crate::format::MapView,
     columns: &mut Columns,

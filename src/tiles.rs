@@ -324,14 +324,16 @@ pub fn part_record<'p>(
     })
 }
 
-/// The record fields every tile part's report starts with: the time, the tile, its photons,
-/// and which map it was cut from ([`part_record`] reads them back).
+/// A tile part's report: the fields every part starts with (the time, the tile, its photons,
+/// and which map it was cut from, which [`part_record`] reads back), then the stage's own
+/// `fields` (a JSON object).
 pub fn part_report(
     map: &crate::format::MapView,
     tile: TileSpec,
     photons: usize,
     seconds: f64,
-) -> serde_json::Map<String, serde_json::Value> {
+    fields: serde_json::Value,
+) -> serde_json::Value {
     let mut r = serde_json::Map::new();
     r.insert("seconds".into(), crate::format::meta::reported_seconds(seconds));
     r.insert("tile".into(), tile.index.into());
@@ -339,7 +341,10 @@ pub fn part_report(
     r.insert("photons".into(), photons.into());
     r.insert("source_photons".into(), map.len().into());
     r.insert("source_position_crc32".into(), position_crc(map).into());
-    r
+    if let serde_json::Value::Object(own) = fields {
+        r.extend(own);
+    }
+    r.into()
 }
 
 /// Every column of `map` but those named in `except`, for the photons `indices` (in that

@@ -38,20 +38,19 @@ pub fn tile_part(
     info.state = State::Detected;
     with_spectral_scales(&mut info, scales);
     let mut rec = StageRecord::now("detect", record_parameters(p, scales));
-    let mut report = part_report(map, tile, t.indices.len(), seconds);
-    report.extend(
+    rec.report = part_report(
+        map,
+        tile,
+        t.indices.len(),
+        seconds,
         json!({
             "spectral_scales": scales,
             "rounds": t.rounds,
             "param_rounds": t.param_rounds,
             "working_set": t.working_set,
             "per_round": t.per_round,
-        })
-        .as_object()
-        .cloned()
-        .unwrap_or_default(),
+        }),
     );
-    rec.report = report.into();
     info.history.push(rec);
     // Every column of the map for the tile's photons (a part is the tile's map), then the
     // detection's, replacing any from an earlier run.

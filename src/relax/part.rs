@@ -39,8 +39,11 @@ pub fn tile_part(
     let (space, constrained) = super::tiled::space_of(map, &setup);
     let mut info = map.info().clone();
     let mut rec = StageRecord::now("relax", serde_json::to_value(setup.p).unwrap_or_default());
-    let mut report = part_report(map, tile, t.indices.len(), seconds);
-    report.extend(
+    rec.report = part_report(
+        map,
+        tile,
+        t.indices.len(),
+        seconds,
         json!({
             "space": space,
             "constrained": constrained,
@@ -51,12 +54,8 @@ pub fn tile_part(
             "rounds": t.rounds,
             "working_set": t.working_set,
             "per_round": t.per_round,
-        })
-        .as_object()
-        .cloned()
-        .unwrap_or_default(),
+        }),
     );
-    rec.report = report.into();
     info.history.push(rec);
     let mut columns = part_columns(map, &t.indices, &[PHOTON_INDEX, NN, RATIO, STEP]);
     if t.iterations > 0 {

@@ -163,23 +163,22 @@ pub(crate) fn relax_tile_with(
         // farther from the box than the most it moves in the whole run plus the halo's width,
         // which bounds the reach a member may be certified with.
         let reach_cap = h * scale;
-        let outside: Vec<(u32, Moves)> = if whole {
+        let outside: Vec<([f32; 3], Moves)> = if whole {
             Vec::new()
         } else {
-            (0..n as u32)
+            (0..n)
                 .into_par_iter()
                 .filter_map(|i| {
-                    let x = pos[i as usize];
+                    let x = pos[i];
                     if halo.contains(x) {
                         return None;
                     }
-                    let m = moves[label[i as usize] as usize];
-                    (-depth(scaled(x, setup.scale)) < m.after(r) + reach_cap).then_some((i, m))
+                    let (x, m) = (scaled(x, setup.scale), moves[label[i] as usize]);
+                    (-depth(x) < m.after(r) + reach_cap).then_some((x, m))
                 })
                 .collect()
         };
-        let outside =
-            Uncertain::of(outside.iter().map(|&(i, m)| (scaled(pos[i as usize], setup.scale), m)), depth, r);
+        let outside = Uncertain::of(outside.into_iter(), depth, r);
         let slot: Vec<Option<usize>> =
             members.iter().map(|&i| interior.binary_search(&i).ok().filter(|&q| pending[q])).collect();
         let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();

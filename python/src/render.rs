@@ -248,6 +248,12 @@ fn check(o: &CompareOptions) -> Result<(), Failure> {
     if o.k_density.is_some_and(|k| k < 2) {
         return bad("--k-density needs at least 2");
     }
+    if o.spp > photonkit::render::MAX_SPP || o.feature_spp > photonkit::render::MAX_SPP {
+        return bad(&format!(
+            "spp and feature_spp take at most {} samples per pixel",
+            photonkit::render::MAX_SPP
+        ));
+    }
     if !(o.beta > 0.0 && o.beta.is_finite() && o.diffusion_q > 0.0 && o.diffusion_q.is_finite()) {
         return bad("--beta and --diffusion-q must be positive");
     }
@@ -266,7 +272,7 @@ fn check(o: &CompareOptions) -> Result<(), Failure> {
     spectral_scale=CompareOptions::default().spectral_scale, k_density=None,
     iterations=CompareOptions::default().iterations, kf=CompareOptions::default().kf,
     iterations_2009=14, diffusion_k=500, diffusion_q=0.02, ppm_passes=None, ppm_photons=None,
-    ppm_k=30, spp=16, seeds=4, cells=128, reference_passes=64, fast_truth=false, threads=None))]
+    ppm_k=30, spp=16, feature_spp=256, seeds=4, cells=128, reference_passes=64, fast_truth=false, threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn compare<'py>(
     py: Python<'py>,
@@ -292,6 +298,7 @@ pub fn compare<'py>(
     ppm_photons: Option<&Bound<'py, PyAny>>,
     ppm_k: usize,
     spp: u32,
+    feature_spp: u32,
     seeds: u32,
     cells: usize,
     reference_passes: u64,
@@ -341,6 +348,7 @@ pub fn compare<'py>(
         refine_growth: defaults.refine_growth,
         refine_prior: defaults.refine_prior,
         spp,
+        feature_spp,
         seeds,
         methods,
     };
@@ -396,6 +404,7 @@ pub fn compare<'py>(
             &target,
             &runs,
             &format!("photonkit.compare({label:?}) from Python"),
+            [o.spp, o.feature_spp],
         )?;
         let [run] = runs;
         Ok((report::csv(std::slice::from_ref(&run)), report::table_markdown(&run.rows), told, warning))

@@ -8,7 +8,7 @@ use photonkit::eval::compare::CompareError;
 use photonkit::eval::compare::{self, CompareOptions, MethodKind, Progress, Target};
 use photonkit::eval::report::{self, Run};
 use photonkit::eval::truth::{Quality, TruthError};
-use photonkit::render::Mode;
+use photonkit::render::{MAX_SPP, Mode};
 use photonkit::scene::Camera;
 
 /// Run every method on the same traced photons, time every stage, and measure each image
@@ -110,6 +110,12 @@ pub struct Args {
     /// averages would measure aliasing, not the method).
     #[arg(long, default_value_t = 16)]
     spp: u32,
+    /// Samples per pixel in the truth's core and edge pixels: where the irradiance varies
+    /// within a pixel, 16 point samples of a narrow kernel's estimate miss the pixel's average
+    /// by more than the methods differ (the ring's core: 2.6 against 0.5 at 256; see
+    /// docs/truth.md, "Sampling"). At most --spp: every pixel takes --spp.
+    #[arg(long, default_value_t = 256, value_name = "N")]
+    feature_spp: u32,
     /// Independent runs of every method (seeds --seed, --seed + 1, …): times and errors are
     /// their means, and the spread across them splits each error into bias² (blur) and
     /// variance (noise), per region (core, edge, smooth, dark; see docs/truth.md).
@@ -142,6 +148,9 @@ fn check_options(o: &CompareOptions) -> anyhow::Result<()> {
     }
     if o.k_density.is_some_and(|k| k < 2) {
         bail!("--k-density needs at least 2");
+    }
+    if o.spp > MAX_SPP || o.feature_spp > MAX_SPP {
+        bail!("--spp and --feature-spp take at most {} samples per pixel", MAX_SPP);
     }
     if !(o.beta > 0.0 && o.beta.is_finite() && o.diffusion_q > 0.0 && o.diffusion_q.is_finite()) {
         bail!("--beta and --diffusion-q must be positive");
@@ -227,6 +236,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         refine_photons_per_pass: a.refine_photons,
         ppm_k: a.ppm_k,
         spp: a.spp,
+        feature_spp: a.feature_spp,
         seeds: a.seeds,
         methods,
     };
@@ -293,7 +303,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     let title = format!("photonkit compare: {label}");
     let command: Vec<String> = std::env::args().collect();
-    report::write(&a.out_dir, &title, &target, &done, &command.join(" "))?;
+    report::write(&a.out_dir, &title, &target, &done, &command.join(" "), [a.spp, a.feature_spp])?;
     for r in &done {
         if !r.label.is_empty() {
             println!("## {}\n", r.label);

@@ -292,6 +292,7 @@ impl Common {
             eye: self.eye_options(),
             seed: self.seed,
             keep_samples: true,
+            supersample: None,
         }
     }
 

@@ -438,6 +438,7 @@ mod tests {
             eye: EyeOptions::default(),
             seed: 0,
             keep_samples: false,
+            supersample: None,
         };
         let p = Progressive { scene: &scene, camera, render, kernel: Kernel::Epanechnikov, bounces: None };
         let r1 = 0.015f64;

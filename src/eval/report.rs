@@ -427,13 +427,15 @@ pub fn series(runs: &[Run]) -> Vec<(String, MethodKind, Vec<&Row>)> {
 }
 
 /// Writes report.md, report.csv, grid.png (of the last run), error-vs-time.png and, when a
-/// progressive method ran, error-vs-passes.png into `dir`.
+/// progressive method ran, error-vs-passes.png into `dir`. `spp` is the images' samples per
+/// pixel: in most pixels, and in the truth's core and edge pixels.
 pub fn write(
     dir: &Path,
     title: &str,
     target: &Target,
     runs: &[Run],
     command: &str,
+    spp: [u32; 2],
 ) -> Result<(), CompareError> {
     let mut md = String::new();
     let _ = writeln!(md, "# {title}\n");
@@ -448,6 +450,15 @@ pub fn write(
         target.width(),
         target.height(),
         super::compare::EDGE_BAND
+    );
+    let _ = writeln!(
+        md,
+        "Each pixel is the mean of {} samples on a jittered grid, {} in the core and edge pixels, where the \
+         irradiance varies within a pixel and fewer samples of a narrow kernel's estimate would miss the pixel's \
+         average by more than the methods differ (docs/truth.md, \"Sampling\"); progressive photon mapping \
+         jitters each pass's samples afresh.\n",
+        spp[0],
+        spp[1].max(spp[0]),
     );
     let cells = |r: Region| target.regions.iter().filter(|&&c| c == r).count();
     let _ = writeln!(

@@ -274,6 +274,7 @@ pub fn render_map(
         eye: request.eye,
         seed: request.seed,
         keep_samples: request.keep_samples,
+        supersample: None,
     };
     let (view, opts, scene_name) = match &request.framing {
         Framing::Plane { axis, offset, rect, width, height, .. } => {

@@ -136,6 +136,19 @@ pub struct RenderOptions {
     /// preview tone-maps each before averaging: for images written for people, not for
     /// measurements or the passes of a reference.
     pub keep_samples: bool,
+    /// Pixels that take more samples than `spp` (for measurements: where the irradiance
+    /// varies within a pixel, docs/truth.md); `None`: every pixel takes `spp`.
+    pub supersample: Option<Supersample>,
+}
+
+/// Some pixels of an image sampled more densely than the rest: a pixel whose flag is set
+/// takes `spp` samples, on a jittered grid when a square, and the others the image's own.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Supersample {
+    /// Samples per flagged pixel.
+    pub spp: u32,
+    /// One flag per pixel, row-major.
+    pub pixels: std::sync::Arc<[bool]>,
 }
 
 impl Default for RenderOptions {
@@ -150,6 +163,7 @@ impl Default for RenderOptions {
             eye: EyeOptions::default(),
             seed: 0,
             keep_samples: false,
+            supersample: None,
         }
     }
 }
@@ -243,6 +257,9 @@ pub const KEPT_SAMPLES_MAX: u64 = 1 << 23;
 /// Pixels per side of a unit of parallel work.
 pub const TILE: u32 = 16;
 
+/// The most samples a pixel may take.
+pub const MAX_SPP: u32 = 4096;
+
 /// A view, its photons and the options: everything an image is made from.
 pub struct Renderer<'a> {
     /// What the camera looks at.
@@ -279,8 +296,25 @@ impl Renderer<'_> {
                 image::MAX_PIXELS
             )));
         }
-        if o.spp == 0 || o.spp > 4096 {
-            return Err(RenderError::Invalid(format!("--spp {}: needs 1 to 4096 samples per pixel", o.spp)));
+        if o.spp == 0 || o.spp > MAX_SPP {
+            return Err(RenderError::Invalid(format!(
+                "--spp {}: needs 1 to {MAX_SPP} samples per pixel",
+                o.spp
+            )));
+        }
+        if let Some(ss) = &o.supersample {
+            if ss.spp == 0 || ss.spp > MAX_SPP {
+                return Err(RenderError::Invalid(format!(
+                    "{} samples in supersampled pixels: needs 1 to {MAX_SPP}",
+                    ss.spp
+                )));
+            }
+            if ss.pixels.len() as u64 != pixels {
+                return Err(RenderError::Invalid(format!(
+                    "{} supersampling flags for an image of {pixels} pixels",
+                    ss.pixels.len()
+                )));
+            }
         }
         if o.estimator.k() == 0 {
             return Err(RenderError::Invalid("the estimator needs at least one neighbour (k ≥ 1)".into()));
@@ -325,6 +359,7 @@ impl Renderer<'_> {
         // Every sample kept for the preview's anti-aliasing after tone mapping (Image::samples),
         // up to a bound on memory.
         let keep = o.keep_samples
+            && o.supersample.is_none()
             && self.diagnostic.is_none()
             && o.spp > 1
             && pixels * o.spp as u64 <= KEPT_SAMPLES_MAX;
@@ -374,15 +409,20 @@ impl Renderer<'_> {
         // Every sample, pixel by pixel, when kept.
         let mut each = Vec::with_capacity(if keep { (w * h * o.spp) as usize } else { 0 });
         let mut stats = RenderStats::default();
-        let grid = (o.spp as f64).sqrt() as u32;
-        let stratified = grid * grid == o.spp;
         for y in y0..y0 + h {
             for x in x0..x0 + w {
-                let mut rng = PhotonRng::new(o.seed, y as u64 * o.width as u64 + x as u64);
+                let at = y as usize * o.width as usize + x as usize;
+                let spp = match &o.supersample {
+                    Some(ss) if ss.pixels[at] => ss.spp,
+                    _ => o.spp,
+                };
+                let grid = (spp as f64).sqrt() as u32;
+                let stratified = grid * grid == spp;
+                let mut rng = PhotonRng::new(o.seed, at as u64);
                 let (jx, jy) = (rng.next_f32(), rng.next_f32());
                 let mut sum = Vec3::ZERO;
                 let mut hit = false;
-                for k in 0..o.spp {
+                for k in 0..spp {
                     // A jittered grid, or the R2 sequence (Roberts) shifted by the pixel's offset.
                     let (dx, dy) = if stratified {
                         (
@@ -400,8 +440,8 @@ impl Renderer<'_> {
                     hit |= !s.hits.is_empty();
                 }
                 surface.push(hit);
-                stats.samples += o.spp as u64;
-                out.push(sum / o.spp as f32);
+                stats.samples += spp as u64;
+                out.push(sum / spp as f32);
             }
         }
         TileResult { pixels: out, surface, each, stats }

@@ -231,3 +231,43 @@ fn bad_requests_are_refused() {
     let r = Renderer { opts: RenderOptions { width: 0, ..opts(Mode::Direct) }, ..r };
     assert!(matches!(r.render(&|_| {}), Err(RenderError::Invalid(_))));
 }
+
+/// Supersampled pixels take their own count of samples, each pixel from its own jitter
+/// stream: a flagged pixel is bit for bit the pixel of an image rendered with that count
+/// everywhere, and the others the image's own.
+#[test]
+fn supersampled_pixels_are_those_of_an_image_sampled_as_densely() {
+    let (pos, flux) = grid_photons(60, 12.0);
+    let photons = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
+    let scene = floor_scene();
+    let camera = Camera::look_at(
+        Projection::Pinhole { fov_y_rad: 0.8 },
+        Vec3::new(0.3, -2.0, 1.5),
+        Vec3::ZERO,
+        Vec3::Z,
+        [1, 1],
+    )
+    .unwrap();
+    let (w, h) = (40u32, 30u32);
+    let with = |spp: u32, supersample: Option<Supersample>| Renderer {
+        view: View::Scene { scene: &scene, camera: camera.clone() },
+        photons: Some(&photons),
+        diagnostic: None,
+        opts: RenderOptions { width: w, height: h, spp, supersample, ..opts(Mode::Full) },
+    };
+    let flags: Vec<bool> = (0..w * h).map(|i| i % 7 == 3 || (i / w) == 17).collect();
+    let (sparse, _) = with(4, None).render(&|_| {}).unwrap();
+    let (dense, _) = with(25, None).render(&|_| {}).unwrap();
+    let (mixed, stats) =
+        with(4, Some(Supersample { spp: 25, pixels: flags.clone().into() })).render(&|_| {}).unwrap();
+    let flagged = flags.iter().filter(|&&f| f).count() as u64;
+    assert_eq!(stats.samples, 25 * flagged + 4 * (w * h) as u64 - 4 * flagged);
+    for (i, &f) in flags.iter().enumerate() {
+        let want = if f { dense.pixels[i] } else { sparse.pixels[i] };
+        assert_eq!(mixed.pixels[i], want, "pixel {i} (flagged: {f})");
+    }
+    assert_ne!(sparse.pixels, dense.pixels, "the two sample counts must give different images");
+    // A plan that does not cover the image is refused.
+    let short = with(4, Some(Supersample { spp: 25, pixels: vec![true; 5].into() }));
+    assert!(matches!(short.render(&|_| {}), Err(RenderError::Invalid(_))));
+}

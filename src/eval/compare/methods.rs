@@ -145,6 +145,7 @@ impl Seed<'_> {
                 eye: EyeOptions::default(),
                 seed: 0,
                 keep_samples: false,
+                supersample: self.target.supersample(self.o.spp, self.o.feature_spp),
             },
         };
         let (img, _) = renderer.render(&|_| {})?;
@@ -384,6 +385,7 @@ impl Seed<'_> {
                 height: h as u32,
                 spp: o.spp,
                 mode: target.mode,
+                supersample: target.supersample(o.spp, o.feature_spp),
                 ..RenderOptions::default()
             },
             kernel: Kernel::Epanechnikov,

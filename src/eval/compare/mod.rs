@@ -189,6 +189,11 @@ pub struct CompareOptions {
     /// Samples per pixel of every image: a jittered grid when a square, so that each pixel
     /// is the estimate averaged over its cell, as the truth is.
     pub spp: u32,
+    /// Samples per pixel in the truth's core and edge pixels (docs/truth.md, "Sampling"):
+    /// where the irradiance varies within a pixel, `spp` point samples of a narrow kernel's
+    /// estimate miss the pixel's average by more than the methods differ. At most `spp`:
+    /// every pixel takes `spp`.
+    pub feature_spp: u32,
     /// Independent runs of every method (seeds `seed`, `seed + 1`, …), for the bias and
     /// variance of each ([`metrics::region_errors`]); times and errors are their means.
     pub seeds: u32,
@@ -224,6 +229,7 @@ impl Default for CompareOptions {
             refine_photons_per_pass: None,
             ppm_k: 30,
             spp: 16,
+            feature_spp: 256,
             seeds: 4,
             // Every method but the refined map, which is asked for by name (it adds passes).
             methods: MethodKind::ALL.into_iter().filter(|&m| m != MethodKind::OursProgressive).collect(),

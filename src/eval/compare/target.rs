@@ -8,7 +8,7 @@ use super::CompareError;
 use crate::eval::metrics::{self, Region};
 use crate::eval::reference::{Progressive, ReferenceOptions, ReferenceState};
 use crate::eval::truth::{self, FloorGrid, Quality};
-use crate::render::{Image, Kernel, Mode, RenderOptions};
+use crate::render::{Image, Kernel, Mode, RenderOptions, Supersample};
 use crate::scene::{Camera, Projection, Scene};
 
 /// What the images are measured against: a view, a mode and the truth's image in that view.
@@ -135,6 +135,15 @@ impl Target {
     /// Image height, pixels.
     pub fn height(&self) -> usize {
         self.camera.resolution[1] as usize
+    }
+
+    /// The sampling plan of images measured against this truth: its core and edge pixels take
+    /// `feature_spp` samples (when that is more than the image's own).
+    pub fn supersample(&self, spp: u32, feature_spp: u32) -> Option<Supersample> {
+        (feature_spp > spp).then(|| Supersample {
+            spp: feature_spp,
+            pixels: self.regions.iter().map(|r| matches!(r, Region::Core | Region::Edge)).collect(),
+        })
     }
 }
 

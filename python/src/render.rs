@@ -347,6 +347,7 @@ pub fn compare<'py>(
         refine_iterations: defaults.refine_iterations,
         refine_growth: defaults.refine_growth,
         refine_prior: defaults.refine_prior,
+        refine_prior_hold: defaults.refine_prior_hold,
         spp,
         feature_spp,
         seeds,

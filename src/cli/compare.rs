@@ -94,6 +94,10 @@ pub struct Args {
     /// cells' flux (0: the passes' photons alone)
     #[arg(long, value_name = "W", value_parser = super::finite_f32, default_value_t = photonkit::refine::RefineParams::default().prior_passes)]
     refine_prior: f32,
+    /// a of ours-progressive: a photon detection held weighs w / f^a passes, f its freedom
+    /// across its constraint (0: every photon's prior weighs w)
+    #[arg(long, value_name = "A", value_parser = super::finite_f32, default_value_t = photonkit::refine::RefineParams::default().prior_hold)]
+    refine_prior_hold: f32,
     /// Photons per progressive pass (default: --photons).
     #[arg(long, value_name = "N", value_parser = super::trace::parse_count)]
     ppm_photons: Option<u64>,
@@ -232,6 +236,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         refine_iterations: a.refine_iterations,
         refine_growth: a.refine_growth,
         refine_prior: a.refine_prior,
+        refine_prior_hold: a.refine_prior_hold,
         ppm_photons_per_pass: a.ppm_photons,
         refine_photons_per_pass: a.refine_photons,
         ppm_k: a.ppm_k,

@@ -49,6 +49,11 @@ pub struct Args {
     /// docs/progressive.md, "The prior")
     #[arg(long, value_name = "W", value_parser = super::finite_f32, default_value_t = RefineParams::default().prior_passes)]
     prior_passes: f32,
+    /// a: a photon that detection held on its line weighs w / f^a passes, f its freedom across
+    /// the constraint (|v_b|, 1 free, floored at 0.001), so held photons at folds and edges keep
+    /// the relaxed map's flux (0: every photon's prior weighs w; docs/progressive.md, "The prior")
+    #[arg(long, value_name = "A", value_parser = super::finite_f32, default_value_t = RefineParams::default().prior_hold)]
+    prior_hold: f32,
     /// Kf: neighbours of the repulsion (Eq. 8).
     #[arg(long, value_name = "N", default_value_t = RefineParams::default().kf)]
     kf: usize,
@@ -94,6 +99,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         step_limit: a.step_limit,
         growth: a.growth,
         prior_passes: a.prior_passes,
+        prior_hold: a.prior_hold,
     };
     let done = RefineRecord::of(&map_view).map_or(0, |r| r.passes_done);
     if done >= a.passes {

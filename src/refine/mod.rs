@@ -60,7 +60,15 @@ pub struct RefineParams {
     /// (w·φ_i + τ_i)/(w + P_i). 0: the passes' photons alone.
     #[serde(default)]
     pub prior_passes: f32,
+    /// The exponent a of a held photon's prior: photon i's weight is w / f_i^a, f_i its freedom
+    /// across its constraint (|v_b|, floored at 10⁻³), so photons that detection held keep
+    /// the relaxed map's flux (docs/progressive.md, "The prior"). 0: every photon's is w.
+    #[serde(default)]
+    pub prior_hold: f32,
 }
+
+/// The default exponent of a held photon's prior weight ([`RefineParams::prior_hold`]).
+pub const PRIOR_HOLD: f32 = 2.0;
 
 /// The default weight of the map's own fluxes, in passes (docs/progressive.md, "The prior").
 pub const PRIOR_PASSES: f32 = 4.0;
@@ -75,6 +83,7 @@ impl Default for RefineParams {
             step_limit: 0.25,
             growth: 1.0 / 3.0,
             prior_passes: PRIOR_PASSES,
+            prior_hold: PRIOR_HOLD,
         }
     }
 }
@@ -170,7 +179,25 @@ struct Start {
     primal_start: usize,
 }
 
-fn start(map: &MapView, per_pass: u64, prior_passes: f32) -> Result<Start, RefineError> {
+/// Each photon's prior weight in passes (docs/progressive.md, "The prior"): `w` for a free
+/// photon, w / max(f, 10⁻³)^`hold` for one whose freedom across its constraint is f = |v_b|
+/// (Eq. 7's factor: 1 free, 0 held on its line; `basis_v` from detect), so a photon that
+/// detection held keeps the relaxed map's flux, which at folds and edges measured better than
+/// its cell's (the cell straddles the feature).
+fn prior_weights(n: usize, w: f32, hold: f32, basis_v: Option<&[[f32; 3]]>) -> Vec<f32> {
+    match basis_v {
+        Some(v) if hold > 0.0 => v
+            .iter()
+            .map(|v| {
+                let f = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                w / f.clamp(1e-3, 1.0).powf(hold)
+            })
+            .collect(),
+        _ => vec![w; n],
+    }
+}
+
+fn start(map: &MapView, per_pass: u64, prior_passes: f32, prior_hold: f32) -> Result<Start, RefineError> {
     let file = map.file_name();
     let input = |message: String| RefineError::Input { file: file.to_string(), message };
     let primal = Primal::from_map(map)?;
@@ -207,7 +234,9 @@ fn start(map: &MapView, per_pass: u64, prior_passes: f32) -> Result<Start, Refin
         .trace_record()
         .ok_or_else(|| input("names no trace: refinement continues the trace's emission sequence".into()))?;
     let next_emission = trace.report.emission_range.map_or(trace.report.emitted, |r| r[1]);
-    let stats = Statistics::start(&primal.flux, prior_passes);
+    let freedom = map.column::<[f32; 3]>(name::BASIS_V)?;
+    let weights = prior_weights(primal.len(), prior_passes, prior_hold, freedom);
+    let stats = Statistics::start_weighted(&primal.flux, &weights);
     let total = primal.total_flux();
     Ok(Start {
         primal_start: primal.len(),
@@ -265,7 +294,7 @@ pub fn refine<'a>(
         mut fresh_stored,
         total,
         primal_start,
-    } = start(map, per_pass, p.prior_passes)?;
+    } = start(map, per_pass, p.prior_passes, p.prior_hold)?;
     let topts = TraceOptions {
         seed: trace.as_ref().map_or(1, |t| t.parameters.seed),
         store: match trace.as_ref().map(|t| t.parameters.store.as_str()) {

@@ -72,9 +72,14 @@ impl Statistics {
     /// The statistics before the first pass: each photon's own flux φ_i standing for
     /// `prior_passes` passes (τ_i = w·φ_i, P_i = w; none when w is 0).
     pub fn start(flux: &[[f32; 3]], prior_passes: f32) -> Statistics {
+        Self::start_weighted(flux, &vec![prior_passes; flux.len()])
+    }
+
+    /// [`Self::start`] with a weight per photon: τ_i = w_i·φ_i, P_i = w_i.
+    pub fn start_weighted(flux: &[[f32; 3]], weights: &[f32]) -> Statistics {
         Statistics {
-            tau: flux.iter().map(|f| f.map(|c| c * prior_passes)).collect(),
-            passes: vec![prior_passes; flux.len()],
+            tau: flux.iter().zip(weights).map(|(f, &w)| f.map(|c| c * w)).collect(),
+            passes: weights.to_vec(),
         }
     }
 

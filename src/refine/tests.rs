@@ -467,3 +467,29 @@ fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     let e = refine(&map.view(), &scene, &RefineParams { iterations: 1, ..p }, None, &mut |_| Ok(true));
     assert!(e.unwrap_err().to_string().contains("does not combine"));
 }
+
+#[test]
+fn a_held_photon_s_prior_weighs_more_by_its_freedom() {
+    // w / f^a with f = |v_b| floored at 10⁻³; no basis, or a = 0: w for every photon.
+    let v = [[0.0, 1.0, 0.0], [0.3, 0.4, 0.0], [0.0, 0.0, 0.0], [0.0, 1e-5, 0.0]];
+    let w = prior_weights(4, 4.0, 2.0, Some(&v));
+    let want = [4.0, 4.0 / 0.25, 4.0e6, 4.0e6];
+    for (g, e) in w.iter().zip(want) {
+        assert!((g / e - 1.0).abs() < 1e-5, "{w:?}");
+    }
+    assert_eq!(prior_weights(4, 4.0, 0.0, Some(&v)), vec![4.0; 4]);
+    assert_eq!(prior_weights(3, 4.0, 2.0, None), vec![4.0; 3]);
+    // The statistics start from those weights: a photon's estimate is
+    // (w_i·φ_i + τ_i)/(w_i + P_i), so after a pass the held one keeps its own flux and the
+    // free one moves most of the way to its cell's.
+    let primal = grid_primal(8);
+    let tree = BoxTree::build(&primal.positions);
+    let phi = [[1.0f32; 3]; 64];
+    let mut weights = vec![0.0f32; 64];
+    weights[0] = 4.0e6;
+    let mut stats = Statistics::start_weighted(&phi, &weights);
+    gather(&mut stats, &primal, &tree, &uniform_fresh(6400, 7, 3.0 * 64.0 / 1000.0));
+    assert!((stats.cell_flux(0).x - 1.0).abs() < 1e-4, "held: {}", stats.cell_flux(0));
+    let free = stats.cell_flux(9).x;
+    assert!((free / 0.001 - 1.0).abs() < 0.5, "free: its cell's flux, about 1 mW: {free}");
+}

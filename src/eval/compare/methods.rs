@@ -322,6 +322,7 @@ impl Seed<'_> {
             iterations: o.refine_iterations,
             growth: o.refine_growth,
             prior_passes: o.refine_prior,
+            prior_hold: o.refine_prior_hold,
             kf: o.kf,
             ..RefineParams::default()
         };
@@ -349,12 +350,13 @@ impl Seed<'_> {
             let (img, render_secs) = self.render(&refined, estimator)?;
             let times = StageTimes::of(self.trace_secs, Some(det), Some(rel + secs), render_secs);
             let setting = format!(
-                "{}, then {n} passes of {} ({} iterations each, growth γ = {:.3}, prior of {} passes), {}",
+                "{}, then {n} passes of {} ({} iterations each, growth γ = {:.3}, prior of {} passes / f^{}), {}",
                 method.name(),
                 o.refine_photons_per_pass.unwrap_or(o.photons),
                 o.refine_iterations,
                 o.refine_growth,
                 o.refine_prior,
+                o.refine_prior_hold,
                 match grown {
                     true => format!("within the {k}th nearest photon's distance before growth"),
                     false => self.k_label(k),

@@ -177,6 +177,9 @@ pub struct CompareOptions {
     pub refine_growth: f32,
     /// Passes' worth of weight of the relaxed map's own fluxes in the refinement.
     pub refine_prior: f32,
+    /// The exponent of a held photon's prior weight in the refinement
+    /// ([`RefineParams::prior_hold`]).
+    pub refine_prior_hold: f32,
     /// Photons per progressive pass (default: `photons`).
     pub ppm_photons_per_pass: Option<u64>,
     /// Photons emitted per refinement pass (default: `photons`).
@@ -225,6 +228,7 @@ impl Default for CompareOptions {
             refine_iterations: RefineParams::default().iterations,
             refine_growth: RefineParams::default().growth,
             refine_prior: RefineParams::default().prior_passes,
+            refine_prior_hold: RefineParams::default().prior_hold,
             ppm_photons_per_pass: None,
             refine_photons_per_pass: None,
             ppm_k: 30,

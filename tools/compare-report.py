@@ -90,7 +90,7 @@ def table1(args):
     bin_ = None if args.reuse else binary(args)
     out = os.path.join(ROOT, "target", "compare", "table1")
     argv = [
-        f"samples/scenes/{args.scene}.toml", "--photons", args.photons, "--cells", "600", "--spp", "4",
+        f"samples/scenes/{args.scene}.toml", "--photons", args.photons, "--cells", "600", "--spp", "4", "--feature-spp", "4",
         "--ppm-passes", args.ppm_passes, "--seeds", args.seeds, "--out-dir", out,
     ]
     wall = 0.0 if args.reuse else run_compare(bin_, argv)
@@ -228,14 +228,15 @@ def read_all(path):
 
 def scenes(args):
     """Every scene's compare run at one photon count with compare's defaults (4 seeds, 16 jittered
-    samples per cell, standard PM at K = 15, 50, 200, PPM with a local initial radius), one table
+    samples per cell and 256 in the core and edge cells, standard PM at K = 15, 50, 200, PPM with a local initial radius), one table
     per scene: each method's mean time and, per region, its NRMSE with the split into bias² and
     variance over the seeds."""
     bin_ = None if args.reuse else binary(args)
     lines = [
         f"`tools/compare-report.py scenes` ({time.strftime('%Y-%m-%d')}, {args.cores} cores) ran, for each scene, "
         f"`photonkit compare samples/scenes/SCENE.toml --photons {args.photons_scenes}` with the defaults: 4 seeds, "
-        "16 jittered samples per cell (each pixel its cell's mean, as the truth is), standard PM at K = 15, 50 "
+        "16 jittered samples per cell and 256 in the core and edge cells (each pixel its cell's mean, as the truth "
+        "is; docs/truth.md, \"Sampling\"), standard PM at K = 15, 50 "
         "and 200, progressive PM (PPM) at 1, 4 and 16 passes of as many photons with its initial radius the "
         "30-NN distance of its first pass, α = 2/3. Times are means over the seeds (the whole method: trace, "
         "detect, relax, render). Each cell: NRMSE over the whole truth's mean, and its split "

@@ -282,6 +282,11 @@ pub fn refine<'a>(
             "growth splits the photons' cells where they stand: it does not combine with relaxation iterations".into(),
         ));
     }
+    if !(p.prior_hold >= 0.0 && p.prior_hold.is_finite()) {
+        return Err(RefineError::Invalid(
+            "the held photons' prior exponent must be a non-negative number".into(),
+        ));
+    }
     if !(p.growth >= 0.0 && p.growth <= 1.0) {
         return Err(RefineError::Invalid("the growth exponent γ must lie in [0, 1]".into()));
     }

@@ -466,6 +466,8 @@ fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
     // Growth moves no photon: it does not combine with relaxation toward flux.
     let e = refine(&map.view(), &scene, &RefineParams { iterations: 1, ..p }, None, &mut |_| Ok(true));
     assert!(e.unwrap_err().to_string().contains("does not combine"));
+    let e = refine(&map.view(), &scene, &RefineParams { prior_hold: -1.0, ..p }, None, &mut |_| Ok(true));
+    assert!(e.unwrap_err().to_string().contains("non-negative"));
 }
 
 #[test]

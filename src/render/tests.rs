@@ -190,6 +190,18 @@ fn direct_light_image_matches_the_inverse_square_cosine_law() {
     }
 }
 
+/// A pinhole camera looking down at the origin from the side.
+fn oblique() -> Camera {
+    Camera::look_at(
+        Projection::Pinhole { fov_y_rad: 0.8 },
+        Vec3::new(0.3, -2.0, 1.5),
+        Vec3::ZERO,
+        Vec3::Z,
+        [1, 1],
+    )
+    .unwrap()
+}
+
 #[test]
 fn images_do_not_depend_on_the_thread_count() {
     // Jitter comes from each pixel's own stream, and lookups are exact whatever the
@@ -197,14 +209,7 @@ fn images_do_not_depend_on_the_thread_count() {
     let (pos, flux) = grid_photons(60, 12.0);
     let photons = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
     let scene = floor_scene();
-    let camera = Camera::look_at(
-        Projection::Pinhole { fov_y_rad: 0.8 },
-        Vec3::new(0.3, -2.0, 1.5),
-        Vec3::ZERO,
-        Vec3::Z,
-        [1, 1],
-    )
-    .unwrap();
+    let camera = oblique();
     let r = Renderer {
         view: View::Scene { scene: &scene, camera },
         photons: Some(&photons),
@@ -240,14 +245,7 @@ fn supersampled_pixels_are_those_of_an_image_sampled_as_densely() {
     let (pos, flux) = grid_photons(60, 12.0);
     let photons = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None }).unwrap();
     let scene = floor_scene();
-    let camera = Camera::look_at(
-        Projection::Pinhole { fov_y_rad: 0.8 },
-        Vec3::new(0.3, -2.0, 1.5),
-        Vec3::ZERO,
-        Vec3::Z,
-        [1, 1],
-    )
-    .unwrap();
+    let camera = oblique();
     let (w, h) = (40u32, 30u32);
     let with = |spp: u32, supersample: Option<Supersample>| Renderer {
         view: View::Scene { scene: &scene, camera: camera.clone() },

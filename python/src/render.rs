@@ -236,30 +236,6 @@ pub fn render<'py>(
     Ok(PyArray1::from_vec(py, pixels).reshape([h, w, 3])?.into_any())
 }
 
-/// The comparison's settings, checked as `photonkit compare` checks them.
-fn check(o: &CompareOptions) -> Result<(), Failure> {
-    let bad = |m: &str| Err(Failure::value(m.into()));
-    if o.pm_ks.is_empty() || o.pm_ks.contains(&0) {
-        return bad("--pm-k needs one or more K values of at least 1");
-    }
-    if o.k == 0 || o.kc < 3 || o.kf == 0 || o.diffusion_k == 0 || o.spp == 0 || o.seeds == 0 {
-        return bad("-k, --kf, --diffusion-k, --spp and --seeds need at least 1, --kc at least 3");
-    }
-    if o.k_density.is_some_and(|k| k < 2) {
-        return bad("--k-density needs at least 2");
-    }
-    if o.spp > photonkit::render::MAX_SPP || o.feature_spp > photonkit::render::MAX_SPP {
-        return bad(&format!(
-            "spp and feature_spp take at most {} samples per pixel",
-            photonkit::render::MAX_SPP
-        ));
-    }
-    if !(o.beta > 0.0 && o.beta.is_finite() && o.diffusion_q > 0.0 && o.diffusion_q.is_finite()) {
-        return bad("--beta and --diffusion-q must be positive");
-    }
-    Ok(())
-}
-
 /// Runs every method on the same traced photons of a scene, times every stage and measures
 /// each image against the truth (`photonkit compare`, one run: loop in Python for a sweep).
 /// Writes report.md, report.csv and the images into `out_dir`; returns a dict with `rows`
@@ -353,7 +329,7 @@ pub fn compare<'py>(
         seeds,
         methods,
     };
-    check(&o)?;
+    o.check().map_err(Failure::from)?;
     if cells < 4 {
         return Err(Failure::value("--cells needs at least 4".into()).into());
     }

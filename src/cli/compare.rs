@@ -8,7 +8,7 @@ use photonkit::eval::compare::CompareError;
 use photonkit::eval::compare::{self, CompareOptions, MethodKind, Progress, Target};
 use photonkit::eval::report::{self, Run};
 use photonkit::eval::truth::{Quality, TruthError};
-use photonkit::render::{MAX_SPP, Mode};
+use photonkit::render::Mode;
 use photonkit::scene::Camera;
 
 /// Run every method on the same traced photons, time every stage, and measure each image
@@ -142,26 +142,6 @@ pub struct Args {
     sweep: Option<String>,
 }
 
-/// Refuses settings no method can run with: the options given, and each run of a sweep.
-fn check_options(o: &CompareOptions) -> anyhow::Result<()> {
-    if o.pm_ks.is_empty() || o.pm_ks.contains(&0) {
-        bail!("--pm-k needs one or more K values of at least 1");
-    }
-    if o.k == 0 || o.kc < 3 || o.kf == 0 || o.diffusion_k == 0 || o.spp == 0 || o.seeds == 0 {
-        bail!("-k, --kf, --diffusion-k, --spp and --seeds need at least 1, --kc at least 3");
-    }
-    if o.k_density.is_some_and(|k| k < 2) {
-        bail!("--k-density needs at least 2");
-    }
-    if o.spp > MAX_SPP || o.feature_spp > MAX_SPP {
-        bail!("--spp and --feature-spp take at most {} samples per pixel", MAX_SPP);
-    }
-    if !(o.beta > 0.0 && o.beta.is_finite() && o.diffusion_q > 0.0 && o.diffusion_q.is_finite()) {
-        bail!("--beta and --diffusion-q must be positive");
-    }
-    Ok(())
-}
-
 /// The runs of a sweep: a label and the options of each.
 fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(String, CompareOptions)>> {
     let Some(spec) = spec else { return Ok(vec![(String::new(), base.clone())]) };
@@ -190,7 +170,7 @@ fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(
                 )
             }
         }
-        check_options(&o).with_context(|| format!("--sweep {key}: '{v}'"))?;
+        o.check().with_context(|| format!("--sweep {key}: '{v}'"))?;
         runs.push((format!("{} = {v}", key.trim()), o));
     }
     if runs.is_empty() {
@@ -245,7 +225,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         seeds: a.seeds,
         methods,
     };
-    check_options(&base)?;
+    base.check()?;
     let runs = sweep_runs(&base, a.sweep.as_deref())?;
     std::fs::create_dir_all(&a.out_dir).with_context(|| format!("creating {}", a.out_dir.display()))?;
 

@@ -189,7 +189,7 @@ fn prior_weights(n: usize, w: f32, hold: f32, basis_v: Option<&[[f32; 3]]>) -> V
         Some(v) if hold > 0.0 => v
             .iter()
             .map(|v| {
-                let f = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+                let f = glam::Vec3::from(*v).length();
                 w / f.clamp(1e-3, 1.0).powf(hold)
             })
             .collect(),

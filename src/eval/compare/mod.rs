@@ -204,6 +204,38 @@ pub struct CompareOptions {
     pub methods: Vec<MethodKind>,
 }
 
+impl CompareOptions {
+    /// Refuses settings out of range, before anything is traced (the messages name the
+    /// command line's options).
+    pub fn check(&self) -> Result<(), CompareError> {
+        let bad = |m: &str| Err(CompareError::Invalid(m.into()));
+        if self.pm_ks.is_empty() || self.pm_ks.contains(&0) {
+            return bad("--pm-k needs one or more K values of at least 1");
+        }
+        if self.k == 0
+            || self.kc < 3
+            || self.kf == 0
+            || self.diffusion_k == 0
+            || self.spp == 0
+            || self.seeds == 0
+        {
+            return bad("-k, --kf, --diffusion-k, --spp and --seeds need at least 1, --kc at least 3");
+        }
+        if self.k_density.is_some_and(|k| k < 2) {
+            return bad("--k-density needs at least 2");
+        }
+        let most = crate::render::MAX_SPP;
+        if self.spp > most || self.feature_spp > most {
+            return bad(&format!("--spp and --feature-spp take at most {most} samples per pixel"));
+        }
+        let positive = |x: f32| x > 0.0 && x.is_finite();
+        if !(positive(self.beta) && positive(self.diffusion_q)) {
+            return bad("--beta and --diffusion-q must be positive");
+        }
+        Ok(())
+    }
+}
+
 impl Default for CompareOptions {
     fn default() -> Self {
         let (d, r) = (DetectParams::default(), RelaxParams::default());

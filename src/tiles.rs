@@ -363,6 +363,8 @@ pub fn part_columns(
             for &i in indices {
                 out.extend_from_slice(&bytes[i as usize * w..][..w]);
             }
+            // The rows are scattered over every page of the column: none is read again.
+            map.release_pages();
             (spec.clone(), out)
         })
         .collect()

@@ -203,7 +203,14 @@ impl PhotonMap {
     /// Recomputes every column's CRC-32 and compares it with the column table.
     pub fn verify_checksums(&self) -> Result<()> {
         for c in &self.meta.columns {
-            let computed = crc32fast::hash(self.column_bytes(&c.name).expect("listed column"));
+            // In pieces, each released once hashed: a file larger than the memory is verified
+            // without ever being resident as a whole.
+            let mut crc = crc32fast::Hasher::new();
+            for piece in self.column_bytes(&c.name).expect("listed column").chunks(RELEASE_EVERY) {
+                crc.update(piece);
+                release_range(self.mapping(), piece);
+            }
+            let computed = crc.finalize();
             if computed != c.crc32 {
                 return Err(FormatError::Checksum {
                     file: self.file.clone(),
@@ -214,6 +221,51 @@ impl PhotonMap {
             }
         }
         Ok(())
+    }
+
+    /// Drops the file's pages from this process's resident set (a memory-mapped map; nothing
+    /// for one held in memory). Nothing is lost: a page read again is mapped again from the
+    /// file (the page cache, usually). Stages that bound their memory call it between tiles,
+    /// so the pages one tile read do not count against the next (docs/tiles.md).
+    pub fn release_pages(&self) {
+        release(self.mapping());
+    }
+
+    /// The memory map, when the file is mapped.
+    pub(super) fn mapping(&self) -> Option<&memmap2::Mmap> {
+        match &self.storage {
+            Storage::Mapped(m) => Some(m),
+            Storage::Owned { .. } => None,
+        }
+    }
+}
+
+/// How many bytes of a mapped file a long scan reads before it releases them.
+pub(super) const RELEASE_EVERY: usize = 64 << 20;
+
+/// Drops the pages of `bytes`, a part of `mapping`, from this process's resident set, as
+/// [`release`] does for the whole mapping (nothing when `bytes` is not in it).
+pub(super) fn release_range(mapping: Option<&memmap2::Mmap>, bytes: &[u8]) {
+    #[cfg(unix)]
+    if let Some(m) = mapping {
+        let start = bytes.as_ptr() as usize;
+        let Some(offset) = start.checked_sub(m.as_ptr() as usize) else { return };
+        if offset + bytes.len() > m.len() {
+            return;
+        }
+        // SAFETY: as in `release`.
+        let _ = unsafe { m.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, offset, bytes.len()) };
+    }
+}
+
+/// [`PhotonMap::release_pages`] of `mapping`.
+pub(super) fn release(mapping: Option<&memmap2::Mmap>) {
+    #[cfg(unix)]
+    if let Some(m) = mapping {
+        // SAFETY: the mapping is read-only and shared (memmap2's `Mmap::map`): dropping its
+        // pages changes no byte a borrow can see, as a page read again is the file's page.
+        // Failure only leaves the pages resident.
+        let _ = unsafe { m.unchecked_advise(memmap2::UncheckedAdvice::DontNeed) };
     }
 }
 

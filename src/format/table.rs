@@ -35,6 +35,8 @@ pub struct MapView<'a> {
     info: &'a MapInfo,
     columns: Vec<(ColumnSpec, &'a [u8])>,
     len: usize,
+    /// The memory map the columns are read from, when they are a mapped file's.
+    mapping: Option<&'a memmap2::Mmap>,
 }
 
 impl<'a> MapView<'a> {
@@ -90,6 +92,12 @@ impl<'a> MapView<'a> {
     pub fn flux(&self) -> &'a [[f32; 3]] {
         self.column(name::FLUX).ok().flatten().expect("a view has flux")
     }
+
+    /// [`super::PhotonMap::release_pages`] of the file this view reads, if it is a mapped
+    /// file (nothing for a table in memory).
+    pub fn release_pages(&self) {
+        super::reader::release(self.mapping);
+    }
 }
 
 fn typed<'a, T: Element>(file: &str, spec: &ColumnSpec, bytes: &'a [u8]) -> Result<&'a [T]> {
@@ -110,7 +118,13 @@ fn typed<'a, T: Element>(file: &str, spec: &ColumnSpec, bytes: &'a [u8]) -> Resu
 impl PhotonMap {
     /// The map as a [`MapView`] (its columns viewed in place).
     pub fn view(&self) -> MapView<'_> {
-        MapView { file: self.file_name(), info: self.info(), columns: self.columns(), len: self.len() }
+        MapView {
+            file: self.file_name(),
+            info: self.info(),
+            columns: self.columns(),
+            len: self.len(),
+            mapping: self.mapping(),
+        }
     }
 }
 
@@ -288,6 +302,7 @@ impl<'a> PhotonTable<'a> {
             info: &self.info,
             columns: self.columns.iter().map(|(s, b)| (s.clone(), b.get())).collect(),
             len: self.len,
+            mapping: None,
         }
     }
 

@@ -132,7 +132,11 @@ pub(crate) fn relax_tile_with(
         out.indices = interior;
         return Ok(out);
     }
-    let (moves, slack) = move_bounds(map, &setup, &order, scene)?;
+    let (moves, slack) = move_bounds(map, &setup, &order, &label, tiling, scene)?;
+    let moves_of = |l: u32| {
+        let b = moves[l as usize] as f64;
+        Moves { first: b, later: b }
+    };
     let scale = setup.scale as f64;
     let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
     let mut h = opts.halo_scale
@@ -151,6 +155,7 @@ pub(crate) fn relax_tile_with(
     let mut left = interior.len();
     while left > 0 {
         out.rounds += 1;
+        let left_before = left;
         let halo = tiling.halo_box(tile, if out.rounds >= MAX_ROUNDS { f64::INFINITY } else { h });
         let whole = halo.is_whole() || !opts.certify;
         // Depth of a position (working units) in the halo box: its distance inside it, negative
@@ -173,7 +178,7 @@ pub(crate) fn relax_tile_with(
                     if halo.contains(x) {
                         return None;
                     }
-                    let (x, m) = (scaled(x, setup.scale), moves[label[i] as usize]);
+                    let (x, m) = (scaled(x, setup.scale), moves_of(label[i]));
                     (-depth(x) < m.after(r) + reach_cap).then_some((x, m))
                 })
                 .collect()
@@ -184,7 +189,7 @@ pub(crate) fn relax_tile_with(
         let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
         let mut columns = Columns::of(map, &members, &setup)?;
         let start: Vec<[f32; 3]> = columns.positions.clone();
-        let mut member_moves: Vec<Moves> = labels.iter().map(|&l| moves[l as usize]).collect();
+        let mut member_moves: Vec<Moves> = labels.iter().map(|&l| moves_of(l)).collect();
         let mut certified = vec![true; members.len()];
         let wide = MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: setup.coincident };
         let mut t = 0usize;
@@ -257,7 +262,11 @@ pub(crate) fn relax_tile_with(
                 left -= 1;
             }
         }
-        h *= 2.0;
+        // A halo that certified nothing is held back by photons whose bounds reach the whole
+        // tile (a sparse surround, docs/tiles.md): doubling it again would not help.
+        h = if left == left_before { f64::INFINITY } else { 2.0 * h };
+        // The map's pages this round read are read again only as the next round needs them.
+        map.release_pages();
     }
     out.normals = with_normals.then_some(normals);
     out.indices = interior;
@@ -402,41 +411,86 @@ fn bound(step_limit: f32, first: f32, scene: bool, slack: f64) -> f64 {
     widen(s, scene, slack)
 }
 
-/// Per photon of the map (by label): how far it moves in the whole map's relaxation, in
-/// working units: in the first iteration its step (which iteration 0 over the whole map
-/// measures), in each later one at most `step_limit` times its first spacing (known after
-/// iteration 1: a photon whose Kf nearest all sat on it at iteration 0 was nudged off them;
-/// ∞ for one that is still in a crowd). Widened by the rounding of a coordinate (and the
-/// return to a surface) as [`bound`] says; the rounding slack is returned too.
-fn move_bounds(
+/// Per photon of the map (by label): the most it moves in one iteration of the whole map's
+/// relaxation, in working units: `step_limit` times its first spacing (Eq. 8's clamp), which
+/// the first iteration sets from its Kf nearest (parameter-restricted before collapse) and
+/// which caps every later step ([`super::Scratch`]); ∞ for a photon whose Kf nearest all sit
+/// on it (a crowd: its first spacing is found later). Widened by the rounding of a coordinate
+/// (and the return to a surface) as [`bound`] says; the rounding slack is returned too.
+///
+/// Computed tile by tile, never holding the whole map: a photon's first spacing is found among
+/// the photons of its tile's halo box, a subset of the map, so its Kf-th nearest there is at
+/// least as far as in the whole map and the spacing found bounds the true one from above
+/// (docs/tiles.md). A photon that finds fewer than Kf in the box is searched again with the
+/// halo doubled.
+pub(crate) fn move_bounds(
     map: &MapView,
     setup: &Setup,
     order: &[u32],
+    label: &[u32],
+    tiling: &Tiling,
     scene: Option<&crate::scene::Scene>,
-) -> Result<(Vec<Moves>, f64), RelaxError> {
-    let mut columns = Columns::of(map, order, setup)?;
-    let far = columns.positions.iter().flatten().fold(0f32, |m, v| m.max(v.abs())) as f64;
+) -> Result<(Vec<f32>, f64), RelaxError> {
+    let pos = map.positions();
+    let n = pos.len();
+    let on_surface = scene.is_some();
     // A position is rounded to half an ulp of its largest coordinate per axis on each move;
     // 10⁻⁵ of the coordinates for the surface's search margin.
-    let on_surface = scene.is_some();
+    let far = pos.iter().flatten().fold(0f32, |m, v| m.max((v * setup.scale).abs())) as f64;
     let slack = far * (4.0 * f32::EPSILON as f64 + if on_surface { 1e-5 } else { 0.0 });
-    let wide = MapWide { labels: None, spacing: setup.spacing, coincident: setup.coincident };
-    let mut moves = vec![Moves { first: 0.0, later: f64::INFINITY }; order.len()];
-    let mut t = 0;
-    run(map, &mut columns, setup, scene, &wide, order, |scratch, _, _| {
-        if t == 0 {
-            for (m, &s) in moves.iter_mut().zip(&scratch.per_photon().step) {
-                m.first = widen(s as f64, on_surface, slack);
+    if setup.coincident {
+        // Nothing moves.
+        return Ok((vec![0.0; n], slack));
+    }
+    // NaN: not yet bounded.
+    let mut bounds = vec![f32::NAN; n];
+    let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
+    let h0 = 4.0 * extent * (setup.p.kf as f64 / (std::f64::consts::PI * n.max(1) as f64)).sqrt();
+    for c in 0..tiling.len() {
+        let mut left = pos.iter().filter(|&&x| tiling.tile_of(x) == c).count();
+        let mut h = h0;
+        let mut round = 0;
+        while left > 0 {
+            round += 1;
+            let halo = tiling.halo_box(c, if round >= MAX_ROUNDS { f64::INFINITY } else { h });
+            let whole = halo.is_whole();
+            let members: Vec<u32> = order.iter().copied().filter(|&i| halo.contains(pos[i as usize])).collect();
+            let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
+            let mut columns = Columns::of(map, &members, setup)?;
+            let wide = MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: false };
+            let (mut first, mut read) = (Vec::new(), Vec::new());
+            run(map, &mut columns, setup, scene, &wide, &members, |scratch, _, _| {
+                first = scratch.first_spacing().to_vec();
+                read = scratch.per_photon().read.clone();
+                false
+            })?;
+            for (k, &i) in members.iter().enumerate() {
+                let b = &mut bounds[labels[k] as usize];
+                if b.is_nan() && tiling.tile_of(pos[i as usize]) == c && (read[k].is_finite() || whole) {
+                    *b = rounded_up(bound(setup.p.step_limit, first[k], on_surface, slack));
+                    left -= 1;
+                }
             }
-        } else {
-            for (m, &f) in moves.iter_mut().zip(scratch.first_spacing()) {
-                m.later = bound(setup.p.step_limit, f, on_surface, slack);
+            map.release_pages();
+            if whole {
+                // Photons no box holds (non-finite positions) have no bound.
+                break;
             }
+            h *= 2.0;
         }
-        t += 1;
-        t < 2
-    })?;
-    Ok((moves, slack))
+    }
+    for b in &mut bounds {
+        if b.is_nan() {
+            *b = f32::INFINITY;
+        }
+    }
+    Ok((bounds, slack))
+}
+
+/// `x` as an f32 no smaller than it (a bound stays a bound).
+fn rounded_up(x: f64) -> f32 {
+    let v = x as f32;
+    if (v as f64) < x { v.next_up() } else { v }
 }
 
 /// The relax record's space and constraint for `map` (also for a tile with no photons).

@@ -205,3 +205,52 @@ fn a_sparse_surround_does_not_hold_back_a_dense_tile() {
         r.per_round
     );
 }
+
+/// The move bounds a tile job computes tile by tile, against the whole map's relaxation (the
+/// oracle): no photon moves farther in any iteration than its bound, for 1×1, 2×2 and 3×3
+/// tilings; the bounds are finite, and a tiling's bounds are the untiled ones for most photons
+/// (a photon's halo box holds its Kf nearest).
+#[test]
+fn move_bounds_hold_every_move_of_the_whole_map() {
+    use crate::relax::tiled::move_bounds;
+    use crate::spatial::order::locality_order;
+    let dir = tempfile::tempdir().unwrap();
+    let [detected, collapsed] = phases(dir.path(), "bounds", &crate::synthetic::collimated_cusp(3000, 47));
+    let p = RelaxParams { iterations: 12, ..Default::default() };
+    for map in [&detected, &collapsed] {
+        let map = map.view();
+        let setup = Setup::of(&map, &p, false).unwrap();
+        let order = locality_order(map.positions());
+        let mut label = vec![0u32; order.len()];
+        order.iter().enumerate().for_each(|(l, &i)| label[i as usize] = l as u32);
+        // The whole map's moves per iteration, by label (the run is in label order).
+        let mut columns = Columns::of(&map, &order, &setup).unwrap();
+        let wide = MapWide { labels: None, spacing: setup.spacing, coincident: setup.coincident };
+        let mut starts: Vec<Vec<[f32; 3]>> = Vec::new();
+        run(&map, &mut columns, &setup, None, &wide, &order, |_, _, before| {
+            starts.push(before.to_vec());
+            true
+        })
+        .unwrap();
+        starts.push(columns.positions.clone());
+        let untiled = move_bounds(&map, &setup, &order, &label, &Tiling::new(map.positions(), [1, 1]), None).unwrap().0;
+        for grid in [[1, 1], [2, 2], [3, 3]] {
+            let tiling = Tiling::new(map.positions(), grid);
+            let (bounds, _) = move_bounds(&map, &setup, &order, &label, &tiling, None).unwrap();
+            assert!(bounds.iter().all(|b| b.is_finite() && *b > 0.0), "{grid:?}");
+            let mut tightest = 0f64;
+            for (t, w) in starts.windows(2).enumerate() {
+                for (l, (a, b)) in w[0].iter().zip(&w[1]).enumerate() {
+                    let moved = (0..3).map(|c| (b[c] as f64 - a[c] as f64).powi(2)).sum::<f64>().sqrt();
+                    assert!(moved <= bounds[l] as f64, "{grid:?}: iteration {t}, photon {l}: {moved} > {}", bounds[l]);
+                    tightest = tightest.max(moved / bounds[l] as f64);
+                }
+            }
+            // Some photon takes a clamped step: the bound is the step limit, not a loose guess.
+            assert!(tightest > 0.99, "{grid:?}: the largest move is {tightest} of its bound");
+            let same = bounds.iter().zip(&untiled).filter(|(a, b)| a == b).count();
+            assert!(same * 10 >= 9 * bounds.len(), "{grid:?}: {same} of {} as untiled", bounds.len());
+            assert!(bounds.iter().zip(&untiled).all(|(a, b)| a >= b), "{grid:?}: a tiled bound below the untiled one");
+        }
+    }
+}

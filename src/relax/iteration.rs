@@ -173,25 +173,135 @@ impl MapWide<'_> {
 
 impl IterationMeasure {
     /// The measures of iteration `iteration` from each photon's nearest-neighbour distance,
-    /// its ratio to r_K (NaN: none) and its step length, summed in the order given (the
-    /// whole map's working order, so that tiles merge to the same sums).
+    /// its ratio to r_K (NaN: none) and its step length, in any order ([`MeasureSums`]).
     pub fn of(iteration: usize, nn: &[f32], ratio: &[f32], step: &[f32]) -> IterationMeasure {
-        let n = nn.len();
-        let ratio: Vec<f32> = ratio.iter().copied().filter(|q| !q.is_nan()).collect();
-        let (mut sum, mut max) = (0.0f64, 0.0f64);
-        for &l in step {
-            sum += l as f64;
-            max = max.max(l as f64);
+        let mut sums = MeasureSums::default();
+        for ((&d, &q), &l) in nn.iter().zip(ratio).zip(step) {
+            sums.add(d, q, l);
         }
-        IterationMeasure {
-            iteration,
-            nn_cv: coefficient_of_variation(nn),
-            local_nn_cv: coefficient_of_variation(&ratio),
-            mean_displacement: if n > 0 { sum / n as f64 } else { 0.0 },
-            max_displacement: max,
-            separated: if n > 1 { nn.iter().filter(|&&d| d == 0.0).count() } else { 0 },
+        sums.measure(iteration)
+    }
+}
+
+/// A sum of f64 values that does not depend on their order: a value is its integer
+/// significand times a power of two, and the significands of each power are added exactly as
+/// integers; the total is formed from them in a fixed order. Tiles that each sum their photons
+/// and add their sums together give the whole map's sum bit for bit (docs/tiles.md).
+#[derive(Clone, Debug)]
+pub struct ExactSum {
+    /// Per binary exponent (from the smallest subnormal's), the sum of significands.
+    by_exponent: Vec<i128>,
+}
+
+impl Default for ExactSum {
+    fn default() -> Self {
+        ExactSum { by_exponent: vec![0; 2048] }
+    }
+}
+
+impl ExactSum {
+    /// Adds `x` (finite; others are ignored).
+    pub fn add(&mut self, x: f64) {
+        if !x.is_finite() || x == 0.0 {
+            return;
+        }
+        let bits = x.to_bits();
+        let biased = ((bits >> 52) & 0x7ff) as usize;
+        let fraction = (bits & ((1u64 << 52) - 1)) as i128;
+        // x = significand · 2^(biased − 1075), with the implicit bit for normal numbers.
+        let (significand, slot) = if biased == 0 { (fraction, 1) } else { (fraction | 1 << 52, biased) };
+        self.by_exponent[slot] += if x < 0.0 { -significand } else { significand };
+    }
+
+    /// Adds another sum's values.
+    pub fn merge(&mut self, other: &ExactSum) {
+        for (a, b) in self.by_exponent.iter_mut().zip(&other.by_exponent) {
+            *a += b;
         }
     }
+
+    /// The total (rounded once per exponent used, the same whatever the order of the values).
+    pub fn total(&self) -> f64 {
+        self.by_exponent
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| **s != 0)
+            .map(|(slot, &s)| s as f64 * 2f64.powi(slot as i32 - 1075))
+            .sum()
+    }
+}
+
+/// The sums an [`IterationMeasure`] is formed from, added photon by photon in any order and
+/// merged across tiles: the measure does not depend on either.
+#[derive(Clone, Debug, Default)]
+pub struct MeasureSums {
+    photons: usize,
+    nn: ExactSum,
+    nn2: ExactSum,
+    ratios: usize,
+    ratio: ExactSum,
+    ratio2: ExactSum,
+    step: ExactSum,
+    max_step: f32,
+    on_another: usize,
+}
+
+impl MeasureSums {
+    /// Adds one photon's nearest-neighbour distance, its ratio to r_K (NaN: none) and its step.
+    pub fn add(&mut self, nn: f32, ratio: f32, step: f32) {
+        self.photons += 1;
+        // Squares of f32 values are exact in f64.
+        self.nn.add(nn as f64);
+        self.nn2.add(nn as f64 * nn as f64);
+        if !ratio.is_nan() {
+            self.ratios += 1;
+            self.ratio.add(ratio as f64);
+            self.ratio2.add(ratio as f64 * ratio as f64);
+        }
+        self.step.add(step as f64);
+        self.max_step = self.max_step.max(step);
+        self.on_another += usize::from(nn == 0.0);
+    }
+
+    /// Adds another set of photons' sums.
+    pub fn merge(&mut self, other: &MeasureSums) {
+        self.photons += other.photons;
+        self.ratios += other.ratios;
+        for (a, b) in [
+            (&mut self.nn, &other.nn),
+            (&mut self.nn2, &other.nn2),
+            (&mut self.ratio, &other.ratio),
+            (&mut self.ratio2, &other.ratio2),
+            (&mut self.step, &other.step),
+        ] {
+            a.merge(b);
+        }
+        self.max_step = self.max_step.max(other.max_step);
+        self.on_another += other.on_another;
+    }
+
+    /// The measures of iteration `iteration` (displacements in the units the steps were in).
+    pub fn measure(&self, iteration: usize) -> IterationMeasure {
+        let n = self.photons;
+        IterationMeasure {
+            iteration,
+            nn_cv: cv_of(n, &self.nn, &self.nn2),
+            local_nn_cv: cv_of(self.ratios, &self.ratio, &self.ratio2),
+            mean_displacement: if n > 0 { self.step.total() / n as f64 } else { 0.0 },
+            max_displacement: self.max_step as f64,
+            separated: if n > 1 { self.on_another } else { 0 },
+        }
+    }
+}
+
+/// Coefficient of variation from a count, a sum and a sum of squares (0 for fewer than two).
+fn cv_of(n: usize, sum: &ExactSum, squares: &ExactSum) -> f64 {
+    if n < 2 {
+        return 0.0;
+    }
+    let mean = sum.total() / n as f64;
+    let var = (squares.total() / n as f64 - mean * mean).max(0.0);
+    if mean > 0.0 { var.sqrt() / mean } else { 0.0 }
 }
 
 /// One Jacobi iteration: computes every photon's step from `pos` with neighbours from `index`,

@@ -19,8 +19,9 @@ use serde::Serialize;
 
 pub use force::{clamp_step, project_on_basis, project_on_tangent, repulsion};
 pub use iteration::{
-    Constraint, IndexSearch, IterationMeasure, MapWide, NeighbourSearch, PerPhoton, REBUILD_EVERY, Scratch,
-    coefficient_of_variation, diffuse_flux, index_positions, iterate, iterate_in, map_spacing,
+    Constraint, ExactSum, IndexSearch, IterationMeasure, MapWide, MeasureSums, NeighbourSearch, PerPhoton,
+    REBUILD_EVERY, Scratch, coefficient_of_variation, diffuse_flux, index_positions, iterate, iterate_in,
+    map_spacing,
 };
 pub use part::{merge_parts, tile_part};
 use surface::back_to_surfaces;

@@ -12,7 +12,8 @@
 use serde_json::{Value, json};
 
 use super::{
-    IterationMeasure, RelaxError, RelaxParams, RelaxSpace, Relaxed, Setup, TileRelaxed, relaxed_map,
+    IterationMeasure, MeasureSums, RelaxError, RelaxParams, RelaxSpace, Relaxed, Setup, TileRelaxed,
+    relaxed_map,
 };
 use crate::format::{ColumnSpec, DType, MapView, PhotonTable, StageRecord, name};
 use crate::tiles::{PartRecord, TileSpec, part_columns, part_record, part_report};
@@ -133,7 +134,8 @@ pub fn merge_parts<'a>(
     let n = map.len();
     let mut positions = vec![[0f32; 3]; n];
     let mut normals: Option<Vec<[f32; 3]>> = None;
-    let (mut nn, mut ratio, mut step) = (vec![0f32; n * r], vec![f32::NAN; n * r], vec![0f32; n * r]);
+    // The per-iteration sums, in any order ([`MeasureSums`]).
+    let mut sums = vec![MeasureSums::default(); r];
     let mut seen = vec![false; n];
     let mut refused_moves = 0u64;
     for (part, info) in parts.iter().zip(&infos) {
@@ -176,22 +178,19 @@ pub fn merge_parts<'a>(
                         .map_or_else(|| vec![[0.0; 3]; n], <[_]>::to_vec)
                 })[i] = ns[k];
             }
-            for t in 0..r {
-                nn[i * r + t] = pn[k * r + t];
-                ratio[i * r + t] = pr[k * r + t];
-                step[i * r + t] = ps[k * r + t];
+            for (t, sum) in sums.iter_mut().enumerate() {
+                sum.add(pn[k * r + t], pr[k * r + t], ps[k * r + t]);
             }
         }
     }
     if let Some(i) = seen.iter().position(|s| !s) {
         return Err(bad(map.file_name(), format!("photon {i} is in no tile")));
     }
-    // The whole map's report, summed in its working order as the untiled run sums it.
-    let order = crate::spatial::order::locality_order(map.positions());
-    let measures = (0..r)
-        .map(|t| {
-            let at = |v: &[f32]| order.iter().map(|&i| v[i as usize * r + t]).collect::<Vec<f32>>();
-            let m = IterationMeasure::of(t, &at(&nn), &at(&ratio), &at(&step));
+    let measures = sums
+        .iter()
+        .enumerate()
+        .map(|(t, sum)| {
+            let m = sum.measure(t);
             IterationMeasure {
                 mean_displacement: m.mean_displacement / scale,
                 max_displacement: m.max_displacement / scale,

@@ -65,6 +65,76 @@ fn coefficient_of_variation_matches_closed_form() {
     let cv = coefficient_of_variation(&[1.0, 2.0, 3.0]);
     assert!((cv - (2.0f64 / 3.0).sqrt() / 2.0).abs() < 1e-12);
     assert_eq!(coefficient_of_variation(&[5.0]), 0.0);
+    let m = IterationMeasure::of(3, &[1.0, 2.0, 3.0], &[0.5, f32::NAN, 1.5], &[0.25, 0.5, 0.0]);
+    assert!((m.nn_cv - (2.0f64 / 3.0).sqrt() / 2.0).abs() < 1e-12);
+    // Ratios 0.5 and 1.5 (the NaN is left out): mean 1, sd 0.5.
+    assert!((m.local_nn_cv - 0.5).abs() < 1e-12);
+    assert_eq!((m.iteration, m.mean_displacement, m.max_displacement, m.separated), (3, 0.25, 0.5, 0));
+    let m = IterationMeasure::of(0, &[0.0, 0.0, 1.0], &[f32::NAN; 3], &[0.0; 3]);
+    assert_eq!((m.separated, m.local_nn_cv), (2, 0.0));
+}
+
+/// An exact sum is the same whatever the order of its values and however they are split
+/// between sums that are then merged (tiles: docs/tiles.md), and it is exact where a running
+/// f64 sum is not.
+#[test]
+fn exact_sums_do_not_depend_on_order_or_split() {
+    // 1e20 + 1 − 1e20: a running f64 sum gives 0.
+    let mut s = ExactSum::default();
+    [1e20, 1.0, -1e20].iter().for_each(|&x| s.add(x));
+    assert_eq!(s.total(), 1.0);
+    assert_eq!(1e20f64 + 1.0 - 1e20, 0.0);
+    // Values over many magnitudes, with subnormals and signs, in three orders and two splits.
+    let mut rng = 0x2545_F491_4F6C_DD1Du64;
+    let values: Vec<f64> = (0..5000)
+        .map(|i| {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            let x = (rng >> 11) as f64 / (1u64 << 53) as f64 - 0.3;
+            match i % 5 {
+                0 => x * 1e-310,
+                1 => x * 1e30,
+                2 => (x as f32) as f64,
+                3 => x * x,
+                _ => x * 1e-8,
+            }
+        })
+        .collect();
+    let sum_of = |v: &[f64]| {
+        let mut s = ExactSum::default();
+        v.iter().for_each(|&x| s.add(x));
+        s
+    };
+    let want = sum_of(&values).total();
+    let mut reversed = values.clone();
+    reversed.reverse();
+    let mut sorted = values.clone();
+    sorted.sort_by(f64::total_cmp);
+    assert_eq!(sum_of(&reversed).total().to_bits(), want.to_bits());
+    assert_eq!(sum_of(&sorted).total().to_bits(), want.to_bits());
+    for cut in [1, 2499, 4999] {
+        let mut a = sum_of(&values[..cut]);
+        a.merge(&sum_of(&values[cut..]));
+        assert_eq!(a.total().to_bits(), want.to_bits(), "split at {cut}");
+    }
+    // Against an f64 running sum of the values sorted by magnitude (accurate to far better
+    // than 1e-6 of the largest here).
+    let mut by_size = values.clone();
+    by_size.sort_by(|a, b| a.abs().total_cmp(&b.abs()));
+    let running: f64 = by_size.iter().sum();
+    assert!((want - running).abs() <= 1e-6 * 1e30, "{want} against {running}");
+    // Measures from sums split between two sets equal those of the whole.
+    let nn: Vec<f32> = values.iter().map(|&x| (x.abs() as f32).min(1.0)).collect();
+    let ratio: Vec<f32> = nn.iter().map(|&d| if d > 0.5 { f32::NAN } else { d }).collect();
+    let whole = IterationMeasure::of(1, &nn, &ratio, &nn);
+    let mut a = MeasureSums::default();
+    let mut b = MeasureSums::default();
+    for (k, &d) in nn.iter().enumerate() {
+        if k % 3 == 0 { &mut a } else { &mut b }.add(d, ratio[k], d);
+    }
+    b.merge(&a);
+    assert_eq!(b.measure(1), whole);
 }
 
 /// k nearest by brute force, ties broken by index.

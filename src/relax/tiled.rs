@@ -454,7 +454,8 @@ pub(crate) fn move_bounds(
             round += 1;
             let halo = tiling.halo_box(c, if round >= MAX_ROUNDS { f64::INFINITY } else { h });
             let whole = halo.is_whole();
-            let members: Vec<u32> = order.iter().copied().filter(|&i| halo.contains(pos[i as usize])).collect();
+            let members: Vec<u32> =
+                order.iter().copied().filter(|&i| halo.contains(pos[i as usize])).collect();
             let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
             let mut columns = Columns::of(map, &members, setup)?;
             let wide = MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: false };

@@ -233,7 +233,8 @@ fn move_bounds_hold_every_move_of_the_whole_map() {
         })
         .unwrap();
         starts.push(columns.positions.clone());
-        let untiled = move_bounds(&map, &setup, &order, &label, &Tiling::new(map.positions(), [1, 1]), None).unwrap().0;
+        let untiled =
+            move_bounds(&map, &setup, &order, &label, &Tiling::new(map.positions(), [1, 1]), None).unwrap().0;
         for grid in [[1, 1], [2, 2], [3, 3]] {
             let tiling = Tiling::new(map.positions(), grid);
             let (bounds, _) = move_bounds(&map, &setup, &order, &label, &tiling, None).unwrap();
@@ -242,7 +243,11 @@ fn move_bounds_hold_every_move_of_the_whole_map() {
             for (t, w) in starts.windows(2).enumerate() {
                 for (l, (a, b)) in w[0].iter().zip(&w[1]).enumerate() {
                     let moved = (0..3).map(|c| (b[c] as f64 - a[c] as f64).powi(2)).sum::<f64>().sqrt();
-                    assert!(moved <= bounds[l] as f64, "{grid:?}: iteration {t}, photon {l}: {moved} > {}", bounds[l]);
+                    assert!(
+                        moved <= bounds[l] as f64,
+                        "{grid:?}: iteration {t}, photon {l}: {moved} > {}",
+                        bounds[l]
+                    );
                     tightest = tightest.max(moved / bounds[l] as f64);
                 }
             }
@@ -250,7 +255,10 @@ fn move_bounds_hold_every_move_of_the_whole_map() {
             assert!(tightest > 0.99, "{grid:?}: the largest move is {tightest} of its bound");
             let same = bounds.iter().zip(&untiled).filter(|(a, b)| a == b).count();
             assert!(same * 10 >= 9 * bounds.len(), "{grid:?}: {same} of {} as untiled", bounds.len());
-            assert!(bounds.iter().zip(&untiled).all(|(a, b)| a >= b), "{grid:?}: a tiled bound below the untiled one");
+            assert!(
+                bounds.iter().zip(&untiled).all(|(a, b)| a >= b),
+                "{grid:?}: a tiled bound below the untiled one"
+            );
         }
     }
 }

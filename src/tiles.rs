@@ -87,6 +87,53 @@ impl TileSpec {
     }
 }
 
+/// What a stage keeps in memory, for choosing how many tiles keep it under a budget
+/// ([`tiles_for_budget`]): bytes per photon of the whole map (its order, bounds and results),
+/// and bytes per photon of a tile's working set (its columns, index and scratch), measured.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MemoryModel {
+    /// Bytes per photon of the map, whatever the tiling.
+    pub per_photon: f64,
+    /// Bytes per photon a tile works on (its interior and halo).
+    pub per_working_photon: f64,
+    /// A tile's working set over its interior photons (halo and later rounds).
+    pub halo_growth: f64,
+}
+
+/// The fewest photons a tile chosen for a memory budget holds: below it, the halos would hold
+/// most of the work.
+pub const MIN_TILE_PHOTONS: usize = 1000;
+
+/// The fewest tiles of 1, 2, 4, 6, 9, 12, 16, 20, 25, … (grids k × k and (k + 1) × k, so tiles
+/// stay about square) that keep a stage of memory model `m` under `budget` bytes on a map of
+/// `n` photons, or the bytes the map alone needs when no tiling can (the per-photon part
+/// exceeds the budget, or a tile would have to hold fewer than [`MIN_TILE_PHOTONS`]).
+pub fn tiles_for_budget(n: usize, budget: u64, m: &MemoryModel) -> Result<usize, u64> {
+    let fixed = m.per_photon * n as f64;
+    let left = budget as f64 - fixed;
+    let too_small = (fixed + MIN_TILE_PHOTONS as f64 * m.halo_growth * m.per_working_photon).ceil() as u64;
+    if left <= 0.0 {
+        return Err(too_small);
+    }
+    let per_tile = m.per_working_photon * m.halo_growth * n as f64;
+    let needed = if n == 0 { 1.0 } else { (per_tile / left).ceil().max(1.0) };
+    let mut count = 1usize;
+    let mut k = 1usize;
+    while (count as f64) < needed {
+        // 1, 2, 4, 6, 9, 12, …: k × k then (k + 1) × k.
+        count = if count == k * k {
+            (k + 1) * k
+        } else {
+            k += 1;
+            k * k
+        };
+    }
+    if count > 1 && n / count < MIN_TILE_PHOTONS {
+        return Err(too_small);
+    }
+    Ok(count)
+}
+
 /// An nx × ny grid of cells over a map's bounding box, in its two longest axes, cut at the
 /// quantiles of the photons' coordinates so that the tiles hold about equal numbers of photons
 /// (module docs).
@@ -373,6 +420,34 @@ pub fn part_columns(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The tile count for a budget is the fewest that fit, a near-square grid, and a budget
+    /// below the per-photon part is refused with the bytes needed.
+    #[test]
+    fn budgets_choose_the_fewest_tiles_that_fit() {
+        let m = MemoryModel { per_photon: 40.0, per_working_photon: 300.0, halo_growth: 1.5 };
+        let n = 10_000_000;
+        // The whole map: 400 MB + 4.5 GB.
+        assert_eq!(tiles_for_budget(n, 5_000_000_000, &m), Ok(1));
+        for budget in [1_000_000_000u64, 2_000_000_000, 4_000_000_000] {
+            let t = tiles_for_budget(n, budget, &m).unwrap();
+            let peak = |t: usize| 40.0 * n as f64 + 300.0 * 1.5 * n as f64 / t as f64;
+            assert!(peak(t) <= budget as f64, "{budget}: {t}");
+            let grid = TileSpec { index: 0, count: t }.grid();
+            assert!(grid[0] - grid[1] <= 1, "{t}: {grid:?}");
+            let fewer = (1..t)
+                .filter(|c| {
+                    let g = TileSpec { index: 0, count: *c }.grid();
+                    g[0] - g[1] <= 1
+                })
+                .last();
+            assert!(fewer.is_none_or(|c| peak(c) > budget as f64), "{budget}: {t} tiles, {fewer:?} would do");
+        }
+        assert_eq!(tiles_for_budget(n, 1_000_000_000, &m), Ok(9));
+        let e = tiles_for_budget(n, 300_000_000, &m).unwrap_err();
+        assert!(e > 400_000_000, "{e}");
+        assert!(tiles_for_budget(n, 400_100_000, &m).is_err(), "tiles of fewer than 1000 photons");
+    }
 
     #[test]
     fn specs_parse_and_bad_ones_say_why() {

@@ -47,6 +47,11 @@ pub struct Args {
     /// result, so the merged map is the one `detect INPUT -o OUT` writes (docs/tiles.md).
     #[arg(long, value_name = "i/n", value_parser = parse_tile)]
     tile: Option<TileSpec>,
+    /// Keep the peak memory under SIZE (512M, 8G, 2GiB): when the whole map would not fit,
+    /// detect it tile by tile in this process, as many tiles as the budget needs, with the
+    /// same result bit for bit (docs/tiles.md).
+    #[arg(long, value_name = "SIZE", value_parser = super::parse_memory, conflicts_with = "tile")]
+    memory: Option<u64>,
 }
 
 fn parse_tile(s: &str) -> Result<TileSpec, String> {
@@ -107,7 +112,40 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(tile) = a.tile {
         return run_tile(&map.view(), &p, tile, &a.output, bar, t);
     }
-    let d = detect::detect_map(&map.view(), &p, &|k| bar.inc(k))?;
+    let tiles = match a.memory {
+        Some(budget) => {
+            photonkit::tiles::tiles_for_budget(map.len(), budget, &detect::MEMORY).map_err(|need| {
+                anyhow::anyhow!(
+                    "--memory {}: detecting {} photons needs at least {} (the map's results and one tile)",
+                    indicatif::HumanBytes(budget),
+                    map.len(),
+                    indicatif::HumanBytes(need)
+                )
+            })?
+        }
+        None => 1,
+    };
+    let d = if tiles > 1 {
+        let tiling = Tiling::new(map.positions(), TileSpec { index: 0, count: tiles }.grid());
+        super::note!(
+            "detecting in {tiles} tiles ({}×{}) to stay under --memory {}",
+            tiling.counts[0],
+            tiling.counts[1],
+            indicatif::HumanBytes(a.memory.unwrap_or(0))
+        );
+        detect::detect_map_tiled(&map.view(), &p, &tiling, &|k| bar.inc(k), &mut |tile, tiles, part| {
+            let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
+            bar.suspend(|| {
+                super::note!(
+                    "tile {tile}/{tiles}: {} photons; measured per round / working set: {}",
+                    part.indices.len(),
+                    if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") }
+                )
+            });
+        })?
+    } else {
+        detect::detect_map(&map.view(), &p, &|k| bar.inc(k))?
+    };
     bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
     detect::detected_map(&map.view(), &d, &p, seconds)?

@@ -52,6 +52,12 @@ pub struct Args {
     /// writes (docs/tiles.md). Not with --flux-diffusion, nor more than 64 iterations.
     #[arg(long, value_name = "i/n", value_parser = parse_tile)]
     tile: Option<TileSpec>,
+    /// Keep the peak memory under SIZE (512M, 8G, 2GiB): when the whole map would not fit,
+    /// relax it tile by tile in this process, as many tiles as the budget needs, with the same
+    /// result bit for bit (docs/tiles.md). Not with --flux-diffusion, nor more than 64
+    /// iterations.
+    #[arg(long, value_name = "SIZE", value_parser = super::parse_memory, conflicts_with = "tile")]
+    memory: Option<u64>,
 }
 
 fn parse_tile(s: &str) -> Result<TileSpec, String> {
@@ -132,10 +138,57 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         super::print_record(&a.output)?;
         return Ok(ExitCode::SUCCESS);
     }
-    let relaxed = relax::relax_map_on(&map.view(), &p, scene.as_ref(), |m| {
-        bar.inc(1);
-        // Printed whether or not the bar is drawn (stderr may not be a terminal).
-        bar.suspend(|| {
+    let tiles = match a.memory {
+        Some(budget) => photonkit::tiles::tiles_for_budget(map.len(), budget, &relax::tiled::MEMORY).map_err(|need| {
+            anyhow::anyhow!(
+                "--memory {}: relaxing {} photons needs at least {} (the map's per-photon bookkeeping and one tile)",
+                indicatif::HumanBytes(budget),
+                map.len(),
+                indicatif::HumanBytes(need)
+            )
+        })?,
+        None => 1,
+    };
+    let relaxed = if tiles > 1 {
+        let tiling = Tiling::new(map.positions(), TileSpec { index: 0, count: tiles }.grid());
+        super::note!(
+            "relaxing in {tiles} tiles ({}×{}) to stay under --memory {}",
+            tiling.counts[0],
+            tiling.counts[1],
+            indicatif::HumanBytes(a.memory.unwrap_or(0))
+        );
+        bar.set_length(tiles as u64);
+        bar.set_style(
+            ProgressStyle::with_template("relax {bar:30} {pos}/{len} tiles {elapsed} (eta {eta})")
+                .expect("valid template"),
+        );
+        let relaxed = relax::relax_tiled(&map.view(), &p, scene.as_ref(), &tiling, |tile, tiles, part| {
+            bar.set_position(tile as u64 + 1);
+            let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
+            bar.suspend(|| {
+                super::note!(
+                    "tile {tile}/{tiles}: {} photons; pending per round / working set: {}",
+                    part.indices.len(),
+                    if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") }
+                )
+            });
+        })?;
+        for m in &relaxed.measures {
+            super::note!(
+                "iteration {:>2}: nearest-neighbour spread {:.4} (local {:.4}), mean step {:.3e}, largest step {:.3e}",
+                m.iteration + 1,
+                m.nn_cv,
+                m.local_nn_cv,
+                m.mean_displacement,
+                m.max_displacement
+            );
+        }
+        relaxed
+    } else {
+        relax::relax_map_on(&map.view(), &p, scene.as_ref(), |m| {
+            bar.inc(1);
+            // Printed whether or not the bar is drawn (stderr may not be a terminal).
+            bar.suspend(|| {
             super::note!(
                 "iteration {:>2}: nearest-neighbour spread {:.4} (local {:.4}), mean step {:.3e}, largest step {:.3e}",
                 m.iteration + 1,
@@ -145,7 +198,8 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
                 m.max_displacement
             )
         });
-    })?;
+        })?
+    };
     bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
     if relaxed.refused_moves > 0 {

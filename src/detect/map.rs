@@ -95,6 +95,24 @@ pub fn detect_map_tile(
     detect_tile(&prepared.input(), p, tiling, tile, progress).map_err(|e| in_map(map, e))
 }
 
+/// [`detect_map`] tile by tile in this process (the tiles of `tiling`), holding one tile's
+/// working set at a time besides the map's results: bit for bit [`detect_map`]'s detection
+/// (docs/tiles.md). `on_tile(tile, tiles, result)` is called after each tile.
+pub fn detect_map_tiled(
+    map: &MapView,
+    p: &DetectParams,
+    tiling: &Tiling,
+    progress: &(dyn Fn(u64) + Sync),
+    on_tile: &mut dyn FnMut(usize, usize, &TileDetection),
+) -> Result<Detection, DetectError> {
+    check_params(p)?;
+    let prepared = PreparedInput::new(map, p)?;
+    let mut d =
+        super::tiled_with(&prepared.input(), p, tiling, progress, on_tile).map_err(|e| in_map(map, e))?;
+    d.spectral_scales = prepared.scales;
+    Ok(d)
+}
+
 /// An error of [`detect`] named after `map`.
 fn in_map(map: &MapView, e: DetectError) -> DetectError {
     match e {

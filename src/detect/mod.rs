@@ -54,8 +54,8 @@ pub use constraint::{
     migration, noise_filter, pca_constraint, tangent_basis, v_factor,
 };
 pub use map::{
-    PreparedInput, choose_method, detect_map, detect_map_tile, detected_map, detected_map_with, map_input,
-    record_parameters, spectral_scales,
+    PreparedInput, choose_method, detect_map, detect_map_tile, detect_map_tiled, detected_map,
+    detected_map_with, map_input, record_parameters, spectral_scales,
 };
 pub use noise::{NoiseModel, Row, SIMULATED, in_disc, lambda2_of, simulate};
 pub use part::{FACTOR, OUTCOME, PHOTON_INDEX, merge_parts, tile_part};
@@ -650,7 +650,7 @@ fn measure(
 }
 
 mod tiled;
-pub use tiled::{TileDetection, assemble, detect_tile, tiled};
+pub use tiled::{Assembly, MEMORY, TileDetection, assemble, detect_tile, tiled, tiled_with};
 
 #[cfg(test)]
 pub(crate) mod tests;

@@ -45,6 +45,14 @@ pub struct TileDetection {
     pub per_round: Vec<[usize; 2]>,
 }
 
+/// What detection keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
+/// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiled detect"): the map's
+/// results per photon (the constraint basis, λ2, r_param, factor and outcome, and their copies
+/// as the output is written), and per photon a tile works on its columns, indices and search
+/// scratch; the first halo takes in a few times the tile's photons.
+pub const MEMORY: crate::tiles::MemoryModel =
+    crate::tiles::MemoryModel { per_photon: 72.0, per_working_photon: 200.0, halo_growth: 3.0 };
+
 /// Rounds after which the halo is the whole map (a guard: doubling reaches it long before).
 const MAX_ROUNDS: u32 = 48;
 
@@ -461,31 +469,72 @@ pub fn tiled(
     tiling: &Tiling,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Detection, DetectError> {
-    let parts = (0..tiling.len())
-        .map(|t| detect_tile(input, p, tiling, t, progress))
-        .collect::<Result<Vec<_>, _>>()?;
-    assemble(input.positions.len(), &parts)
+    tiled_with(input, p, tiling, progress, &mut |_, _, _| {})
+}
+
+/// [`tiled`], calling `on_tile(tile, tiles, result)` after each tile and holding one tile's
+/// results at a time besides the map's.
+pub fn tiled_with(
+    input: &DetectInput,
+    p: &DetectParams,
+    tiling: &Tiling,
+    progress: &(dyn Fn(u64) + Sync),
+    on_tile: &mut dyn FnMut(usize, usize, &TileDetection),
+) -> Result<Detection, DetectError> {
+    let mut whole: Option<Assembly> = None;
+    for t in 0..tiling.len() {
+        let part = detect_tile(input, p, tiling, t, progress)?;
+        whole
+            .get_or_insert_with(|| Assembly::new(input.positions.len(), part.r_param.is_some()))
+            .add(&part)?;
+        on_tile(t, tiling.len(), &part);
+    }
+    whole.unwrap_or_else(|| Assembly::new(input.positions.len(), false)).finish()
 }
 
 /// The detection of a map of `n` photons from its tiles' parts (in any order): an error unless
 /// every photon is in exactly one part and the parts agree on having r_param.
 pub fn assemble(n: usize, parts: &[TileDetection]) -> Result<Detection, DetectError> {
-    let bad = |m: String| Err(DetectError::Parameter(m));
-    let with_r = parts.first().is_some_and(|t| t.r_param.is_some());
-    if parts.iter().any(|t| t.r_param.is_some() != with_r) {
-        return bad("the tiles disagree on having r_param".into());
-    }
-    let mut d = Detection {
-        basis_u: vec![[0.0; 3]; n],
-        basis_v: vec![[0.0; 3]; n],
-        lambda2: vec![0.0; n],
-        r_param: with_r.then(|| vec![0.0; n]),
-        ..Default::default()
-    };
-    let mut factors = vec![0f32; n];
-    let mut outcomes = vec![Outcome::Unconstrained; n];
-    let mut seen = vec![false; n];
+    let mut whole = Assembly::new(n, parts.first().is_some_and(|t| t.r_param.is_some()));
     for t in parts {
+        whole.add(t)?;
+    }
+    whole.finish()
+}
+
+/// The whole map's detection put together tile by tile ([`assemble`]), so a run of every tile
+/// in one process holds one tile's results at a time besides the map's.
+pub struct Assembly {
+    d: Detection,
+    factors: Vec<f32>,
+    outcomes: Vec<Outcome>,
+    seen: Vec<bool>,
+}
+
+impl Assembly {
+    /// An empty detection of `n` photons (with an r_param column when `with_r`).
+    pub fn new(n: usize, with_r: bool) -> Assembly {
+        Assembly {
+            d: Detection {
+                basis_u: vec![[0.0; 3]; n],
+                basis_v: vec![[0.0; 3]; n],
+                lambda2: vec![0.0; n],
+                r_param: with_r.then(|| vec![0.0; n]),
+                ..Default::default()
+            },
+            factors: vec![0f32; n],
+            outcomes: vec![Outcome::Unconstrained; n],
+            seen: vec![false; n],
+        }
+    }
+
+    /// Adds one tile's photons.
+    pub fn add(&mut self, t: &TileDetection) -> Result<(), DetectError> {
+        let bad = |m: String| Err(DetectError::Parameter(m));
+        let (d, n) = (&mut self.d, self.seen.len());
+        if t.r_param.is_some() != d.r_param.is_some() {
+            return bad("the tiles disagree on having r_param".into());
+        }
         let len = t.indices.len();
         if [t.basis_u.len(), t.basis_v.len(), t.lambda2.len(), t.factor.len(), t.outcome.len()]
             .iter()
@@ -496,7 +545,7 @@ pub fn assemble(n: usize, parts: &[TileDetection]) -> Result<Detection, DetectEr
         }
         for (k, &i) in t.indices.iter().enumerate() {
             let i = i as usize;
-            match seen.get_mut(i) {
+            match self.seen.get_mut(i) {
                 None => return bad(format!("photon {i} is not in a map of {n}")),
                 Some(true) => return bad(format!("photon {i} is in two tiles")),
                 Some(s) => *s = true,
@@ -507,13 +556,18 @@ pub fn assemble(n: usize, parts: &[TileDetection]) -> Result<Detection, DetectEr
             if let (Some(r), Some(tr)) = (&mut d.r_param, &t.r_param) {
                 r[i] = tr[k];
             }
-            factors[i] = t.factor[k];
-            outcomes[i] = t.outcome[k];
+            self.factors[i] = t.factor[k];
+            self.outcomes[i] = t.outcome[k];
         }
+        Ok(())
     }
-    if let Some(i) = seen.iter().position(|s| !s) {
-        return bad(format!("photon {i} is in no tile"));
+
+    /// The detection, once every photon was added.
+    pub fn finish(mut self) -> Result<Detection, DetectError> {
+        if let Some(i) = self.seen.iter().position(|s| !s) {
+            return Err(DetectError::Parameter(format!("photon {i} is in no tile")));
+        }
+        self.d.summary = summarise(&self.factors, &self.outcomes);
+        Ok(self.d)
     }
-    d.summary = summarise(&factors, &outcomes);
-    Ok(d)
 }

@@ -11,7 +11,7 @@
 use super::columns::{Element, name};
 use super::meta::MapInfo;
 use super::reader::PhotonMap;
-use super::writer::{Output, write_map};
+use super::writer::Output;
 use super::{ColumnSpec, FormatError, Result};
 
 /// A read-only view of a photon map's header and columns, wherever they live.
@@ -162,6 +162,8 @@ pub struct PhotonTable<'a> {
     pub info: MapInfo,
     columns: Vec<(ColumnSpec, Bytes<'a>)>,
     len: usize,
+    /// The memory map borrowed columns may come from, released as the table is written.
+    mapping: Option<&'a memmap2::Mmap>,
 }
 
 impl<'a> PhotonTable<'a> {
@@ -173,7 +175,13 @@ impl<'a> PhotonTable<'a> {
                 message: format!("{} positions but {} flux values", positions.len(), flux.len()),
             });
         }
-        let mut t = PhotonTable { file: file.to_string(), info, columns: Vec::new(), len: positions.len() };
+        let mut t = PhotonTable {
+            file: file.to_string(),
+            info,
+            columns: Vec::new(),
+            len: positions.len(),
+            mapping: None,
+        };
         t.set(name::POSITION, positions)?;
         t.set(name::FLUX, flux)?;
         Ok(t)
@@ -188,7 +196,7 @@ impl<'a> PhotonTable<'a> {
             .find(|(s, _)| s.name == name::POSITION)
             .map(|(s, b)| b.len() / s.stride().max(1) as usize)
             .ok_or_else(|| invalid("no position column".into()))?;
-        let mut t = PhotonTable { file: file.to_string(), info, columns: Vec::new(), len };
+        let mut t = PhotonTable { file: file.to_string(), info, columns: Vec::new(), len, mapping: None };
         for (spec, bytes) in columns {
             t.set_bytes(spec.clone(), Bytes::Borrowed(bytes))?;
         }
@@ -209,6 +217,7 @@ impl<'a> PhotonTable<'a> {
             info,
             columns: view.columns().iter().map(|(s, b)| (s.clone(), Bytes::Borrowed(b))).collect(),
             len: view.len(),
+            mapping: view.mapping,
         }
     }
 
@@ -235,7 +244,13 @@ impl<'a> PhotonTable<'a> {
             }
             columns.push((spec.clone(), Bytes::of(&[*bytes, more.as_slice()].concat())));
         }
-        Ok(PhotonTable { file: view.file_name().to_string(), info, columns, len: view.len() + extra })
+        Ok(PhotonTable {
+            file: view.file_name().to_string(),
+            info,
+            columns,
+            len: view.len() + extra,
+            mapping: None,
+        })
     }
 
     /// Number of photons.
@@ -323,14 +338,15 @@ impl<'a> PhotonTable<'a> {
                 })
                 .collect(),
             len: self.len,
+            mapping: None,
         }
     }
 
-    /// Writes the table as a PHM file (or to standard output): see [`write_map`].
+    /// Writes the table as a PHM file (or to standard output): see [`super::write_map`].
     pub fn write(&self, target: Output) -> Result<()> {
         let columns: Vec<(ColumnSpec, &[u8])> =
             self.columns.iter().map(|(s, b)| (s.clone(), b.get())).collect();
-        write_map(target, self.info.clone(), &columns)
+        super::writer::write_map_releasing(target, self.info.clone(), &columns, self.mapping)
     }
 }
 

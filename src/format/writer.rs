@@ -361,6 +361,17 @@ pub fn persist(tmp: tempfile::NamedTempFile, path: &Path) -> std::io::Result<()>
 
 /// Writes whole columns held in memory (or mapped from an input file) as one PHM file.
 pub fn write_map(target: Output, info: MapInfo, columns: &[(ColumnSpec, &[u8])]) -> Result<()> {
+    write_map_releasing(target, info, columns, None)
+}
+
+/// [`write_map`], releasing the pages of `mapping` (the input file some columns are borrowed
+/// from) as they are written, so writing a map never makes its whole input resident.
+pub(super) fn write_map_releasing(
+    target: Output,
+    info: MapInfo,
+    columns: &[(ColumnSpec, &[u8])],
+    mapping: Option<&memmap2::Mmap>,
+) -> Result<()> {
     let file = target.display();
     let first = columns
         .first()
@@ -387,6 +398,9 @@ pub fn write_map(target: Output, info: MapInfo, columns: &[(ColumnSpec, &[u8])])
         let chunk: Vec<&[u8]> =
             columns.iter().map(|(s, b)| &b[start * s.stride() as usize..end * s.stride() as usize]).collect();
         w.push(&chunk)?;
+        for c in &chunk {
+            super::reader::release_range(mapping, c);
+        }
         start = end;
     }
     w.finish()

@@ -26,7 +26,7 @@ pub use iteration::{
 pub use part::{merge_parts, tile_part};
 use surface::back_to_surfaces;
 pub use surface::return_to_surface;
-pub use tiled::{TileRelaxed, relax_tile};
+pub use tiled::{TileRelaxed, relax_tile, relax_tiled};
 
 /// Relaxation parameters; defaults are the paper's.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, serde::Deserialize)]

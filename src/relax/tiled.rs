@@ -88,7 +88,6 @@ pub fn relax_tile(
 }
 
 /// [`relax_tile`] with [`Options`].
-// Long because it is one loop of rounds whose certificate reads every quantity set up before.
 pub(crate) fn relax_tile_with(
     map: &MapView,
     p: &RelaxParams,
@@ -97,180 +96,414 @@ pub(crate) fn relax_tile_with(
     tile: usize,
     opts: Options,
 ) -> Result<TileRelaxed, RelaxError> {
-    let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
-    let setup = Setup::of(map, p, scene.is_some())?;
-    if setup.p.flux_diffusion > 0.0 {
-        return Err(input(
-            "flux diffusion rescales the whole map's flux: it can not run tile by tile".into(),
-        ));
-    }
-    if setup.p.iterations > MAX_TILE_ITERATIONS {
-        return Err(input(format!("a tiled relax runs at most {MAX_TILE_ITERATIONS} iterations")));
-    }
     if tile >= tiling.len() {
-        return Err(input(format!("tile {tile} of a tiling of {}", tiling.len())));
+        return Err(RelaxError::Input {
+            file: map.file_name().to_string(),
+            message: format!("tile {tile} of a tiling of {}", tiling.len()),
+        });
     }
-    let iterations = setup.p.iterations;
-    let pos = map.positions();
-    let n = pos.len();
-    let interior: Vec<u32> =
-        (0..n as u32).into_par_iter().filter(|&i| tiling.tile_of(pos[i as usize]) == tile).collect();
-    let mut out = TileRelaxed { iterations, scale: setup.scale, ..Default::default() };
-    // The whole map's working order: a photon's label is its rank in it.
-    let order = locality_order(pos);
-    if interior.is_empty() {
-        // Checked as the whole map is, so a tile fails where the whole map fails.
-        Columns::of(map, &[], &setup)?;
-        return Ok(out);
-    }
-    let mut label = vec![0u32; n];
-    for (l, &i) in order.iter().enumerate() {
-        label[i as usize] = l as u32;
-    }
-    if iterations == 0 {
-        out.positions = interior.iter().map(|&i| pos[i as usize]).collect();
-        out.indices = interior;
-        return Ok(out);
-    }
-    let (moves, slack) = move_bounds(map, &setup, &order, &label, tiling, scene)?;
-    let moves_of = |l: u32| {
-        let b = moves[l as usize] as f64;
-        Moves { first: b, later: b }
-    };
-    let scale = setup.scale as f64;
-    let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
-    let mut h = opts.halo_scale
-        * 2.0
-        * (iterations as f64 + 1.0)
-        * extent
-        * (setup.p.kf as f64 / (std::f64::consts::PI * n as f64)).sqrt();
-    let r = iterations;
-    out.nn = vec![0.0; interior.len() * r];
-    out.ratio = vec![f32::NAN; interior.len() * r];
-    out.step = vec![0.0; interior.len() * r];
-    out.positions = vec![[0.0; 3]; interior.len()];
-    let mut normals = vec![[0.0f32; 3]; interior.len()];
-    let mut with_normals = false;
-    let mut pending: Vec<bool> = vec![true; interior.len()];
-    let mut left = interior.len();
-    while left > 0 {
-        out.rounds += 1;
-        let left_before = left;
-        let halo = tiling.halo_box(tile, if out.rounds >= MAX_ROUNDS { f64::INFINITY } else { h });
-        let whole = halo.is_whole() || !opts.certify;
-        // Depth of a position (working units) in the halo box: its distance inside it, negative
-        // outside (a photon moving by s changes it by at most s).
-        let depth = |x: [f32; 3]| depth_in(&halo, x, scale);
-        let members: Vec<u32> = order.iter().copied().filter(|&i| halo.contains(pos[i as usize])).collect();
-        out.working_set = out.working_set.max(members.len());
-        out.per_round.push([left, members.len()]);
-        // The photons outside the box that may come within reach of a member: any other lies
-        // farther from the box than the most it moves in the whole run plus the halo's width,
-        // which bounds the reach a member may be certified with.
-        let reach_cap = h * scale;
-        let outside: Vec<([f32; 3], Moves)> = if whole {
-            Vec::new()
-        } else {
-            (0..n)
-                .into_par_iter()
-                .filter_map(|i| {
-                    let x = pos[i];
-                    if halo.contains(x) {
-                        return None;
-                    }
-                    let (x, m) = (scaled(x, setup.scale), moves_of(label[i]));
-                    (-depth(x) < m.after(r) + reach_cap).then_some((x, m))
-                })
-                .collect()
-        };
-        let outside = Uncertain::of(outside.into_iter(), depth, r);
-        let slot: Vec<Option<usize>> =
-            members.iter().map(|&i| interior.binary_search(&i).ok().filter(|&q| pending[q])).collect();
-        let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
-        let mut columns = Columns::of(map, &members, &setup)?;
-        let start: Vec<[f32; 3]> = columns.positions.clone();
-        let mut member_moves: Vec<Moves> = labels.iter().map(|&l| moves_of(l)).collect();
-        let mut certified = vec![true; members.len()];
-        let wide = MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: setup.coincident };
-        let mut t = 0usize;
-        let result = run(map, &mut columns, &setup, scene, &wide, &members, |scratch, _, before| {
-            let per = scratch.per_photon();
-            // The tile's own photons move as far as the tile's run moves them too (an
-            // uncertified photon's tile position may differ from the whole map's).
-            if t == 0 {
-                for (m, &s) in member_moves.iter_mut().zip(&per.step) {
-                    m.first = m.first.max(widen(s as f64, scene.is_some(), slack));
-                }
-            } else if t == 1 {
-                for (m, &s) in member_moves.iter_mut().zip(scratch.first_spacing()) {
-                    m.later = m.later.max(bound(setup.p.step_limit, s, scene.is_some(), slack));
-                }
-            }
-            if !whole {
-                // Where the members whose position may differ from the whole map's started.
-                let unsure = Uncertain::of(
-                    certified
-                        .iter()
-                        .zip(&start)
-                        .zip(&member_moves)
-                        .filter(|((c, _), _)| !**c)
-                        .map(|((_, &x), &m)| (x, m)),
-                    depth,
-                    r,
-                );
-                let per_read = &per.read;
-                let keep: Vec<bool> = (0..members.len())
-                    .into_par_iter()
-                    .map(|k| {
-                        let read = per_read[k] as f64 * (1.0 + 1e-5);
-                        let at = depth(before[k]);
-                        certified[k]
-                            && read.is_finite()
-                            && read <= reach_cap
-                            && at >= 0.0
-                            && outside.clear_of(before[k], at, read, t)
-                            && unsure.clear_of(before[k], at, read, t)
-                    })
-                    .collect();
-                certified = keep;
-            }
-            for (k, q) in slot.iter().enumerate() {
-                if let &Some(q) = q {
-                    out.nn[q * r + t] = per.nn[k];
-                    out.ratio[q * r + t] = per.ratio[k];
-                    out.step[q * r + t] = per.step[k];
-                }
-            }
-            t += 1;
-            // Nothing more to learn once no pending interior photon is certified.
-            slot.iter().zip(&certified).any(|(s, &c)| s.is_some() && c)
-        })?;
-        let ran_all = t == r;
-        out.refused_moves += result.refused_moves;
-        let moved = columns.unscaled_positions(&setup);
-        with_normals = columns.normals.is_some();
-        for k in 0..members.len() {
-            if let Some(q) = slot[k]
-                && certified[k]
-                && ran_all
-            {
-                out.positions[q] = moved[k];
-                if let Some(ns) = &columns.normals {
-                    normals[q] = ns[k];
-                }
-                pending[q] = false;
-                left -= 1;
+    TiledRun::new(map, p, scene, tiling, Some(tile))?.tile(tile, opts)
+}
+
+/// What relaxation keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
+/// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiled relax"): the whole map's
+/// order, move bounds and relaxed positions per photon, and per photon a tile works on its
+/// columns, index and iteration scratch.
+pub const MEMORY: crate::tiles::MemoryModel =
+    crate::tiles::MemoryModel { per_photon: 48.0, per_working_photon: 360.0, halo_growth: 1.4 };
+
+/// Relaxes every photon of `map` tile by tile in this process (the tiles of `tiling`), holding
+/// one tile's working set at a time besides the whole map's per-photon bookkeeping (its order,
+/// move bounds and the relaxed positions): the result is [`super::relax_map_on`]'s bit for bit
+/// (docs/tiles.md). `on_tile(tile, tiles, result)` is called after each tile.
+pub fn relax_tiled(
+    map: &MapView,
+    p: &RelaxParams,
+    scene: Option<&crate::scene::Scene>,
+    tiling: &Tiling,
+    mut on_tile: impl FnMut(usize, usize, &TileRelaxed),
+) -> Result<super::Relaxed, RelaxError> {
+    use crate::format::name;
+    let shared = TiledRun::new(map, p, scene, tiling, None)?;
+    let (space, constrained) = space_of(map, &shared.setup);
+    let r = shared.setup.p.iterations;
+    let scale = shared.setup.scale as f64;
+    let mut positions = map.positions().to_vec();
+    let mut normals: Option<Vec<[f32; 3]>> = None;
+    let mut sums = vec![super::MeasureSums::default(); r];
+    let mut refused_moves = 0;
+    for t in 0..tiling.len() {
+        let part = shared.tile(t, Options::default())?;
+        if let Some(ns) = &part.normals {
+            let all = match &mut normals {
+                Some(all) => all,
+                None => normals.insert(match map.column::<[f32; 3]>(name::NORMAL)? {
+                    Some(c) => c.to_vec(),
+                    None => vec![[0.0; 3]; map.len()],
+                }),
+            };
+            for (&i, &n) in part.indices.iter().zip(ns) {
+                all[i as usize] = n;
             }
         }
-        // A halo that certified nothing is held back by photons whose bounds reach the whole
-        // tile (a sparse surround, docs/tiles.md): doubling it again would not help.
-        h = if left == left_before { f64::INFINITY } else { 2.0 * h };
-        // The map's pages this round read are read again only as the next round needs them.
-        map.release_pages();
+        for (k, &i) in part.indices.iter().enumerate() {
+            positions[i as usize] = part.positions[k];
+            for (u, sum) in sums.iter_mut().enumerate() {
+                sum.add(part.nn[k * r + u], part.ratio[k * r + u], part.step[k * r + u]);
+            }
+        }
+        refused_moves += part.refused_moves;
+        on_tile(t, tiling.len(), &part);
     }
-    out.normals = with_normals.then_some(normals);
-    out.indices = interior;
-    Ok(out)
+    let measures = sums
+        .iter()
+        .enumerate()
+        .map(|(t, sum)| {
+            let m = sum.measure(t);
+            super::IterationMeasure {
+                mean_displacement: m.mean_displacement / scale,
+                max_displacement: m.max_displacement / scale,
+                ..m
+            }
+        })
+        .collect();
+    Ok(super::Relaxed { positions, space, constrained, measures, normals, refused_moves, flux: None })
+}
+
+/// What the tiles of one map's tiled relaxation share, computed once from the whole map
+/// without holding it (its working order, where each tile's photons are, each photon's move
+/// bound): one tile job computes it for its tile, a run of every tile in one process
+/// ([`relax_tiled`]) once for all.
+pub struct TiledRun<'r, 'm> {
+    map: &'r MapView<'m>,
+    setup: Setup,
+    scene: Option<&'r crate::scene::Scene>,
+    tiling: &'r Tiling,
+    /// The whole map's working order: a photon's label is its rank in it.
+    order: Vec<u32>,
+    label: Vec<u32>,
+    /// Per tile, its photons' labels, ascending.
+    by_tile: Vec<Vec<u32>>,
+    /// Per tile, the box of its photons' finite positions in the two tiled axes (metres; empty:
+    /// lo > hi) and the most any of them moves in one iteration (working units).
+    extents: Vec<([f64; 2], [f64; 2], f64)>,
+    /// Per label, the most the photon moves in one iteration ([`move_bounds`]), working units.
+    moves: Vec<f32>,
+    slack: f64,
+}
+
+impl<'r, 'm> TiledRun<'r, 'm> {
+    /// The shared part of relaxing `map` in the tiles of `tiling` (`only`: when just that tile
+    /// will be relaxed, the checks of an empty tile are all that is done for it).
+    pub fn new(
+        map: &'r MapView<'m>,
+        p: &RelaxParams,
+        scene: Option<&'r crate::scene::Scene>,
+        tiling: &'r Tiling,
+        only: Option<usize>,
+    ) -> Result<Self, RelaxError> {
+        let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
+        let setup = Setup::of(map, p, scene.is_some())?;
+        if setup.p.flux_diffusion > 0.0 {
+            return Err(input(
+                "flux diffusion rescales the whole map's flux: it can not run tile by tile".into(),
+            ));
+        }
+        if setup.p.iterations > MAX_TILE_ITERATIONS {
+            return Err(input(format!("a tiled relax runs at most {MAX_TILE_ITERATIONS} iterations")));
+        }
+        let pos = map.positions();
+        let n = pos.len();
+        let order = locality_order(pos);
+        let mut label = vec![0u32; n];
+        let mut by_tile = vec![Vec::new(); tiling.len()];
+        let mut extents = vec![([f64::INFINITY; 2], [f64::NEG_INFINITY; 2], 0.0); tiling.len()];
+        let tile_of: Vec<u32> = order.par_iter().map(|&i| tiling.tile_of(pos[i as usize]) as u32).collect();
+        for (l, &i) in order.iter().enumerate() {
+            let x = pos[i as usize];
+            label[i as usize] = l as u32;
+            let t = tile_of[l] as usize;
+            by_tile[t].push(l as u32);
+            for k in 0..2 {
+                let v = x[tiling.axes[k]] as f64;
+                if v.is_finite() {
+                    extents[t].0[k] = extents[t].0[k].min(v);
+                    extents[t].1[k] = extents[t].1[k].max(v);
+                }
+            }
+        }
+        map.release_pages();
+        let mut run = TiledRun {
+            map,
+            setup,
+            scene,
+            tiling,
+            order,
+            label,
+            by_tile,
+            extents,
+            moves: Vec::new(),
+            slack: 0.0,
+        };
+        let wanted = only.map_or(n, |t| run.by_tile.get(t).map_or(0, Vec::len));
+        if wanted == 0 {
+            // Checked as the whole map is, so a tile fails where the whole map fails.
+            Columns::of(map, &[], &run.setup)?;
+        } else if run.setup.p.iterations > 0 {
+            let (moves, slack) = move_bounds(&run)?;
+            for (t, labels) in run.by_tile.iter().enumerate() {
+                run.extents[t].2 = labels.iter().fold(0f64, |m, &l| m.max(moves[l as usize] as f64));
+            }
+            (run.moves, run.slack) = (moves, slack);
+        }
+        Ok(run)
+    }
+
+    /// The file indices of the photons in `halo`, in label order.
+    fn members(&self, halo: &HaloBox) -> Vec<u32> {
+        let pos = self.map.positions();
+        let mut labels: Vec<u32> = (0..self.tiling.len())
+            .filter(|&t| {
+                let (lo, hi, _) = self.extents[t];
+                (0..2).all(|k| lo[k] <= halo.hi[k] && hi[k] >= halo.lo[k])
+            })
+            .flat_map(|t| self.by_tile[t].iter().copied())
+            .filter(|&l| halo.contains(pos[self.order[l as usize] as usize]))
+            .collect();
+        labels.sort_unstable();
+        labels.into_iter().map(|l| self.order[l as usize]).collect()
+    }
+
+    /// The photons outside `halo` that could come within `reach` (working units) of it in `r`
+    /// iterations, with where they start (working units) and their move bounds.
+    fn outside(&self, halo: &HaloBox, r: usize, reach: f64) -> Vec<([f32; 3], Moves)> {
+        let pos = self.map.positions();
+        let scale = self.setup.scale as f64;
+        (0..self.tiling.len())
+            .filter(|&t| {
+                // How far outside the box, in working units, the tile's nearest photon lies.
+                let (lo, hi, most) = self.extents[t];
+                let gap =
+                    (0..2).map(|k| (halo.lo[k] - hi[k]).max(lo[k] - halo.hi[k]).max(0.0)).fold(0.0, f64::max)
+                        * scale;
+                !self.by_tile[t].is_empty() && gap < r as f64 * most + reach
+            })
+            .flat_map(|t| self.by_tile[t].par_iter().copied().collect::<Vec<_>>())
+            .collect::<Vec<u32>>()
+            .into_par_iter()
+            .filter_map(|l| {
+                let x = pos[self.order[l as usize] as usize];
+                if halo.contains(x) {
+                    return None;
+                }
+                let (x, m) = (scaled(x, self.setup.scale), self.moves_of(l));
+                (-depth_in(halo, x, scale) < m.after(r) + reach).then_some((x, m))
+            })
+            .collect()
+    }
+
+    /// Per label, the most the photon moves in one iteration (working units).
+    #[cfg(test)]
+    pub(crate) fn moves(&self) -> &[f32] {
+        &self.moves
+    }
+
+    fn moves_of(&self, l: u32) -> Moves {
+        let b = self.moves[l as usize] as f64;
+        Moves { first: b, later: b }
+    }
+
+    /// Tile `tile` relaxed ([`relax_tile`]).
+    // Long because it is one loop of rounds whose certificate reads every quantity set up before.
+    pub(crate) fn tile(&self, tile: usize, opts: Options) -> Result<TileRelaxed, RelaxError> {
+        let (map, setup, scene, tiling) = (self.map, &self.setup, self.scene, self.tiling);
+        let (slack, label) = (self.slack, &self.label);
+        let iterations = setup.p.iterations;
+        let pos = map.positions();
+        let n = pos.len();
+        let mut interior: Vec<u32> = self.by_tile[tile].iter().map(|&l| self.order[l as usize]).collect();
+        interior.sort_unstable();
+        let mut out = TileRelaxed { iterations, scale: setup.scale, ..Default::default() };
+        if interior.is_empty() {
+            return Ok(out);
+        }
+        if iterations == 0 {
+            out.positions = interior.iter().map(|&i| pos[i as usize]).collect();
+            out.indices = interior;
+            return Ok(out);
+        }
+        let scale = setup.scale as f64;
+        let extent =
+            tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
+        let mut h = opts.halo_scale
+            * 2.0
+            * (iterations as f64 + 1.0)
+            * extent
+            * (setup.p.kf as f64 / (std::f64::consts::PI * n as f64)).sqrt();
+        let r = iterations;
+        out.nn = vec![0.0; interior.len() * r];
+        out.ratio = vec![f32::NAN; interior.len() * r];
+        out.step = vec![0.0; interior.len() * r];
+        out.positions = vec![[0.0; 3]; interior.len()];
+        let mut normals = vec![[0.0f32; 3]; interior.len()];
+        let mut with_normals = false;
+        let mut pending: Vec<bool> = vec![true; interior.len()];
+        let mut left = interior.len();
+        while left > 0 {
+            out.rounds += 1;
+            let left_before = left;
+            let halo = tiling.halo_box(tile, if out.rounds >= MAX_ROUNDS { f64::INFINITY } else { h });
+            let whole = halo.is_whole() || !opts.certify;
+            // Depth of a position (working units) in the halo box: its distance inside it, negative
+            // outside (a photon moving by s changes it by at most s).
+            let depth = |x: [f32; 3]| depth_in(&halo, x, scale);
+            let mut members = self.members(&halo);
+            // After the first round only a few photons are pending, along the tile's sides:
+            // the round works on the box's photons within the halo's width of one of them, and
+            // the box's other photons are uncertain like those outside it (docs/tiles.md).
+            let mut left_out: Vec<([f32; 3], Moves)> = Vec::new();
+            if out.rounds > 1 && !whole {
+                let near: Vec<[f32; 3]> = interior
+                    .iter()
+                    .zip(&pending)
+                    .filter(|(_, p)| **p)
+                    .map(|(&i, _)| pos[i as usize])
+                    .collect();
+                let tree = BoxTree::build(&near);
+                let r2 = (h * h) as f32;
+                let keep: Vec<bool> = members
+                    .par_iter()
+                    .map_init(
+                        || crate::spatial::Neighbours::with_capacity(1),
+                        |found, &i| {
+                            tree.knn(pos[i as usize], 1, r2, found);
+                            !found.is_empty()
+                        },
+                    )
+                    .collect();
+                // A photon left out farther than twice the halo's width plus its own reach from
+                // every pending photon is farther than the halo's width (the most a member may
+                // read) plus its reach from every member: it can not matter.
+                left_out = members
+                    .par_iter()
+                    .zip(&keep)
+                    .filter(|(_, k)| !**k)
+                    .map_init(
+                        || crate::spatial::Neighbours::with_capacity(1),
+                        |found, (&i, _)| {
+                            let m = self.moves_of(label[i as usize]);
+                            let r = 2.0 * h + m.after(r) / scale;
+                            tree.knn(pos[i as usize], 1, (r * r * (1.0 + 1e-4)) as f32, found);
+                            (!found.is_empty()).then(|| (scaled(pos[i as usize], setup.scale), m))
+                        },
+                    )
+                    .flatten()
+                    .collect();
+                members = members.iter().zip(&keep).filter(|(_, k)| **k).map(|(&i, _)| i).collect();
+            }
+            out.working_set = out.working_set.max(members.len());
+            out.per_round.push([left, members.len()]);
+            // The photons outside the box that may come within reach of a member: any other lies
+            // farther from the box than the most it moves in the whole run plus the halo's width,
+            // which bounds the reach a member may be certified with.
+            let reach_cap = h * scale;
+            let mut outside = if whole { Vec::new() } else { self.outside(&halo, r, reach_cap) };
+            outside.append(&mut left_out);
+            let outside = Uncertain::of(outside.into_iter(), depth, r);
+            let slot: Vec<Option<usize>> =
+                members.iter().map(|&i| interior.binary_search(&i).ok().filter(|&q| pending[q])).collect();
+            let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
+            let mut columns = Columns::of(map, &members, setup)?;
+            let start: Vec<[f32; 3]> = columns.positions.clone();
+            // Per member, how far the photons outside the working set stay from where it
+            // started, whatever they do in the run: a member that has moved less than this
+            // minus its read is clear of them without a search.
+            let clearance: Vec<f64> = start.par_iter().map(|&x| outside.clearance(x, r)).collect();
+            let mut member_moves: Vec<Moves> = labels.iter().map(|&l| self.moves_of(l)).collect();
+            let mut certified = vec![true; members.len()];
+            let wide =
+                MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: setup.coincident };
+            let mut t = 0usize;
+            let result = run(map, &mut columns, setup, scene, &wide, &members, |scratch, _, before| {
+                let per = scratch.per_photon();
+                // The tile's own photons move as far as the tile's run moves them too (an
+                // uncertified photon's tile position may differ from the whole map's).
+                if t == 0 {
+                    for (m, &s) in member_moves.iter_mut().zip(&per.step) {
+                        m.first = m.first.max(widen(s as f64, scene.is_some(), slack));
+                    }
+                } else if t == 1 {
+                    for (m, &s) in member_moves.iter_mut().zip(scratch.first_spacing()) {
+                        m.later = m.later.max(bound(setup.p.step_limit, s, scene.is_some(), slack));
+                    }
+                }
+                if !whole {
+                    // Where the members whose position may differ from the whole map's started.
+                    let unsure = Uncertain::of(
+                        certified
+                            .iter()
+                            .zip(&start)
+                            .zip(&member_moves)
+                            .filter(|((c, _), _)| !**c)
+                            .map(|((_, &x), &m)| (x, m)),
+                        depth,
+                        r,
+                    );
+                    let per_read = &per.read;
+                    let keep: Vec<bool> = (0..members.len())
+                        .into_par_iter()
+                        .map(|k| {
+                            let read = per_read[k] as f64 * (1.0 + 1e-5);
+                            let at = depth(before[k]);
+                            certified[k]
+                                && read.is_finite()
+                                && read <= reach_cap
+                                && at >= 0.0
+                                && (read + distance(before[k], start[k]) < clearance[k]
+                                    || outside.clear_of(before[k], at, read, t))
+                                && unsure.clear_of(before[k], at, read, t)
+                        })
+                        .collect();
+                    certified = keep;
+                }
+                for (k, q) in slot.iter().enumerate() {
+                    if let &Some(q) = q {
+                        out.nn[q * r + t] = per.nn[k];
+                        out.ratio[q * r + t] = per.ratio[k];
+                        out.step[q * r + t] = per.step[k];
+                    }
+                }
+                t += 1;
+                // Nothing more to learn once no pending interior photon is certified.
+                slot.iter().zip(&certified).any(|(s, &c)| s.is_some() && c)
+            })?;
+            let ran_all = t == r;
+            out.refused_moves += result.refused_moves;
+            let moved = columns.unscaled_positions(setup);
+            with_normals = columns.normals.is_some();
+            for k in 0..members.len() {
+                if let Some(q) = slot[k]
+                    && certified[k]
+                    && ran_all
+                {
+                    out.positions[q] = moved[k];
+                    if let Some(ns) = &columns.normals {
+                        normals[q] = ns[k];
+                    }
+                    pending[q] = false;
+                    left -= 1;
+                }
+            }
+            // A halo that certified nothing is held back by photons whose bounds reach the whole
+            // tile (a sparse surround, docs/tiles.md): doubling it again would not help.
+            h = if left == left_before { f64::INFINITY } else { 2.0 * h };
+            // The map's pages this round read are read again only as the next round needs them.
+            map.release_pages();
+        }
+        out.normals = with_normals.then_some(normals);
+        out.indices = interior;
+        Ok(out)
+    }
 }
 
 /// Photons whose position at an iteration may differ from the whole map's: where each started
@@ -331,6 +564,21 @@ impl Uncertain {
         Uncertain { groups, front }
     }
 
+    /// A distance that every one of these photons stays farther than from `x` through
+    /// `iterations` iterations (its distance from `x` at the start less the most it moves),
+    /// rounded down; −∞ when one may move without bound.
+    fn clearance(&self, x: [f32; 3], iterations: usize) -> f64 {
+        let mut found = crate::spatial::Neighbours::with_capacity(1);
+        self.groups
+            .iter()
+            .map(|g| {
+                g.tree.knn(x, 1, f32::INFINITY, &mut found);
+                let Some(d2) = found.max_dist2().filter(|_| !found.is_empty()) else { return f64::INFINITY };
+                (d2 as f64).sqrt() * (1.0 - 1e-5) - g.most.after(iterations) * (1.0 + 1e-5)
+            })
+            .fold(f64::INFINITY, f64::min)
+    }
+
     /// Whether none of these photons can be within `read` of `x` after `t` iterations: each
     /// lies farther from `x` than `read` plus the most it moves in `t` iterations.
     /// `depth` is x's depth in the halo box: when `read` stays inside the part of the box none
@@ -345,17 +593,18 @@ impl Uncertain {
                 return false;
             }
             let r2 = (reach * (1.0 + 1e-5)).powi(2) as f32 * (1.0 + 1e-5);
-            let mut clear = true;
-            g.tree.within(x, r2, &mut |j, _| {
+            !g.tree.any_within(x, r2, &mut |j, _| {
                 let a = g.start[j as usize];
                 let d2: f64 = (0..3).map(|c| (x[c] as f64 - a[c] as f64).powi(2)).sum();
-                if d2.sqrt() <= read + g.moves[j as usize].after(t) {
-                    clear = false;
-                }
-            });
-            clear
+                d2.sqrt() <= read + g.moves[j as usize].after(t)
+            })
         })
     }
+}
+
+/// The distance between two positions, in f64.
+fn distance(a: [f32; 3], b: [f32; 3]) -> f64 {
+    (0..3).map(|c| (a[c] as f64 - b[c] as f64).powi(2)).sum::<f64>().sqrt()
 }
 
 /// `x` scaled by `s` (the working units).
@@ -423,14 +672,9 @@ fn bound(step_limit: f32, first: f32, scene: bool, slack: f64) -> f64 {
 /// least as far as in the whole map and the spacing found bounds the true one from above
 /// (docs/tiles.md). A photon that finds fewer than Kf in the box is searched again with the
 /// halo doubled.
-pub(crate) fn move_bounds(
-    map: &MapView,
-    setup: &Setup,
-    order: &[u32],
-    label: &[u32],
-    tiling: &Tiling,
-    scene: Option<&crate::scene::Scene>,
-) -> Result<(Vec<f32>, f64), RelaxError> {
+pub(crate) fn move_bounds(shared: &TiledRun) -> Result<(Vec<f32>, f64), RelaxError> {
+    let (map, setup, scene, tiling, label) =
+        (shared.map, &shared.setup, shared.scene, shared.tiling, &shared.label);
     let pos = map.positions();
     let n = pos.len();
     let on_surface = scene.is_some();
@@ -447,20 +691,21 @@ pub(crate) fn move_bounds(
     let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
     let h0 = 4.0 * extent * (setup.p.kf as f64 / (std::f64::consts::PI * n.max(1) as f64)).sqrt();
     for c in 0..tiling.len() {
-        let mut left = pos.iter().filter(|&&x| tiling.tile_of(x) == c).count();
+        let mut left = shared.by_tile[c].len();
         let mut h = h0;
         let mut round = 0;
         while left > 0 {
             round += 1;
             let halo = tiling.halo_box(c, if round >= MAX_ROUNDS { f64::INFINITY } else { h });
             let whole = halo.is_whole();
-            let members: Vec<u32> =
-                order.iter().copied().filter(|&i| halo.contains(pos[i as usize])).collect();
+            let members = shared.members(&halo);
             let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
             let mut columns = Columns::of(map, &members, setup)?;
             let wide = MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: false };
             let (mut first, mut read) = (Vec::new(), Vec::new());
-            run(map, &mut columns, setup, scene, &wide, &members, |scratch, _, _| {
+            // The first step and spacing do not depend on the return to the surface, which runs
+            // after them (its widening is in `bound`).
+            run(map, &mut columns, setup, None, &wide, &members, |scratch, _, _| {
                 first = scratch.first_spacing().to_vec();
                 read = scratch.per_photon().read.clone();
                 false

@@ -162,11 +162,31 @@ impl BoxTree {
     /// Calls `visit(index, dist²)` for every point within distance² `r2` of `q` (inclusive),
     /// in no particular order: a fixed-radius gather whose count has no cap.
     pub fn within(&self, q: [f32; 3], r2: f32, visit: &mut dyn FnMut(u32, f32)) {
+        self.any_within(q, r2, &mut |i, d| {
+            visit(i, d);
+            false
+        });
+    }
+
+    /// Whether `found(index, dist²)` holds for some point within distance² `r2` of `q`
+    /// (inclusive): [`Self::within`] that stops at the first.
+    pub fn any_within(&self, q: [f32; 3], r2: f32, found: &mut dyn FnMut(u32, f32) -> bool) -> bool {
         if self.nodes.is_empty() || r2.is_nan() || r2 < 0.0 {
-            return;
+            return false;
         }
-        let mut stack = vec![0usize];
-        while let Some(node) = stack.pop() {
+        // A stack on the stack (a balanced tree of 2^32 points is 32 deep); a deeper one spills.
+        let mut stack = [0usize; 64];
+        let mut spill = Vec::new();
+        let mut top = 1;
+        loop {
+            let node = if let Some(n) = spill.pop() {
+                n
+            } else if top > 0 {
+                top -= 1;
+                stack[top]
+            } else {
+                return false;
+            };
             let n = &self.nodes[node];
             if box_dist2(n, &q) > r2 {
                 continue;
@@ -174,13 +194,19 @@ impl BoxTree {
             if n.right == 0 {
                 for i in n.start as usize..n.end as usize {
                     let d = dist2(&self.points[i], &q);
-                    if d <= r2 {
-                        visit(self.index[i], d);
+                    if d <= r2 && found(self.index[i], d) {
+                        return true;
                     }
                 }
             } else {
-                stack.push(n.right as usize);
-                stack.push(node + 1);
+                for child in [n.right as usize, node + 1] {
+                    if top < stack.len() {
+                        stack[top] = child;
+                        top += 1;
+                    } else {
+                        spill.push(child);
+                    }
+                }
             }
         }
     }
@@ -311,6 +337,13 @@ mod tests {
                 .filter(|&(_, d)| d <= r * r)
                 .collect();
             assert_eq!(got, want, "query {q:?} radius {r}");
+            // The early-stopping form finds a point that passes a test when one does.
+            for (label, test) in [("odd", 1u32), ("multiple of 7", 7)] {
+                let any =
+                    tree.any_within(q, r * r, &mut |i, _| if test == 1 { i % 2 == 1 } else { i % 7 == 0 });
+                let brute = want.iter().any(|&(i, _)| if test == 1 { i % 2 == 1 } else { i % 7 == 0 });
+                assert_eq!(any, brute, "query {q:?} radius {r}: {label}");
+            }
         }
     }
 

@@ -240,3 +240,51 @@ fn bad_tiles_and_bad_parts_are_refused_without_output() {
     assert!(!o.status.success());
     assert!(merge(&[&p2[1], &p2[0]]).status.success());
 }
+
+/// `detect --memory` and `relax --memory` with a budget the whole map exceeds run tile by tile
+/// in one process and write the untiled file byte for byte; a budget below what the map alone
+/// needs is refused without output.
+#[test]
+fn a_memory_budget_runs_tile_by_tile_with_the_untiled_result() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).display().to_string();
+    let (traced, walled) = (path("traced.phm"), walled(dir.path()));
+    run(&["trace", "--photons", "20000", "-o", &traced]);
+    for map in [&traced, &walled] {
+        let (whole, budgeted) = (path("whole.phm"), path("budgeted.phm"));
+        run(&["detect", map, "-o", &whole]);
+        let o = Command::new(env!("CARGO_BIN_EXE_photonkit"))
+            .args(["detect", map, "--memory", "3M", "-o", &budgeted])
+            .env("SOURCE_DATE_EPOCH", "1700000000")
+            .output()
+            .unwrap();
+        assert!(o.status.success() && stderr(&o).contains(" tiles ("), "{map}: {}", stderr(&o));
+        assert!(std::fs::read(&whole).unwrap() == std::fs::read(&budgeted).unwrap(), "{map}: detect");
+        let detected = path("detected.phm");
+        std::fs::rename(&whole, &detected).unwrap();
+        for extra in [&[][..], &["--iterations", "3", "--kf", "10"][..]] {
+            let mut args = vec!["relax", detected.as_str(), "-o", &whole];
+            args.extend(extra);
+            run(&args);
+            let mut args = vec!["relax", detected.as_str(), "--memory", "3M", "-o", &budgeted];
+            args.extend(extra);
+            let o = Command::new(env!("CARGO_BIN_EXE_photonkit"))
+                .args(&args)
+                .env("SOURCE_DATE_EPOCH", "1700000000")
+                .output()
+                .unwrap();
+            assert!(o.status.success() && stderr(&o).contains(" tiles ("), "{map}: {}", stderr(&o));
+            assert!(
+                std::fs::read(&whole).unwrap() == std::fs::read(&budgeted).unwrap(),
+                "{map} {extra:?}: relax"
+            );
+        }
+        let refused = path("refused.phm");
+        for stage in ["detect", "relax"] {
+            let input = if stage == "detect" { map.as_str() } else { detected.as_str() };
+            let o = photonkit(&[stage, input, "--memory", "20K", "-o", &refused]);
+            assert!(!o.status.success() && stderr(&o).contains("--memory"), "{stage}: {}", stderr(&o));
+            assert!(!Path::new(&refused).exists(), "{stage}");
+        }
+    }
+}

@@ -45,6 +45,19 @@ fn check_tilings(map: &MapView, p: &RelaxParams, what: &str) -> u32 {
         }
         assert_eq!(got.measures, want.measures, "{what}: measures");
         assert_eq!((got.space, got.constrained), (want.space, want.constrained), "{what}");
+        // Every tile in one process, as `relax --memory` runs them.
+        let mut calls = 0;
+        let one = relax_tiled(map, p, None, &Tiling::new(map.positions(), grid), |tile, of, _| {
+            assert_eq!((tile, of), (calls, grid[0] * grid[1]));
+            calls += 1;
+        })
+        .unwrap();
+        assert_eq!(calls, grid[0] * grid[1]);
+        assert_eq!(first_difference(&want, &one), None, "{what}: in one process");
+        assert_eq!(
+            (&one.measures, one.space, one.constrained),
+            (&want.measures, want.space, want.constrained)
+        );
         rounds = tiles.iter().map(|t| t.rounds).fold(rounds, u32::max);
     }
     rounds
@@ -212,7 +225,7 @@ fn a_sparse_surround_does_not_hold_back_a_dense_tile() {
 /// (a photon's halo box holds its Kf nearest).
 #[test]
 fn move_bounds_hold_every_move_of_the_whole_map() {
-    use crate::relax::tiled::move_bounds;
+    use crate::relax::tiled::TiledRun;
     use crate::spatial::order::locality_order;
     let dir = tempfile::tempdir().unwrap();
     let [detected, collapsed] = phases(dir.path(), "bounds", &crate::synthetic::collimated_cusp(3000, 47));
@@ -221,8 +234,6 @@ fn move_bounds_hold_every_move_of_the_whole_map() {
         let map = map.view();
         let setup = Setup::of(&map, &p, false).unwrap();
         let order = locality_order(map.positions());
-        let mut label = vec![0u32; order.len()];
-        order.iter().enumerate().for_each(|(l, &i)| label[i as usize] = l as u32);
         // The whole map's moves per iteration, by label (the run is in label order).
         let mut columns = Columns::of(&map, &order, &setup).unwrap();
         let wide = MapWide { labels: None, spacing: setup.spacing, coincident: setup.coincident };
@@ -233,11 +244,12 @@ fn move_bounds_hold_every_move_of_the_whole_map() {
         })
         .unwrap();
         starts.push(columns.positions.clone());
-        let untiled =
-            move_bounds(&map, &setup, &order, &label, &Tiling::new(map.positions(), [1, 1]), None).unwrap().0;
+        let bounds_of =
+            |tiling: &Tiling| TiledRun::new(&map, &p, None, tiling, None).unwrap().moves().to_vec();
+        let untiled = bounds_of(&Tiling::new(map.positions(), [1, 1]));
         for grid in [[1, 1], [2, 2], [3, 3]] {
             let tiling = Tiling::new(map.positions(), grid);
-            let (bounds, _) = move_bounds(&map, &setup, &order, &label, &tiling, None).unwrap();
+            let bounds = bounds_of(&tiling);
             assert!(bounds.iter().all(|b| b.is_finite() && *b > 0.0), "{grid:?}");
             let mut tightest = 0f64;
             for (t, w) in starts.windows(2).enumerate() {

@@ -139,7 +139,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         return Ok(ExitCode::SUCCESS);
     }
     let tiles = match a.memory {
-        Some(budget) => photonkit::tiles::tiles_for_budget(map.len(), budget, &relax::tiled::MEMORY).map_err(|need| {
+        // Photons returned to their surfaces carry new normals too.
+        Some(budget) => photonkit::tiles::tiles_for_budget(map.len(), budget, &relax::tiled::memory(scene.is_some()))
+            .map_err(|need| {
             anyhow::anyhow!(
                 "--memory {}: relaxing {} photons needs at least {} (the map's per-photon bookkeeping and one tile)",
                 indicatif::HumanBytes(budget),

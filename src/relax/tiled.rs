@@ -109,8 +109,14 @@ pub(crate) fn relax_tile_with(
 /// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiled relax"): the whole map's
 /// order, move bounds and relaxed positions per photon, and per photon a tile works on its
 /// columns, index and iteration scratch.
-pub const MEMORY: crate::tiles::MemoryModel =
-    crate::tiles::MemoryModel { per_photon: 48.0, per_working_photon: 360.0, halo_growth: 1.4 };
+/// With a scene (`on_surfaces`), the relaxed normals add 24 bytes per photon.
+pub fn memory(on_surfaces: bool) -> crate::tiles::MemoryModel {
+    crate::tiles::MemoryModel {
+        per_photon: if on_surfaces { 72.0 } else { 48.0 },
+        per_working_photon: 360.0,
+        halo_growth: 1.4,
+    }
+}
 
 /// Relaxes every photon of `map` tile by tile in this process (the tiles of `tiling`), holding
 /// one tile's working set at a time besides the whole map's per-photon bookkeeping (its order,

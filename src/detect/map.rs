@@ -64,6 +64,7 @@ pub fn map_input<'a>(map: &MapView<'a>) -> Result<DetectInput<'a>, DetectError> 
         flux: Some(map.flux()),
         params: params.map(|(values, stride)| ParamColumn { values, stride, dims: &[] }),
         emitters,
+        pages: map.pages(),
     })
 }
 

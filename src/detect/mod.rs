@@ -197,6 +197,9 @@ pub struct DetectInput<'a> {
     pub params: Option<ParamColumn<'a>>,
     /// Each photon's emitter; `None`: all of emitter 0.
     pub emitters: Option<&'a [u16]>,
+    /// The pages of the file the columns are mapped from, released once a tile has copied its
+    /// photons (docs/tiles.md); `Pages::default()` for columns in memory.
+    pub pages: crate::format::Pages<'a>,
 }
 
 /// A [`DetectInput`]'s columns copied in another order (only the flux the method reads):
@@ -231,6 +234,7 @@ impl Permuted {
             flux: self.flux.as_deref(),
             params: input.params.zip(self.values.as_deref()).map(|(c, values)| ParamColumn { values, ..c }),
             emitters: self.emitters.as_deref(),
+            pages: Default::default(),
         }
     }
 }
@@ -400,6 +404,7 @@ pub fn detect(
     let p = &p.capped(input.positions.len());
     let order = locality_order(input.positions);
     let columns = Permuted::of(input, &order, p.method);
+    input.pages.release();
     let sorted = columns.input(input);
     let (d, factors, outcomes) = detect_in_order(&sorted, p, progress).map_err(|e| match e {
         DetectError::Spatial(e) => DetectError::Spatial(e.in_file_order(&order)),

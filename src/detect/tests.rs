@@ -303,6 +303,7 @@ fn input<'a>(m: &'a crate::synthetic::SyntheticMap, dims: &'a [u32], stride: usi
         flux: Some(&m.flux),
         params: (stride > 0).then_some(ParamColumn { values: &m.params, stride, dims }),
         emitters: (m.emitters.len() > 1).then_some(&m.emitter[..]),
+        pages: Default::default(),
     }
 }
 

@@ -156,6 +156,7 @@ pub(super) fn detect_tile_with(
             members.binary_search(&g).map(|k| label_of_member[k]).expect("interior photons are members")
         };
         let columns = Permuted::of(input, &work, p.method);
+        input.pages.release();
         let sorted = columns.input(input);
         let (points, index) = world_index(&sorted, p.method, normals_ok)?;
         let mut queries: Vec<(u32, usize)> = pending.iter().map(|&q| (label(interior[q]), q)).collect();
@@ -260,6 +261,7 @@ impl<'a> ParamNear<'a> {
         let positions = permuted(input.positions, &ids, 1);
         let values = permuted(column.values, &ids, column.stride);
         let emitter_ids = input.emitters.map(|e| permuted(e, &ids, 1));
+        input.pages.release();
         let index = {
             let sub = PointSet {
                 positions: &positions,
@@ -420,6 +422,7 @@ fn tile_radius(
         let positions = permuted(input.positions, &members, 1);
         let values = permuted(column.values, &members, column.stride);
         let emitters = input.emitters.map(|e| permuted(e, &members, 1));
+        input.pages.release();
         let sub = PointSet {
             positions: &positions,
             params: Some(ParamColumn { values: &values, ..column }),

@@ -25,7 +25,7 @@ pub use meta::{
     BoundingBox, ColumnEntry, DimensionKind, Emitter, EmitterKind, MapInfo, Metadata, ParamDimension,
     Parameterisation, StageRecord, State, UNIT_TOLERANCE, Units,
 };
-pub use reader::PhotonMap;
+pub use reader::{Pages, PhotonMap};
 pub use records::{TraceParameters, TraceRecord, TraceReport};
 pub use table::{MapView, PhotonTable};
 pub use writer::{Output, PhotonWriter, folder_of, persist, temp_beside, write_map};

@@ -240,6 +240,19 @@ impl PhotonMap {
     }
 }
 
+/// The pages of a memory-mapped map ([`super::MapView::pages`]), for a stage that reads its
+/// columns through plain slices to release once it has copied what it needs (none for a map
+/// held in memory).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Pages<'a>(Option<&'a memmap2::Mmap>);
+
+impl Pages<'_> {
+    /// [`PhotonMap::release_pages`].
+    pub fn release(&self) {
+        release(self.0);
+    }
+}
+
 /// How many bytes of a mapped file a long scan reads before it releases them.
 pub(super) const RELEASE_EVERY: usize = 64 << 20;
 
@@ -256,6 +269,11 @@ pub(super) fn release_range(mapping: Option<&memmap2::Mmap>, bytes: &[u8]) {
         // SAFETY: as in `release`.
         let _ = unsafe { m.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, offset, bytes.len()) };
     }
+}
+
+/// The [`Pages`] of `mapping`.
+pub(super) fn pages(mapping: Option<&memmap2::Mmap>) -> Pages<'_> {
+    Pages(mapping)
 }
 
 /// [`PhotonMap::release_pages`] of `mapping`.

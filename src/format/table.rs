@@ -98,6 +98,11 @@ impl<'a> MapView<'a> {
     pub fn release_pages(&self) {
         super::reader::release(self.mapping);
     }
+
+    /// The pages of the file this view reads, to release later ([`Self::release_pages`]).
+    pub fn pages(&self) -> super::Pages<'a> {
+        super::reader::pages(self.mapping)
+    }
 }
 
 fn typed<'a, T: Element>(file: &str, spec: &ColumnSpec, bytes: &'a [u8]) -> Result<&'a [T]> {

@@ -91,6 +91,7 @@ fn main() {
         flux: Some(&ph.flux),
         params: Some(params),
         emitters: None,
+        pages: Default::default(),
     };
     let d = stage("detect, param-pca, Kc = 50", n, || {
         detect::detect(&input, &DetectParams::default(), &|_| {}).expect("detect")
@@ -156,6 +157,7 @@ fn main() {
         flux: Some(&ph.flux),
         params: Some(params),
         emitters: None,
+        pages: Default::default(),
     };
     let d = stage(&format!("detect, param-pca, Kc = 1000, scale {kc_scale:e}"), n, || {
         detect::detect(&input, &DetectParams { kc: 1000, ..DetectParams::default() }, &|_| {})

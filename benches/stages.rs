@@ -75,6 +75,7 @@ fn main() {
         flux: Some(&ph.flux),
         params: Some(params),
         emitters: None,
+        pages: Default::default(),
     };
     let runs = |what: &str| only.as_deref().is_none_or(|o| o.split(',').any(|x| x == what));
     let p = DetectParams::default();

@@ -435,12 +435,10 @@ mod tests {
             assert!(peak(t) <= budget as f64, "{budget}: {t}");
             let grid = TileSpec { index: 0, count: t }.grid();
             assert!(grid[0] - grid[1] <= 1, "{t}: {grid:?}");
-            let fewer = (1..t)
-                .filter(|c| {
-                    let g = TileSpec { index: 0, count: *c }.grid();
-                    g[0] - g[1] <= 1
-                })
-                .last();
+            let fewer = (1..t).rev().find(|c| {
+                let g = TileSpec { index: 0, count: *c }.grid();
+                g[0] - g[1] <= 1
+            });
             assert!(fewer.is_none_or(|c| peak(c) > budget as f64), "{budget}: {t} tiles, {fewer:?} would do");
         }
         assert_eq!(tiles_for_budget(n, 1_000_000_000, &m), Ok(9));

@@ -46,7 +46,7 @@ pub struct TileDetection {
 }
 
 /// What detection keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
-/// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiled detect"): the map's
+/// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiles and the memory budget"): the map's
 /// results per photon (the constraint basis, λ2, r_param, factor and outcome, and their copies
 /// as the output is written), and per photon a tile works on its columns, indices and search
 /// scratch; the first halo takes in a few times the tile's photons.

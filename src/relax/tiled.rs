@@ -106,7 +106,7 @@ pub(crate) fn relax_tile_with(
 }
 
 /// What relaxation keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
-/// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiled relax"): the whole map's
+/// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiles and the memory budget"): the whole map's
 /// order, move bounds and relaxed positions per photon, and per photon a tile works on its
 /// columns, index and iteration scratch.
 /// With a scene (`on_surfaces`), the relaxed normals add 24 bytes per photon.

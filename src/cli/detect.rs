@@ -112,34 +112,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(tile) = a.tile {
         return run_tile(&map.view(), &p, tile, &a.output, bar, t);
     }
-    let tiles = match a.memory {
-        Some(budget) => {
-            photonkit::tiles::tiles_for_budget(map.len(), budget, &detect::MEMORY).map_err(|need| {
-                anyhow::anyhow!(
-                    "--memory {}: detecting {} photons needs at least {} (the map's results and one tile)",
-                    indicatif::HumanBytes(budget),
-                    map.len(),
-                    indicatif::HumanBytes(need)
-                )
-            })?
-        }
-        None => 1,
-    };
-    let d = if tiles > 1 {
-        let tiling = Tiling::new(map.positions(), TileSpec { index: 0, count: tiles }.grid());
-        super::note!(
-            "detecting in {tiles} tiles ({}×{}) to stay under --memory {}",
-            tiling.counts[0],
-            tiling.counts[1],
-            indicatif::HumanBytes(a.memory.unwrap_or(0))
-        );
-        detect::detect_map_tiled(&map.view(), &p, &tiling, &|k| bar.inc(k), &mut |tile, tiles, part| {
-            let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
+    let tiling = super::budget_tiling(&map, a.memory, &detect::MEMORY, "detecting")?;
+    let d = if let Some(tiling) = &tiling {
+        detect::detect_map_tiled(&map.view(), &p, tiling, &|k| bar.inc(k), &mut |tile, tiles, part| {
             bar.suspend(|| {
                 super::note!(
                     "tile {tile}/{tiles}: {} photons; measured per round / working set: {}",
                     part.indices.len(),
-                    if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") }
+                    super::rounds_text(&part.per_round)
                 )
             });
         })?
@@ -189,7 +169,6 @@ fn run_tile(
     detect::tile_part(map, &part, p, &prepared.scales, tile, seconds)?
         .write(Output::parse(output))
         .context("writing the tile part")?;
-    let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
     super::note!(
         "detected tile {tile} ({}×{}, cut at the photons' quantiles): {} of {} photons in {seconds:.2} s; photons \
          measured per round of halos: {} ({} round{} in parameter space)",
@@ -197,7 +176,7 @@ fn run_tile(
         tiling.counts[1],
         part.indices.len(),
         map.len(),
-        if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") },
+        super::rounds_text(&part.per_round),
         part.param_rounds,
         if part.param_rounds == 1 { "" } else { "s" },
     );

@@ -95,6 +95,41 @@ pub(crate) fn finite_f64(s: &str) -> Result<f64, String> {
     if v.is_finite() { Ok(v) } else { Err(format!("'{s}' is not a finite number")) }
 }
 
+/// The tiling `--memory BUDGET` needs for a stage with memory model `model` on `map` (`None`:
+/// the whole map fits, or no budget was given), noted on standard error; `doing` names the
+/// work in messages ("detecting").
+pub(crate) fn budget_tiling(
+    map: &photonkit::format::PhotonMap,
+    budget: Option<u64>,
+    model: &photonkit::tiles::MemoryModel,
+    doing: &str,
+) -> anyhow::Result<Option<photonkit::tiles::Tiling>> {
+    use indicatif::HumanBytes;
+    let Some(budget) = budget else { return Ok(None) };
+    let tiles = photonkit::tiles::tiles_for_budget(map.len(), budget, model).map_err(|need| {
+        anyhow::anyhow!(
+            "--memory {}: {doing} {} photons needs at least {} (what the map needs per photon, and one tile)",
+            HumanBytes(budget),
+            map.len(),
+            HumanBytes(need)
+        )
+    })?;
+    if tiles == 1 {
+        return Ok(None);
+    }
+    let grid = photonkit::tiles::TileSpec { index: 0, count: tiles }.grid();
+    let tiling = photonkit::tiles::Tiling::new(map.positions(), grid);
+    note!("{doing} in {tiles} tiles ({}×{}) to stay under --memory {}", grid[0], grid[1], HumanBytes(budget));
+    Ok(Some(tiling))
+}
+
+/// A tile's rounds as `--tile` and `--memory` report them: per round, the photons still to
+/// certify "of" the photons worked on.
+pub(crate) fn rounds_text(per_round: &[[usize; 2]]) -> String {
+    let rounds: Vec<String> = per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
+    if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") }
+}
+
 /// A size in bytes as people write it: `512M`, `4G` (powers of 1000), `2GiB` (powers of 1024),
 /// or a plain number of bytes.
 pub(crate) fn parse_memory(s: &str) -> Result<u64, String> {

@@ -125,7 +125,6 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         relax::tile_part(&map.view(), &part, &p, tile, seconds)?
             .write(Output::parse(&a.output))
             .context("writing the tile part")?;
-        let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
         super::note!(
             "relaxed tile {tile} ({}×{}): {} of {} photons in {seconds:.2} s; photons pending per round of \
              halos / working set: {}",
@@ -133,73 +132,37 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             tiling.counts[1],
             part.indices.len(),
             map.len(),
-            if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") },
+            super::rounds_text(&part.per_round),
         );
         super::print_record(&a.output)?;
         return Ok(ExitCode::SUCCESS);
     }
-    let tiles = match a.memory {
-        // Photons returned to their surfaces carry new normals too.
-        Some(budget) => photonkit::tiles::tiles_for_budget(map.len(), budget, &relax::tiled::memory(scene.is_some()))
-            .map_err(|need| {
-            anyhow::anyhow!(
-                "--memory {}: relaxing {} photons needs at least {} (the map's per-photon bookkeeping and one tile)",
-                indicatif::HumanBytes(budget),
-                map.len(),
-                indicatif::HumanBytes(need)
-            )
-        })?,
-        None => 1,
-    };
-    let relaxed = if tiles > 1 {
-        let tiling = Tiling::new(map.positions(), TileSpec { index: 0, count: tiles }.grid());
-        super::note!(
-            "relaxing in {tiles} tiles ({}×{}) to stay under --memory {}",
-            tiling.counts[0],
-            tiling.counts[1],
-            indicatif::HumanBytes(a.memory.unwrap_or(0))
-        );
-        bar.set_length(tiles as u64);
+    // Photons returned to their surfaces carry new normals too.
+    let model = relax::tiled::memory(scene.is_some());
+    let tiling = super::budget_tiling(&map, a.memory, &model, "relaxing")?;
+    let relaxed = if let Some(tiling) = &tiling {
+        bar.set_length(tiling.len() as u64);
         bar.set_style(
             ProgressStyle::with_template("relax {bar:30} {pos}/{len} tiles {elapsed} (eta {eta})")
                 .expect("valid template"),
         );
-        let relaxed = relax::relax_tiled(&map.view(), &p, scene.as_ref(), &tiling, |tile, tiles, part| {
+        let relaxed = relax::relax_tiled(&map.view(), &p, scene.as_ref(), tiling, |tile, tiles, part| {
             bar.set_position(tile as u64 + 1);
-            let rounds: Vec<String> = part.per_round.iter().map(|[m, w]| format!("{m} of {w}")).collect();
             bar.suspend(|| {
                 super::note!(
                     "tile {tile}/{tiles}: {} photons; pending per round / working set: {}",
                     part.indices.len(),
-                    if rounds.is_empty() { "none".to_string() } else { rounds.join(", ") }
+                    super::rounds_text(&part.per_round)
                 )
             });
         })?;
-        for m in &relaxed.measures {
-            super::note!(
-                "iteration {:>2}: nearest-neighbour spread {:.4} (local {:.4}), mean step {:.3e}, largest step {:.3e}",
-                m.iteration + 1,
-                m.nn_cv,
-                m.local_nn_cv,
-                m.mean_displacement,
-                m.max_displacement
-            );
-        }
+        relaxed.measures.iter().for_each(note_iteration);
         relaxed
     } else {
         relax::relax_map_on(&map.view(), &p, scene.as_ref(), |m| {
             bar.inc(1);
             // Printed whether or not the bar is drawn (stderr may not be a terminal).
-            bar.suspend(|| {
-            super::note!(
-                "iteration {:>2}: nearest-neighbour spread {:.4} (local {:.4}), mean step {:.3e}, largest step {:.3e}",
-                m.iteration + 1,
-                m.nn_cv,
-                m.local_nn_cv,
-                m.mean_displacement,
-                m.max_displacement
-            )
-        });
+            bar.suspend(|| note_iteration(m));
         })?
     };
     bar.finish_and_clear();
@@ -232,6 +195,18 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     );
     super::print_record(&a.output)?;
     Ok(ExitCode::SUCCESS)
+}
+
+/// One iteration's measures on standard error.
+fn note_iteration(m: &relax::IterationMeasure) {
+    super::note!(
+        "iteration {:>2}: nearest-neighbour spread {:.4} (local {:.4}), mean step {:.3e}, largest step {:.3e}",
+        m.iteration + 1,
+        m.nn_cv,
+        m.local_nn_cv,
+        m.mean_displacement,
+        m.max_displacement
+    );
 }
 
 /// Drop the parameter dimensions from the neighbour search (Algorithm 1's collapse).

@@ -25,8 +25,8 @@ pub enum Source {
     /// A PHM file, memory-mapped and validated (boxed: its header is large, and a map is
     /// made once per stage).
     File(Box<format::PhotonMap>),
-    /// A stage's result kept in memory (every column owned).
-    Memory(PhotonTable<'static>),
+    /// A stage's result kept in memory (every column owned; boxed like a file's map).
+    Memory(Box<PhotonTable<'static>>),
 }
 
 impl Source {

@@ -46,7 +46,7 @@ pub fn refuse_input_as_output(output: &Path) -> Result<(), Failure> {
 fn finish(table: PhotonTable, output: Option<PathBuf>, context: &str) -> Result<Source, Failure> {
     match output {
         Some(p) => write_view(&table, p, Some(context)),
-        None => Ok(Source::Memory(table.into_owned())),
+        None => Ok(Source::Memory(Box::new(table.into_owned()))),
     }
 }
 
@@ -158,7 +158,7 @@ pub fn trace(
                 traced.write(Output::Path(p.clone()), info)?;
                 Source::File(Box::new(format::PhotonMap::open_path(&p)?))
             }
-            None => Source::Memory(traced_table(&traced, info)?),
+            None => Source::Memory(Box::new(traced_table(&traced, info)?)),
         };
         Ok((source, nothing, told, warning))
     })?;
@@ -413,7 +413,7 @@ pub fn collapse(
         let table = photonkit::relax::collapse(&view)?;
         match output {
             Some(p) => write_view(&table, p, None),
-            None => Ok(Source::Memory(table.into_owned())),
+            None => Ok(Source::Memory(Box::new(table.into_owned()))),
         }
     })?;
     Ok(PhotonMap { source })
@@ -493,7 +493,7 @@ pub fn pipeline(
         told.extend(stage_notes.into_inner());
         let source = match last {
             Some(file) => Source::File(Box::new(format::PhotonMap::open_path(&file)?)),
-            None => Source::Memory(outcome.map),
+            None => Source::Memory(Box::new(outcome.map)),
         };
         Ok((source, told))
     })?;

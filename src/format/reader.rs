@@ -208,7 +208,7 @@ impl PhotonMap {
             let mut crc = crc32fast::Hasher::new();
             for piece in self.column_bytes(&c.name).expect("listed column").chunks(RELEASE_EVERY) {
                 crc.update(piece);
-                release_range(self.mapping(), piece);
+                self.pages().release_range(piece);
             }
             let computed = crc.finalize();
             if computed != c.crc32 {
@@ -228,64 +228,56 @@ impl PhotonMap {
     /// file (the page cache, usually). Stages that bound their memory call it between tiles,
     /// so the pages one tile read do not count against the next (docs/tiles.md).
     pub fn release_pages(&self) {
-        release(self.mapping());
+        self.pages().release();
     }
 
-    /// The memory map, when the file is mapped.
-    pub(super) fn mapping(&self) -> Option<&memmap2::Mmap> {
+    /// The file's pages, to release later ([`Self::release_pages`]).
+    pub fn pages(&self) -> Pages<'_> {
         match &self.storage {
-            Storage::Mapped(m) => Some(m),
-            Storage::Owned { .. } => None,
+            Storage::Mapped(m) => Pages(Some(m)),
+            Storage::Owned { .. } => Pages(None),
         }
     }
 }
 
-/// The pages of a memory-mapped map ([`super::MapView::pages`]), for a stage that reads its
-/// columns through plain slices to release once it has copied what it needs (none for a map
-/// held in memory).
+/// The pages of a memory-mapped map ([`PhotonMap::pages`], [`super::MapView::pages`]), for a
+/// stage that reads its columns through plain slices to release once it has copied what it
+/// needs (none for a map held in memory).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Pages<'a>(Option<&'a memmap2::Mmap>);
 
 impl Pages<'_> {
-    /// [`PhotonMap::release_pages`].
+    /// Drops every page of the file from this process's resident set
+    /// ([`PhotonMap::release_pages`]).
     pub fn release(&self) {
-        release(self.0);
+        #[cfg(unix)]
+        if let Some(m) = self.0 {
+            // SAFETY: the mapping is read-only and shared (memmap2's `Mmap::map`): dropping its
+            // pages changes no byte a borrow can see, as a page read again is the file's page.
+            // Failure only leaves the pages resident.
+            let _ = unsafe { m.unchecked_advise(memmap2::UncheckedAdvice::DontNeed) };
+        }
+    }
+
+    /// Drops the pages of `bytes`, a part of the file, as [`Self::release`] does for all of it
+    /// (nothing when `bytes` is not in the file).
+    pub fn release_range(&self, bytes: &[u8]) {
+        #[cfg(unix)]
+        if let Some(m) = self.0 {
+            let start = bytes.as_ptr() as usize;
+            let Some(offset) = start.checked_sub(m.as_ptr() as usize) else { return };
+            if offset + bytes.len() > m.len() {
+                return;
+            }
+            // SAFETY: as in `release`.
+            let _ =
+                unsafe { m.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, offset, bytes.len()) };
+        }
     }
 }
 
 /// How many bytes of a mapped file a long scan reads before it releases them.
-pub(super) const RELEASE_EVERY: usize = 64 << 20;
-
-/// Drops the pages of `bytes`, a part of `mapping`, from this process's resident set, as
-/// [`release`] does for the whole mapping (nothing when `bytes` is not in it).
-pub(super) fn release_range(mapping: Option<&memmap2::Mmap>, bytes: &[u8]) {
-    #[cfg(unix)]
-    if let Some(m) = mapping {
-        let start = bytes.as_ptr() as usize;
-        let Some(offset) = start.checked_sub(m.as_ptr() as usize) else { return };
-        if offset + bytes.len() > m.len() {
-            return;
-        }
-        // SAFETY: as in `release`.
-        let _ = unsafe { m.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, offset, bytes.len()) };
-    }
-}
-
-/// The [`Pages`] of `mapping`.
-pub(super) fn pages(mapping: Option<&memmap2::Mmap>) -> Pages<'_> {
-    Pages(mapping)
-}
-
-/// [`PhotonMap::release_pages`] of `mapping`.
-pub(super) fn release(mapping: Option<&memmap2::Mmap>) {
-    #[cfg(unix)]
-    if let Some(m) = mapping {
-        // SAFETY: the mapping is read-only and shared (memmap2's `Mmap::map`): dropping its
-        // pages changes no byte a borrow can see, as a page read again is the file's page.
-        // Failure only leaves the pages resident.
-        let _ = unsafe { m.unchecked_advise(memmap2::UncheckedAdvice::DontNeed) };
-    }
-}
+const RELEASE_EVERY: usize = 64 << 20;
 
 /// Checks the preamble, the metadata and the column table against the bytes present.
 fn parse(file: &str, bytes: &[u8]) -> Result<(Preamble, Metadata)> {

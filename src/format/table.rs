@@ -35,8 +35,8 @@ pub struct MapView<'a> {
     info: &'a MapInfo,
     columns: Vec<(ColumnSpec, &'a [u8])>,
     len: usize,
-    /// The memory map the columns are read from, when they are a mapped file's.
-    mapping: Option<&'a memmap2::Mmap>,
+    /// The pages of the file the columns are read from, when they are a mapped file's.
+    pages: super::Pages<'a>,
 }
 
 impl<'a> MapView<'a> {
@@ -96,12 +96,12 @@ impl<'a> MapView<'a> {
     /// [`super::PhotonMap::release_pages`] of the file this view reads, if it is a mapped
     /// file (nothing for a table in memory).
     pub fn release_pages(&self) {
-        super::reader::release(self.mapping);
+        self.pages.release();
     }
 
     /// The pages of the file this view reads, to release later ([`Self::release_pages`]).
     pub fn pages(&self) -> super::Pages<'a> {
-        super::reader::pages(self.mapping)
+        self.pages
     }
 }
 
@@ -128,7 +128,7 @@ impl PhotonMap {
             info: self.info(),
             columns: self.columns(),
             len: self.len(),
-            mapping: self.mapping(),
+            pages: self.pages(),
         }
     }
 }
@@ -167,8 +167,8 @@ pub struct PhotonTable<'a> {
     pub info: MapInfo,
     columns: Vec<(ColumnSpec, Bytes<'a>)>,
     len: usize,
-    /// The memory map borrowed columns may come from, released as the table is written.
-    mapping: Option<&'a memmap2::Mmap>,
+    /// The pages of the file borrowed columns may come from, released as the table is written.
+    pages: super::Pages<'a>,
 }
 
 impl<'a> PhotonTable<'a> {
@@ -185,7 +185,7 @@ impl<'a> PhotonTable<'a> {
             info,
             columns: Vec::new(),
             len: positions.len(),
-            mapping: None,
+            pages: Default::default(),
         };
         t.set(name::POSITION, positions)?;
         t.set(name::FLUX, flux)?;
@@ -201,7 +201,8 @@ impl<'a> PhotonTable<'a> {
             .find(|(s, _)| s.name == name::POSITION)
             .map(|(s, b)| b.len() / s.stride().max(1) as usize)
             .ok_or_else(|| invalid("no position column".into()))?;
-        let mut t = PhotonTable { file: file.to_string(), info, columns: Vec::new(), len, mapping: None };
+        let mut t =
+            PhotonTable { file: file.to_string(), info, columns: Vec::new(), len, pages: Default::default() };
         for (spec, bytes) in columns {
             t.set_bytes(spec.clone(), Bytes::Borrowed(bytes))?;
         }
@@ -222,7 +223,7 @@ impl<'a> PhotonTable<'a> {
             info,
             columns: view.columns().iter().map(|(s, b)| (s.clone(), Bytes::Borrowed(b))).collect(),
             len: view.len(),
-            mapping: view.mapping,
+            pages: view.pages,
         }
     }
 
@@ -254,7 +255,7 @@ impl<'a> PhotonTable<'a> {
             info,
             columns,
             len: view.len() + extra,
-            mapping: None,
+            pages: Default::default(),
         })
     }
 
@@ -322,7 +323,7 @@ impl<'a> PhotonTable<'a> {
             info: &self.info,
             columns: self.columns.iter().map(|(s, b)| (s.clone(), b.get())).collect(),
             len: self.len,
-            mapping: None,
+            pages: Default::default(),
         }
     }
 
@@ -343,7 +344,7 @@ impl<'a> PhotonTable<'a> {
                 })
                 .collect(),
             len: self.len,
-            mapping: None,
+            pages: Default::default(),
         }
     }
 
@@ -351,7 +352,7 @@ impl<'a> PhotonTable<'a> {
     pub fn write(&self, target: Output) -> Result<()> {
         let columns: Vec<(ColumnSpec, &[u8])> =
             self.columns.iter().map(|(s, b)| (s.clone(), b.get())).collect();
-        super::writer::write_map_releasing(target, self.info.clone(), &columns, self.mapping)
+        super::writer::write_map_releasing(target, self.info.clone(), &columns, self.pages)
     }
 }
 

@@ -361,16 +361,16 @@ pub fn persist(tmp: tempfile::NamedTempFile, path: &Path) -> std::io::Result<()>
 
 /// Writes whole columns held in memory (or mapped from an input file) as one PHM file.
 pub fn write_map(target: Output, info: MapInfo, columns: &[(ColumnSpec, &[u8])]) -> Result<()> {
-    write_map_releasing(target, info, columns, None)
+    write_map_releasing(target, info, columns, Default::default())
 }
 
-/// [`write_map`], releasing the pages of `mapping` (the input file some columns are borrowed
+/// [`write_map`], releasing `pages` (of the input file some columns are borrowed
 /// from) as they are written, so writing a map never makes its whole input resident.
 pub(super) fn write_map_releasing(
     target: Output,
     info: MapInfo,
     columns: &[(ColumnSpec, &[u8])],
-    mapping: Option<&memmap2::Mmap>,
+    pages: super::Pages<'_>,
 ) -> Result<()> {
     let file = target.display();
     let first = columns
@@ -399,7 +399,7 @@ pub(super) fn write_map_releasing(
             columns.iter().map(|(s, b)| &b[start * s.stride() as usize..end * s.stride() as usize]).collect();
         w.push(&chunk)?;
         for c in &chunk {
-            super::reader::release_range(mapping, c);
+            pages.release_range(c);
         }
         start = end;
     }

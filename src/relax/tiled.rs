@@ -294,7 +294,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                         * scale;
                 !self.by_tile[t].is_empty() && gap < r as f64 * most + reach
             })
-            .flat_map(|t| self.by_tile[t].par_iter().copied().collect::<Vec<_>>())
+            .flat_map(|t| self.by_tile[t].iter().copied())
             .collect::<Vec<u32>>()
             .into_par_iter()
             .filter_map(|l| {
@@ -398,8 +398,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                         || crate::spatial::Neighbours::with_capacity(1),
                         |found, (&i, _)| {
                             let m = self.moves_of(label[i as usize]);
-                            let r = 2.0 * h + m.after(r) / scale;
-                            tree.knn(pos[i as usize], 1, (r * r * (1.0 + 1e-4)) as f32, found);
+                            let far = 2.0 * h + m.after(r) / scale;
+                            tree.knn(pos[i as usize], 1, (far * far * (1.0 + 1e-4)) as f32, found);
                             (!found.is_empty()).then(|| (scaled(pos[i as usize], setup.scale), m))
                         },
                     )
@@ -421,10 +421,6 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
             let mut columns = Columns::of(map, &members, setup)?;
             let start: Vec<[f32; 3]> = columns.positions.clone();
-            // Per member, how far the photons outside the working set stay from where it
-            // started, whatever they do in the run: a member that has moved less than this
-            // minus its read is clear of them without a search.
-            let clearance: Vec<f64> = start.par_iter().map(|&x| outside.clearance(x, r)).collect();
             let mut member_moves: Vec<Moves> = labels.iter().map(|&l| self.moves_of(l)).collect();
             let mut certified = vec![true; members.len()];
             let wide =
@@ -465,8 +461,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                                 && read.is_finite()
                                 && read <= reach_cap
                                 && at >= 0.0
-                                && (read + distance(before[k], start[k]) < clearance[k]
-                                    || outside.clear_of(before[k], at, read, t))
+                                && outside.clear_of(before[k], at, read, t)
                                 && unsure.clear_of(before[k], at, read, t)
                         })
                         .collect();
@@ -570,21 +565,6 @@ impl Uncertain {
         Uncertain { groups, front }
     }
 
-    /// A distance that every one of these photons stays farther than from `x` through
-    /// `iterations` iterations (its distance from `x` at the start less the most it moves),
-    /// rounded down; −∞ when one may move without bound.
-    fn clearance(&self, x: [f32; 3], iterations: usize) -> f64 {
-        let mut found = crate::spatial::Neighbours::with_capacity(1);
-        self.groups
-            .iter()
-            .map(|g| {
-                g.tree.knn(x, 1, f32::INFINITY, &mut found);
-                let Some(d2) = found.max_dist2().filter(|_| !found.is_empty()) else { return f64::INFINITY };
-                (d2 as f64).sqrt() * (1.0 - 1e-5) - g.most.after(iterations) * (1.0 + 1e-5)
-            })
-            .fold(f64::INFINITY, f64::min)
-    }
-
     /// Whether none of these photons can be within `read` of `x` after `t` iterations: each
     /// lies farther from `x` than `read` plus the most it moves in `t` iterations.
     /// `depth` is x's depth in the halo box: when `read` stays inside the part of the box none
@@ -606,11 +586,6 @@ impl Uncertain {
             })
         })
     }
-}
-
-/// The distance between two positions, in f64.
-fn distance(a: [f32; 3], b: [f32; 3]) -> f64 {
-    (0..3).map(|c| (a[c] as f64 - b[c] as f64).powi(2)).sum::<f64>().sqrt()
 }
 
 /// `x` scaled by `s` (the working units).

@@ -6,9 +6,13 @@ use std::time::Instant;
 
 use anyhow::{Context, bail};
 use glam::Vec3;
+use indicatif::HumanBytes;
 use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::format::{MapView, PhotonMap};
-use photonkit::render::from_map::{CameraChanges, DiagnosticView, Framing, MapRender, Progress, render_map};
+use photonkit::render::from_map::{
+    CameraChanges, DiagnosticView, Framing, MapRender, Progress, render_map, render_map_within,
+};
+use photonkit::render::tiled::Progress as EstimateProgress;
 use photonkit::render::{
     self, Diagnostic, Estimator, EyeOptions, Kernel, Mode, Outputs, RenderOptions, Specular,
 };
@@ -100,6 +104,12 @@ pub struct Args {
     /// Photons farther than this from the --plane are left out, metres.
     #[arg(value_parser = super::finite_f32, long, value_name = "M", default_value_t = 1e-3, requires = "plane")]
     plane_tolerance: f32,
+    /// Keep the peak memory under SIZE (512M, 8G, 2GiB): when the map's photons and their
+    /// index would not fit beside the image's lookups, the k-NN estimate streams the map through
+    /// memory one spatial tile at a time; the image is the same, byte for byte (docs/tiles.md).
+    /// Needs the k-NN estimate and the scene's camera (no --plane, no --diagnostic).
+    #[arg(long, value_name = "SIZE", value_parser = super::parse_memory, conflicts_with_all = ["plane", "diagnostic"])]
+    memory: Option<u64>,
 }
 
 /// Options `render` and `reference` share.
@@ -414,16 +424,49 @@ pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>
     };
     let bar = progress_bar(0, "render");
     let progress = |p: Progress| match p {
-        Progress::Start { tiles } => bar.set_length(tiles),
+        Progress::Start { tiles } => {
+            bar.set_message("render");
+            bar.set_position(0);
+            bar.set_length(tiles)
+        }
         Progress::Tiles(n) => bar.inc(n),
+        Progress::Estimate(EstimateProgress::Start(steps)) => {
+            bar.set_message("estimate, map tiles");
+            bar.set_length(steps)
+        }
+        Progress::Estimate(EstimateProgress::Step) => bar.inc(1),
     };
     let t = Instant::now();
-    let result = match a.common.pool()? {
-        Some(pool) => pool.install(|| render_map(map, &request, &progress)),
+    let run = || match a.memory {
+        Some(budget) => render_map_within(map, &request, budget, &progress),
         None => render_map(map, &request, &progress),
     };
+    let result = match a.common.pool()? {
+        Some(pool) => pool.install(run),
+        None => run(),
+    };
     bar.finish_and_clear();
-    let rendered = result?;
+    let rendered = match result {
+        Err(render::RenderError::Budget { budget, needed }) => bail!(
+            "--memory {}: this render needs at least {} (the map's photons in tiles of at least {} \
+             photons, and the image's lookups in runs of at least {})",
+            HumanBytes(budget),
+            HumanBytes(needed),
+            photonkit::tiles::MIN_TILE_PHOTONS,
+            photonkit::render::tiled::MIN_CHUNK_LOOKUPS
+        ),
+        r => r?,
+    };
+    let plan = rendered.plan;
+    if plan.tiles > 1 || plan.chunks > 1 {
+        super::note!(
+            "photonkit render: the estimate streamed the map in {} tiles, {} pass{}, to stay under --memory {}",
+            plan.tiles,
+            plan.chunks,
+            if plan.chunks == 1 { "" } else { "es" },
+            HumanBytes(a.memory.unwrap_or(0))
+        );
+    }
     let secs = t.elapsed().as_secs_f64();
     for remark in &rendered.remarks {
         super::note!("photonkit render: note: {remark}");

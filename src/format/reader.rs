@@ -276,6 +276,32 @@ impl Pages<'_> {
     }
 }
 
+impl Pages<'_> {
+    /// `column[i]` for each of `indices` (ascending), copied in blocks whose span of the file
+    /// is released once copied: a gather from all over a large file keeps at most a few
+    /// blocks' pages resident, where copying first and releasing after would hold every page
+    /// it touched (for a scattered tile, nearly all of the column).
+    pub fn gather<T: bytemuck::Pod + Default + Send + Sync>(&self, column: &[T], indices: &[u32]) -> Vec<T> {
+        use rayon::prelude::*;
+        let mut out = vec![T::default(); indices.len()];
+        out.par_chunks_mut(GATHER_BLOCK).zip(indices.par_chunks(GATHER_BLOCK)).for_each(|(out, ix)| {
+            for (o, &i) in out.iter_mut().zip(ix) {
+                *o = column[i as usize];
+            }
+            if let (Some(&a), Some(&b)) = (ix.first(), ix.last())
+                && a <= b
+            {
+                self.release_range(bytemuck::cast_slice(&column[a as usize..=b as usize]));
+            }
+        });
+        out
+    }
+}
+
+/// Indices a [`Pages::gather`] block copies before it releases their span (at most this many
+/// pages resident per block and column).
+const GATHER_BLOCK: usize = 4096;
+
 /// How many bytes of a mapped file a long scan reads before it releases them.
 const RELEASE_EVERY: usize = 64 << 20;
 

@@ -164,6 +164,8 @@ pub enum Progress {
     },
     /// This many more tiles are done.
     Tiles(u64),
+    /// The estimate streaming the map tile by tile ([`render_map_within`]).
+    Estimate(super::tiled::Progress),
 }
 
 /// What [`render_map`] made.
@@ -183,6 +185,9 @@ pub struct Rendered {
     pub photons: usize,
     /// Things the caller may tell the user (e.g. direct light not added twice).
     pub remarks: Vec<String>,
+    /// The spatial tiles the map's photons streamed through memory in, and the passes over
+    /// them (one tile, one pass: held whole; [`render_map_within`]).
+    pub plan: super::tiled::Plan,
 }
 
 /// Renders `map` as `request` asks (the whole of `photonkit render`).
@@ -199,23 +204,7 @@ pub fn render_map(
         Framing::Plane { axis, offset, tolerance_m, .. } => Some((axis, offset, tolerance_m)),
         Framing::Scene { .. } => None,
     };
-    let mut mode = request.mode.unwrap_or(if plane.is_some() { Mode::Irradiance } else { Mode::Full });
-    if plane.is_some() && mode != Mode::Irradiance {
-        return Err(RenderError::Invalid(
-            "--plane shows irradiance only (no scene, no materials): leave out --mode or use irradiance"
-                .into(),
-        ));
-    }
-    check_estimator(&request.estimator, request.diagnostic.as_ref())?;
-    if map.is_empty() {
-        return Err(RenderError::EmptyMap { file: file.to_string() });
-    }
-    let mut remarks = Vec::new();
-    let traced_direct = map.info().trace_record().is_some_and(|t| t.parameters.store == "direct");
-    if traced_direct && mode == Mode::Full {
-        remarks.push("the map stores direct photons too, so direct light is not added again".to_string());
-        mode = Mode::Caustic;
-    }
+    let (mode, remarks) = settle_mode(map, request)?;
     let diagnostic = request
         .diagnostic
         .map(|d| Diagnostics::from_map(map, d.which, d.threshold, d.dot_radius))
@@ -265,17 +254,6 @@ pub fn render_map(
     }
     .map(|d| d.bounded(&photons));
 
-    let options = |width: u32, height: u32| RenderOptions {
-        width,
-        height,
-        spp: request.spp,
-        mode,
-        estimator: request.estimator,
-        eye: request.eye,
-        seed: request.seed,
-        keep_samples: request.keep_samples,
-        supersample: None,
-    };
     let (view, opts, scene_name) = match &request.framing {
         Framing::Plane { axis, offset, rect, width, height, .. } => {
             let points = &kept.as_ref().expect("a plane keeps its photons").0;
@@ -289,17 +267,124 @@ pub fn render_map(
                 rect[1],
                 rect[3]
             );
-            (View::Plane(PlaneView::axis_aligned(*axis, *offset, rect)), options(w, h), name)
+            (View::Plane(PlaneView::axis_aligned(*axis, *offset, rect)), options(request, mode, (w, h)), name)
         }
         Framing::Scene { scene, camera, name } => {
             let [w, h] = camera.resolution;
-            (View::Scene { scene, camera: camera.clone() }, options(w, h), name.clone())
+            (View::Scene { scene, camera: camera.clone() }, options(request, mode, (w, h)), name.clone())
         }
     };
     let renderer = Renderer { view, photons: Some(&photons), diagnostic: diagnostic.as_ref(), opts };
     progress(Progress::Start { tiles: renderer.tiles() });
     let (image, stats) = renderer.render(&|n| progress(Progress::Tiles(n)))?;
     let o = renderer.opts;
+    let (notes, description) = header_notes(&o, request, file, scene_name);
+    let plan = super::tiled::Plan { tiles: 1, chunks: 1 };
+    Ok(Rendered { image, stats, notes, options: o, description, photons: photons.len(), remarks, plan })
+}
+
+/// [`render_map`] with the peak memory kept under `budget` bytes: when the map's photons and
+/// their index would not fit beside the render's lookups, the k-NN estimate streams them
+/// through memory one spatial tile at a time ([`super::tiled`]), and the image is the one
+/// [`render_map`] makes, byte for byte. Takes the k-NN estimate through a scene's camera;
+/// other estimators, diagnostic views and `--plane` views hold the whole map.
+pub fn render_map_within(
+    map: &MapView,
+    request: &MapRender,
+    budget: u64,
+    progress: &(dyn Fn(Progress) + Sync),
+) -> Result<Rendered, RenderError> {
+    let file = map.file_name();
+    let (mode, remarks) = settle_mode(map, request)?;
+    let Framing::Scene { scene, camera, name } = &request.framing else {
+        return Err(RenderError::Invalid(
+            "--memory renders through a scene's camera, not a --plane view".into(),
+        ));
+    };
+    let Estimator::Knn { k, kernel, max_radius } = request.estimator else {
+        return Err(RenderError::Invalid(format!(
+            "--memory renders the k-NN estimate (the default), not {}",
+            request.estimator.describe()
+        )));
+    };
+    if request.diagnostic.is_some() {
+        return Err(RenderError::Invalid("--memory renders radiance, not a diagnostic view".into()));
+    }
+    let opts = options(request, mode, (camera.resolution[0], camera.resolution[1]));
+    let pixels = opts.width as u64 * opts.height as u64;
+    // The image, and the samples it keeps for the preview (twice while tiles are assembled).
+    let image_bytes = pixels * (12 + 1) + if opts.keep_samples { pixels * opts.spp as u64 * 24 } else { 0 };
+    let photons = map.len();
+    if super::tiled::whole_fits(photons, image_bytes, budget) {
+        return render_map(map, request, progress);
+    }
+    let renderer = Renderer {
+        view: View::Scene { scene, camera: camera.clone() },
+        photons: None,
+        diagnostic: None,
+        opts,
+    };
+    // Where the estimate is looked up: the eye paths alone, no photons.
+    let lookups = renderer.lookups(&|_| {})?;
+    let count: usize = lookups.iter().map(Vec::len).sum();
+    let demand = super::tiled::Demand { photons, lookups: count, k, image_bytes };
+    let plan =
+        super::tiled::plan(&demand, budget).map_err(|needed| RenderError::Budget { budget, needed })?;
+    let grid = crate::tiles::TileSpec { index: 0, count: plan.tiles }.grid();
+    let tiling = crate::tiles::Tiling::new(map.positions(), grid);
+    map.release_pages();
+    let streamed = super::tiled::StreamedMap::new(map, file, tiling)?;
+    let knn = super::tiled::Knn { k, kernel, max_radius };
+    let caustic = streamed.estimate(&lookups, knn, plan.chunks, &|p| progress(Progress::Estimate(p)))?;
+    drop((lookups, streamed));
+    progress(Progress::Start { tiles: renderer.tiles() });
+    let (image, stats) = renderer.render_given(&caustic, &|t| progress(Progress::Tiles(t)))?;
+    let o = renderer.opts;
+    let (notes, description) = header_notes(&o, request, file, name.clone());
+    Ok(Rendered { image, stats, notes, options: o, description, photons, remarks, plan })
+}
+
+/// The mode `request` renders `map` in, and what to tell the user about it; checks what can
+/// be checked before any work.
+fn settle_mode(map: &MapView, request: &MapRender) -> Result<(Mode, Vec<String>), RenderError> {
+    let plane = matches!(request.framing, Framing::Plane { .. });
+    let mut mode = request.mode.unwrap_or(if plane { Mode::Irradiance } else { Mode::Full });
+    if plane && mode != Mode::Irradiance {
+        return Err(RenderError::Invalid(
+            "--plane shows irradiance only (no scene, no materials): leave out --mode or use irradiance"
+                .into(),
+        ));
+    }
+    check_estimator(&request.estimator, request.diagnostic.as_ref())?;
+    if map.is_empty() {
+        return Err(RenderError::EmptyMap { file: map.file_name().to_string() });
+    }
+    let mut remarks = Vec::new();
+    let traced_direct = map.info().trace_record().is_some_and(|t| t.parameters.store == "direct");
+    if traced_direct && mode == Mode::Full {
+        remarks.push("the map stores direct photons too, so direct light is not added again".to_string());
+        mode = Mode::Caustic;
+    }
+    Ok((mode, remarks))
+}
+
+/// The options of `request` in `mode` for an image of `width` × `height`.
+fn options(request: &MapRender, mode: Mode, (width, height): (u32, u32)) -> RenderOptions {
+    RenderOptions {
+        width,
+        height,
+        spp: request.spp,
+        mode,
+        estimator: request.estimator,
+        eye: request.eye,
+        seed: request.seed,
+        keep_samples: request.keep_samples,
+        supersample: None,
+    }
+}
+
+/// The EXR header's notes of an image rendered with `o`.
+fn header_notes(o: &RenderOptions, request: &MapRender, file: &str, scene: String) -> (Notes, String) {
     let description = match request.diagnostic {
         Some(d) => format!("diagnostic {}", d.which.name()),
         None => o.estimator.describe(),
@@ -310,10 +395,10 @@ pub fn render_map(
         ("photonkit:mode".to_string(), o.mode.name().to_string()),
         ("photonkit:estimator".to_string(), description.clone()),
         ("photonkit:photon_map".to_string(), file.to_string()),
-        ("photonkit:scene".to_string(), scene_name),
+        ("photonkit:scene".to_string(), scene),
         ("photonkit:samples_per_pixel".to_string(), o.spp.to_string()),
     ];
-    Ok(Rendered { image, stats, notes, options: o, description, photons: photons.len(), remarks })
+    (notes, description)
 }
 
 /// The estimator's and the diagnostic's settings, checked before any work.
@@ -367,6 +452,7 @@ mod tests {
         let progress = |p: Progress| match p {
             Progress::Start { tiles } => total.store(tiles, std::sync::atomic::Ordering::Relaxed),
             Progress::Tiles(n) => _ = ticks.fetch_add(n, std::sync::atomic::Ordering::Relaxed),
+            Progress::Estimate(_) => {}
         };
         let r = render_map(&table.view(), &MapRender::new(plane(0.0)), &progress).unwrap();
         assert_eq!((r.image.width, r.image.height), (32, 32), "the square rectangle keeps its aspect");

@@ -14,6 +14,7 @@ pub mod estimate;
 pub mod from_map;
 pub mod image;
 pub mod shade;
+pub mod tiled;
 pub mod tone;
 
 use std::f32::consts::FRAC_1_PI;
@@ -55,6 +56,14 @@ pub enum RenderError {
         column: String,
         /// The photon's index in the map.
         index: u64,
+    },
+    /// A memory budget too small for the render ([`from_map::render_map_within`]).
+    #[error("a memory budget of {budget} bytes is too small: this render needs at least {needed}")]
+    Budget {
+        /// The budget, bytes.
+        budget: u64,
+        /// The least it needs, bytes.
+        needed: u64,
     },
     /// An image file could not be encoded or decoded (EXR, PNG).
     #[error("{file}: {message}")]
@@ -280,6 +289,42 @@ impl Renderer<'_> {
 
     /// Renders the image, tile by tile in parallel; `progress(1)` after each tile.
     pub fn render(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<(Image, RenderStats), RenderError> {
+        let (image, stats, _) = self.run(Caustic::Estimated, progress)?;
+        Ok((image, stats))
+    }
+
+    /// The diffuse hits where the caustic irradiance is looked up, per image tile (row-major
+    /// tiles of [`TILE`] pixels), each tile's in the order the render meets them: the first
+    /// half of a render whose estimates are made elsewhere ([`Self::render_given`]; a map
+    /// estimated tile by tile, `render::tiled`). Needs no photons; empty in direct mode.
+    pub fn lookups(&self, progress: &(dyn Fn(u64) + Sync)) -> Result<Vec<Vec<Lookup>>, RenderError> {
+        Ok(self.run(Caustic::Recorded, progress)?.2)
+    }
+
+    /// The image with the caustic irradiance at each diffuse hit given: `caustic[t][j]` at
+    /// the j-th hit of image tile t, in the order of [`Self::lookups`]. The same image, byte
+    /// for byte, as [`Self::render`] with photons whose estimates at those hits are these.
+    pub fn render_given(
+        &self,
+        caustic: &[Vec<Vec3>],
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<(Image, RenderStats), RenderError> {
+        if caustic.len() as u64 != self.tiles() {
+            return Err(RenderError::Invalid(format!(
+                "caustic irradiance for {} image tiles, the image has {}",
+                caustic.len(),
+                self.tiles()
+            )));
+        }
+        let (image, stats, _) = self.run(Caustic::Given(caustic), progress)?;
+        Ok((image, stats))
+    }
+
+    fn run(
+        &self,
+        caustic: Caustic,
+        progress: &(dyn Fn(u64) + Sync),
+    ) -> Result<(Image, RenderStats, Vec<Vec<Lookup>>), RenderError> {
         let o = &self.opts;
         let pixels = o.width as u64 * o.height as u64;
         if o.width == 0
@@ -320,10 +365,14 @@ impl Renderer<'_> {
             return Err(RenderError::Invalid("the estimator needs at least one neighbour (k ≥ 1)".into()));
         }
         let needs_photons = self.diagnostic.is_some() || o.mode.needs_photons();
-        if needs_photons && self.photons.is_none() {
+        if !matches!(caustic, Caustic::Estimated) && self.diagnostic.is_some() {
+            return Err(RenderError::Invalid("a diagnostic view looks its photons up as it goes".into()));
+        }
+        if needs_photons && self.photons.is_none() && matches!(caustic, Caustic::Estimated) {
             return Err(RenderError::Invalid(format!("mode {} needs a photon map", o.mode.name())));
         }
         if let Some(p) = self.photons
+            && matches!(caustic, Caustic::Estimated)
             && needs_photons
             && self.diagnostic.is_none()
             && !p.serves(&o.estimator)
@@ -359,6 +408,7 @@ impl Renderer<'_> {
         // Every sample kept for the preview's anti-aliasing after tone mapping (Image::samples),
         // up to a bound on memory.
         let keep = o.keep_samples
+            && !matches!(caustic, Caustic::Recorded)
             && o.supersample.is_none()
             && self.diagnostic.is_none()
             && o.spp > 1
@@ -367,7 +417,11 @@ impl Renderer<'_> {
             .into_par_iter()
             .map_init(TileScratch::default, |s, t| {
                 let (tx, ty) = ((t % tiles_x as u64) as u32, (t / tiles_x as u64) as u32);
-                let r = self.tile(tx * TILE, ty * TILE, &seen, keep, s);
+                let given = match caustic {
+                    Caustic::Given(all) => Some(&all[t as usize][..]),
+                    _ => None,
+                };
+                let r = self.tile(tx * TILE, ty * TILE, &seen, keep, (caustic, given), s);
                 progress(1);
                 r
             })
@@ -378,7 +432,22 @@ impl Renderer<'_> {
         let spp = o.spp as usize;
         let mut samples = keep.then(|| vec![Vec3::ZERO; img.pixels.len() * spp]);
         let mut stats = RenderStats::default();
-        for (t, TileResult { pixels, surface, each, stats: st }) in results.into_iter().enumerate() {
+        let mut lookups = Vec::new();
+        for (t, TileResult { pixels, surface, each, stats: st, recorded, given }) in
+            results.into_iter().enumerate()
+        {
+            if matches!(caustic, Caustic::Recorded) {
+                lookups.push(recorded);
+                continue;
+            }
+            if let Caustic::Given(all) = caustic
+                && all[t].len() != given
+            {
+                return Err(RenderError::Invalid(format!(
+                    "image tile {t}: {} caustic values given for {given} lookups",
+                    all[t].len()
+                )));
+            }
             let (x0, y0) = ((t as u32 % tiles_x) * TILE, (t as u32 / tiles_x) * TILE);
             let w = TILE.min(o.width - x0);
             for (k, (p, seen)) in pixels.into_iter().zip(surface).enumerate() {
@@ -397,11 +466,24 @@ impl Renderer<'_> {
         }
         img.metered = metered;
         img.samples = samples.map(|s| (o.spp, s));
-        Ok((img, stats))
+        Ok((img, stats, lookups))
     }
 
-    fn tile(&self, x0: u32, y0: u32, seen: &Seen, keep: bool, s: &mut TileScratch) -> TileResult {
+    fn tile(
+        &self,
+        x0: u32,
+        y0: u32,
+        seen: &Seen,
+        keep: bool,
+        (caustic, given): (Caustic, Option<&[Vec3]>),
+        s: &mut TileScratch,
+    ) -> TileResult {
         let o = &self.opts;
+        let mut source = match (caustic, given) {
+            (Caustic::Recorded, _) => Source::Recorded(Vec::new()),
+            (Caustic::Given(_), Some(values)) => Source::Given(values, 0),
+            _ => Source::Estimated,
+        };
         let (w, h) = (TILE.min(o.width - x0), TILE.min(o.height - y0));
         let mut out = Vec::with_capacity((w * h) as usize);
         // Per pixel: whether some sample's eye path reached a surface.
@@ -432,7 +514,14 @@ impl Renderer<'_> {
                     } else {
                         ((jx + 0.754_877_7 * k as f32).fract(), (jy + 0.569_840_3 * k as f32).fract())
                     };
-                    let v = self.sample(x as f32 + dx, y as f32 + dy, seen, &mut rng, s, &mut stats);
+                    let v = self.sample(
+                        x as f32 + dx,
+                        y as f32 + dy,
+                        (seen, &mut source),
+                        &mut rng,
+                        s,
+                        &mut stats,
+                    );
                     sum += v;
                     if keep {
                         each.push(v);
@@ -444,7 +533,12 @@ impl Renderer<'_> {
                 out.push(sum / spp as f32);
             }
         }
-        TileResult { pixels: out, surface, each, stats }
+        let (recorded, given) = match source {
+            Source::Recorded(r) => (r, 0),
+            Source::Given(_, used) => (Vec::new(), used),
+            Source::Estimated => (Vec::new(), 0),
+        };
+        TileResult { pixels: out, surface, each, stats, recorded, given }
     }
 
     /// The value of one image-plane sample at (px, py) pixels.
@@ -452,7 +546,7 @@ impl Renderer<'_> {
         &self,
         px: f32,
         py: f32,
-        seen: &Seen,
+        (seen, source): (&Seen, &mut Source),
         rng: &mut PhotonRng,
         s: &mut TileScratch,
         stats: &mut RenderStats,
@@ -492,11 +586,22 @@ impl Renderer<'_> {
         }
         let mut value = escaped;
         for hit in &s.hits {
-            let caustic = match (o.mode, self.photons) {
-                (Mode::Direct, _) | (_, None) => Vec3::ZERO,
-                (_, Some(p)) => {
+            let caustic = match (o.mode, &mut *source, self.photons) {
+                (Mode::Direct, ..) | (_, Source::Estimated, None) => Vec3::ZERO,
+                (_, Source::Estimated, Some(p)) => {
                     stats.lookups += 1;
                     p.irradiance(&o.estimator, hit.point, hit.normal, &mut s.estimate)
+                }
+                (_, Source::Recorded(r), _) => {
+                    // Only where the estimate is looked up matters: the value is not kept.
+                    r.push(Lookup { point: hit.point, normal: hit.normal });
+                    continue;
+                }
+                (_, Source::Given(values, next), _) => {
+                    stats.lookups += 1;
+                    let e = values.get(*next).copied().unwrap_or(Vec3::ZERO);
+                    *next += 1;
+                    e
                 }
             };
             let direct = match (seen.lights, scene) {
@@ -514,12 +619,43 @@ impl Renderer<'_> {
     }
 }
 
-/// One tile's pixels (row by row), whether each saw a surface, its samples when kept, and counts.
+/// One tile's pixels (row by row), whether each saw a surface, its samples when kept, counts,
+/// and the hits it looked the caustic up at (when recorded).
 struct TileResult {
     pixels: Vec<Vec3>,
     surface: Vec<bool>,
     each: Vec<Vec3>,
     stats: RenderStats,
+    recorded: Vec<Lookup>,
+    /// How many given values it used.
+    given: usize,
+}
+
+/// A diffuse hit where a render looks the caustic irradiance up.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Lookup {
+    /// The hit point, metres.
+    pub point: Vec3,
+    /// The surface's unit normal on the eye's side.
+    pub normal: Vec3,
+}
+
+/// Where a render takes the caustic irradiance at its diffuse hits from.
+#[derive(Clone, Copy)]
+enum Caustic<'c> {
+    /// Estimated from the renderer's photons as each hit is met.
+    Estimated,
+    /// Not estimated: the hits are recorded ([`Renderer::lookups`]).
+    Recorded,
+    /// Given per image tile, in the order the hits are met ([`Renderer::render_given`]).
+    Given(&'c [Vec<Vec3>]),
+}
+
+/// One image tile's [`Caustic`]: the hits recorded so far, or the given values and the next.
+enum Source<'g> {
+    Estimated,
+    Recorded(Vec<Lookup>),
+    Given(&'g [Vec3], usize),
 }
 
 /// What a sample looks through and at: the camera, the emitters' direct light and the

@@ -288,3 +288,36 @@ fn a_memory_budget_runs_tile_by_tile_with_the_untiled_result() {
         }
     }
 }
+
+#[test]
+fn render_under_a_memory_budget_streams_the_map_into_the_same_image() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).display().to_string();
+    let map = path("traced.phm");
+    run(&["trace", "--photons", "200000", "-o", &map]);
+    let image = ["--width", "48", "--height", "32", "--spp", "2"];
+    let (whole, budgeted) = (path("whole.exr"), path("budgeted.exr"));
+    let mut args = vec!["render", map.as_str(), "-o", &whole];
+    args.extend(image);
+    run(&args);
+    // Room for the program and a few tiles of the map's 140 000 photons, not for all of them.
+    let budget = (photonkit::render::tiled::BASELINE + 6_000_000).to_string();
+    let mut args = vec!["render", map.as_str(), "-o", &budgeted, "--memory", &budget];
+    args.extend(image);
+    let o = photonkit(&args);
+    assert!(o.status.success() && stderr(&o).contains("streamed the map in"), "{}", stderr(&o));
+    assert!(std::fs::read(&whole).unwrap() == std::fs::read(&budgeted).unwrap(), "EXR");
+    assert!(std::fs::read(path("whole.png")).unwrap() == std::fs::read(path("budgeted.png")).unwrap(), "PNG");
+    let refused = path("refused.exr");
+    for (budget, says) in [("20M", "needs at least"), ("1G", "")] {
+        let mut args = vec!["render", map.as_str(), "-o", &refused, "--memory", budget];
+        args.extend(image);
+        if budget == "1G" {
+            args.extend(["--estimator", "diffusion"]);
+        }
+        let o = photonkit(&args);
+        assert!(!o.status.success() && stderr(&o).contains("--memory"), "{budget}: {}", stderr(&o));
+        assert!(stderr(&o).contains(says), "{}", stderr(&o));
+        assert!(!Path::new(&refused).exists(), "{budget}");
+    }
+}

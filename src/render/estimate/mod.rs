@@ -210,6 +210,14 @@ pub struct Scratch {
     last: Option<(Vec3, usize, f32)>,
 }
 
+/// The k-NN kernel's radius² from a search that found `found` photons, the last at distance²
+/// `last_dist2`: the k-th's, or the whole limit `max2` when fewer than k lie within it;
+/// `None` when the kernel is empty (r² ≤ 0: the photons sit on the point).
+pub(crate) fn knn_radius2(found: usize, k: usize, last_dist2: f32, max2: f32) -> Option<f32> {
+    let r2 = if found < k { max2 } else { last_dist2 };
+    (r2 > 0.0).then_some(r2)
+}
+
 impl<'a> PhotonLookup<'a> {
     /// Checks the photons (at least one; finite positions, flux and normals) and builds the
     /// world-space index. `file` names the map in errors.
@@ -449,11 +457,7 @@ impl<'a> PhotonLookup<'a> {
         let max2 = max_r.map_or(f32::INFINITY, |m| m * m);
         self.nearest_from_last(x, k, max2, s);
         let Some(last) = s.nb.last() else { return Vec3::ZERO };
-        // Fewer than k within the limit: the kernel spans the whole limit.
-        let r2 = if s.nb.len() < k { max2 } else { last.dist2 };
-        if r2 <= 0.0 {
-            return Vec3::ZERO;
-        }
+        let Some(r2) = knn_radius2(s.nb.len(), k, last.dist2, max2) else { return Vec3::ZERO };
         let mut e = Vec3::ZERO;
         for nb in s.nb.as_slice() {
             let i = nb.index as usize;

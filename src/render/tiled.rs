@@ -1,0 +1,534 @@
+//! The k-NN estimate of a map too large to hold, tile by tile (docs/tiles.md, "Render").
+//!
+//! A render looks the caustic up at a few million diffuse hits ([`super::Lookup`]), whatever
+//! the map's size; the photons are what does not fit. So the hits stay in memory, each with
+//! the k best photons found so far, and the map streams past them one spatial tile at a time
+//! ([`crate::tiles::Tiling`]): a tile's photons are copied out of the file, indexed, and
+//! searched from every hit that one of them could still improve. The first sweep searches
+//! each hit's own tile (the one its point falls in), which finds nearly all of its k nearest;
+//! the second searches the other tiles, skipping every tile whose photons' box lies farther
+//! from the hit than its k-th best. No halo: every photon is read once per sweep, and a hit
+//! far from any light (most of a floor) searches the tiles near it, not the whole map.
+//!
+//! The result is exact: a hit's k nearest by (distance², photon index) are the k smallest of
+//! the per-tile k nearest within the current k-th distance, merged in that order, and the
+//! estimate sums them nearest first as [`super::PhotonLookup`] does, so the image is the
+//! untiled one byte for byte (tested).
+
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::estimate::knn_radius2;
+use super::{Kernel, Lookup, RenderError};
+use crate::format::{MapView, name};
+use crate::spatial::{BoxTree, Neighbours};
+use crate::tiles::{MemoryModel, Tiling};
+
+/// What the streamed estimate keeps in memory per photon: the map's photons in tile order
+/// (4 bytes, and as much again while they are sorted), and per photon of the tile in hand its
+/// position, flux and normal (36 bytes), its index (4), and the tile's k-NN index (about 42,
+/// with the build's scratch). Tiles hold no halo; they hold equal shares of the photons give
+/// or take two, and 5 % covers that with the index's rounding of node counts.
+pub const MEMORY: MemoryModel = MemoryModel { per_photon: 8.0, per_working_photon: 82.0, halo_growth: 1.05 };
+
+/// Bytes a lookup of a chunk holds while the map streams past, for an estimate of `k`
+/// photons: its own tile, how many it found, and its k best so far (distance², index and flux
+/// each).
+pub fn lookup_bytes(k: usize) -> u64 {
+    (4 + 4 + size_of::<Candidate>() * k) as u64
+}
+
+/// What the process holds besides the photons, the lookups and the image: the program, the
+/// scene and its index, the worker threads (measured: docs/tiles.md, "Render").
+pub const BASELINE: u64 = 40 << 20;
+
+/// Bytes per photon of the render that holds the whole map: its k-NN index and its columns.
+pub const WHOLE_PER_PHOTON: f64 = 86.0;
+
+/// The fewest lookups a chunk holds (below it, passes over the map would cost more than the
+/// lookups save).
+pub const MIN_CHUNK_LOOKUPS: usize = 4096;
+
+/// What a render asks of memory.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Demand {
+    /// The map's photons.
+    pub photons: usize,
+    /// The diffuse hits the caustic is looked up at.
+    pub lookups: usize,
+    /// Photons per estimate.
+    pub k: usize,
+    /// The image with what it keeps for the preview, bytes.
+    pub image_bytes: u64,
+}
+
+/// How a streamed estimate fits a budget: the map cut into `tiles`, the lookups into `chunks`
+/// that each stream the map once.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Plan {
+    /// Spatial tiles of the map.
+    pub tiles: usize,
+    /// Runs of lookups, each a pass over the map.
+    pub chunks: usize,
+}
+
+impl Plan {
+    /// The whole map held at once: no streaming.
+    pub const WHOLE: Plan = Plan { tiles: 1, chunks: 1 };
+}
+
+/// Whether the render that holds the whole map fits `budget` bytes.
+pub fn whole_fits(photons: usize, image_bytes: u64, budget: u64) -> bool {
+    BASELINE + (WHOLE_PER_PHOTON * photons as f64) as u64 + image_bytes <= budget
+}
+
+/// How to stream the map of `d` within `budget` bytes: the plan that streams it the fewest
+/// times (the fewest chunks of lookups for which some tiling fits,
+/// [`crate::tiles::tiles_for_budget`]), or the bytes the least plan needs. The peak is the
+/// largest of three phases: recording the lookups (64 bytes each while they are collected),
+/// the estimate (the lookups as recorded, up to 48 bytes each with their vectors' slack,
+/// their estimates, a chunk's search state and copy, the photons' order and one tile), and the
+/// image (the estimates and the image).
+pub fn plan(d: &Demand, budget: u64) -> Result<Plan, u64> {
+    let lookups = d.lookups as u64;
+    let image = (BASELINE + 12 * lookups + d.image_bytes).max(BASELINE + 64 * lookups);
+    let fixed = BASELINE + 60 * lookups;
+    let per = lookup_bytes(d.k) + 24;
+    let most = d.lookups.div_ceil(MIN_CHUNK_LOOKUPS).max(1);
+    let mut chunks = 1;
+    loop {
+        let held = fixed + d.lookups.div_ceil(chunks) as u64 * per;
+        match crate::tiles::tiles_for_budget(d.photons, budget.saturating_sub(held), &MEMORY) {
+            Ok(_) if image > budget => return Err(image),
+            Ok(tiles) => return Ok(Plan { tiles, chunks }),
+            Err(needed) if chunks >= most => return Err((needed + held).max(image)),
+            // Halve what a chunk holds, until a tiling fits.
+            Err(_) => chunks = (chunks * 2).min(most),
+        }
+    }
+}
+
+/// The k-NN estimate's settings ([`super::Estimator::Knn`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Knn {
+    /// Photons per estimate.
+    pub k: usize,
+    /// The kernel over them.
+    pub kernel: Kernel,
+    /// Largest kernel radius, metres.
+    pub max_radius: Option<f32>,
+}
+
+/// Progress of [`StreamedMap::estimate`]: the steps (per chunk of lookups, two sweeps over
+/// the tiles), then each done.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Progress {
+    /// This many steps to go.
+    Start(u64),
+    /// One more step done.
+    Step,
+}
+
+/// A photon among a lookup's k best so far.
+#[derive(Clone, Copy, Debug, Default)]
+struct Candidate {
+    dist2: f32,
+    index: u32,
+    /// Its flux when it faces the lookup's normal, zero when it does not: added, a zero leaves
+    /// the sum as skipping the photon does.
+    flux: [f32; 3],
+}
+
+impl Candidate {
+    /// The order of [`crate::spatial::Neighbour::before`]: distance², then index.
+    fn before(&self, o: &Candidate) -> bool {
+        self.dist2 < o.dist2 || (self.dist2 == o.dist2 && self.index < o.index)
+    }
+}
+
+/// Squared distance from `q` to the box `lo`–`hi`: never more than the distance to any point
+/// inside, as the index computes it (differences and squares are monotone in floating point).
+fn box_dist2(lo: &[f32; 3], hi: &[f32; 3], q: &[f32; 3]) -> f32 {
+    let mut s = 0.0f32;
+    for a in 0..3 {
+        let d = (lo[a] - q[a]).max(q[a] - hi[a]).max(0.0);
+        s += d * d;
+    }
+    s
+}
+
+/// A map cut into spatial tiles for streaming: its photons' indices in tile order, and each
+/// tile's box.
+pub struct StreamedMap<'m> {
+    map: &'m MapView<'m>,
+    file: String,
+    tiling: Tiling,
+    /// Photon indices, tile by tile, each tile's ascending.
+    by_tile: Vec<u32>,
+    /// Where each tile starts in `by_tile` (and the end).
+    start: Vec<usize>,
+    /// Each tile's photons' box (empty tiles: an inverted box).
+    boxes: Vec<([f32; 3], [f32; 3])>,
+}
+
+impl<'m> StreamedMap<'m> {
+    /// `map` cut by `tiling`; refuses a map with no photon or a non-finite position. `file`
+    /// names the map in errors.
+    pub fn new(map: &'m MapView<'m>, file: &str, tiling: Tiling) -> Result<Self, RenderError> {
+        let positions = map.positions();
+        if positions.is_empty() {
+            return Err(RenderError::EmptyMap { file: file.to_string() });
+        }
+        if let Some(i) = positions.par_iter().position_first(|x| !x.iter().all(|c| c.is_finite())) {
+            return Err(RenderError::NonFinite {
+                file: file.to_string(),
+                column: "position".into(),
+                index: i as u64,
+            });
+        }
+        // A counting sort, stable: each tile's photons in file order.
+        let tiles = tiling.len();
+        let tile: Vec<u32> = positions.par_iter().map(|x| tiling.tile_of(*x) as u32).collect();
+        let mut start = vec![0usize; tiles + 1];
+        let mut boxes = vec![([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]); tiles];
+        for (&t, x) in tile.iter().zip(positions) {
+            start[t as usize + 1] += 1;
+            let (lo, hi) = &mut boxes[t as usize];
+            for a in 0..3 {
+                lo[a] = lo[a].min(x[a]);
+                hi[a] = hi[a].max(x[a]);
+            }
+        }
+        map.release_pages();
+        for t in 0..tiles {
+            start[t + 1] += start[t];
+        }
+        let mut by_tile = vec![0u32; positions.len()];
+        let mut next = start.clone();
+        for (i, &t) in tile.iter().enumerate() {
+            by_tile[next[t as usize]] = i as u32;
+            next[t as usize] += 1;
+        }
+        Ok(StreamedMap { map, file: file.to_string(), tiling, by_tile, start, boxes })
+    }
+
+    /// How many tiles.
+    pub fn tiles(&self) -> usize {
+        self.tiling.len()
+    }
+
+    /// The caustic irradiance at each of `lookups` (per image tile, as
+    /// [`super::Renderer::lookups`] records them), estimated with `knn` as
+    /// [`super::PhotonLookup::irradiance`] does, in about `chunks` runs of whole image tiles
+    /// that each stream the map's tiles through memory (module docs).
+    pub fn estimate(
+        &self,
+        lookups: &[Vec<Lookup>],
+        knn: Knn,
+        chunks: usize,
+        progress: &(dyn Fn(Progress) + Sync),
+    ) -> Result<Vec<Vec<Vec3>>, RenderError> {
+        let total: usize = lookups.iter().map(Vec::len).sum();
+        let share = total.div_ceil(chunks.max(1)).max(1);
+        // Runs of image tiles of about `share` lookups each.
+        let mut runs = vec![0usize];
+        let mut held = 0;
+        for (t, l) in lookups.iter().enumerate() {
+            held += l.len();
+            if held >= share && t + 1 < lookups.len() {
+                runs.push(t + 1);
+                held = 0;
+            }
+        }
+        runs.push(lookups.len());
+        progress(Progress::Start(((runs.len() - 1) * 2 * self.tiles()) as u64));
+        let mut out = Vec::with_capacity(lookups.len());
+        for run in runs.windows(2) {
+            let tiles = &lookups[run[0]..run[1]];
+            let flat: Vec<Lookup> = tiles.iter().flatten().copied().collect();
+            let estimated = self.estimate_chunk(&flat, knn, progress)?;
+            let mut at = 0;
+            for l in tiles {
+                out.push(estimated[at..at + l.len()].to_vec());
+                at += l.len();
+            }
+        }
+        Ok(out)
+    }
+
+    fn estimate_chunk(
+        &self,
+        lookups: &[Lookup],
+        knn: Knn,
+        progress: &(dyn Fn(Progress) + Sync),
+    ) -> Result<Vec<Vec3>, RenderError> {
+        let (map, tiles) = (self.map, self.tiles());
+        let k = knn.k.max(1);
+        let max2 = knn.max_radius.map_or(f32::INFINITY, |m| m * m);
+        let (positions, flux) = (map.positions(), map.flux());
+        let normals = map.column::<[f32; 3]>(name::NORMAL)?;
+        let bad = |column: &str, index: u32| RenderError::NonFinite {
+            file: self.file.clone(),
+            column: column.to_string(),
+            index: index as u64,
+        };
+        let finite = |x: &[f32; 3]| x.iter().all(|c| c.is_finite());
+        let own: Vec<u32> =
+            lookups.par_iter().map(|l| self.tiling.tile_of(l.point.to_array()) as u32).collect();
+        let mut best = vec![Candidate::default(); lookups.len() * k];
+        let mut found = vec![0u32; lookups.len()];
+        for own_sweep in [true, false] {
+            for t in 0..tiles {
+                let members = &self.by_tile[self.start[t]..self.start[t + 1]];
+                let (lo, hi) = self.boxes[t];
+                // Whether some lookup searches this tile in this sweep.
+                let wanted = |(i, l): (usize, &Lookup)| {
+                    if own_sweep {
+                        return own[i] as usize == t;
+                    }
+                    let worst2 = if found[i] as usize == k { best[i * k + k - 1].dist2 } else { max2 };
+                    own[i] as usize != t && box_dist2(&lo, &hi, &l.point.to_array()) <= worst2
+                };
+                if members.is_empty() || !lookups.par_iter().enumerate().any(wanted) {
+                    progress(Progress::Step);
+                    continue;
+                }
+                // The tile's photons, copied out of the file (whose pages are then let go).
+                let pages = map.pages();
+                let pos = pages.gather(positions, members);
+                let fl = pages.gather(flux, members);
+                let nl = normals.map(|ns| pages.gather(ns, members));
+                if let Some(j) = fl.par_iter().position_first(|x| !finite(x)) {
+                    return Err(bad("flux", members[j]));
+                }
+                if let Some(j) = nl.as_ref().and_then(|ns| ns.par_iter().position_first(|x| !finite(x))) {
+                    return Err(bad("normal", members[j]));
+                }
+                let tree = BoxTree::build(&pos);
+                best.par_chunks_mut(k)
+                    .zip(found.par_iter_mut())
+                    .zip(lookups.par_iter().zip(own.par_iter()))
+                    .for_each_init(
+                        || (Neighbours::default(), Vec::with_capacity(k)),
+                        |(nb, merged), ((list, found), (lookup, &own))| {
+                            if (own as usize == t) != own_sweep {
+                                return;
+                            }
+                            let q = lookup.point.to_array();
+                            let have = *found as usize;
+                            let worst2 = if have == k { list[k - 1].dist2 } else { max2 };
+                            if !own_sweep && box_dist2(&lo, &hi, &q) > worst2 {
+                                return;
+                            }
+                            tree.knn(q, k, worst2, nb);
+                            if nb.is_empty() {
+                                return;
+                            }
+                            let n = lookup.normal;
+                            let fresh = nb.as_slice().iter().map(|c| {
+                                let j = c.index as usize;
+                                let faces = nl.as_ref().is_none_or(|ns| Vec3::from_array(ns[j]).dot(n) > 0.0);
+                                Candidate {
+                                    dist2: c.dist2,
+                                    index: members[j],
+                                    flux: if faces { fl[j] } else { [0.0; 3] },
+                                }
+                            });
+                            merge_best(&list[..have], fresh, k, merged);
+                            list[..merged.len()].copy_from_slice(merged);
+                            *found = merged.len() as u32;
+                        },
+                    );
+                progress(Progress::Step);
+            }
+        }
+
+        // E(x) = Σ Φ_p w(d_p) over the k nearest, nearest first, as the untiled estimate sums
+        // it (a photon facing away adds zero, as the untiled sum skips it).
+        Ok(best
+            .par_chunks(k)
+            .zip(found.par_iter())
+            .map(|(list, &found)| {
+                let list = &list[..found as usize];
+                let Some(last) = list.last() else { return Vec3::ZERO };
+                let Some(r2) = knn_radius2(list.len(), k, last.dist2, max2) else { return Vec3::ZERO };
+                let mut e = Vec3::ZERO;
+                for c in list {
+                    if c.dist2 <= r2 {
+                        e += Vec3::from_array(c.flux) * knn.kernel.weight(c.dist2, r2);
+                    }
+                }
+                e
+            })
+            .collect())
+    }
+}
+
+/// The `k` first of two lists each sorted by [`Candidate::before`], into `out`.
+fn merge_best(a: &[Candidate], b: impl Iterator<Item = Candidate>, k: usize, out: &mut Vec<Candidate>) {
+    out.clear();
+    let mut b = b.peekable();
+    let mut a = a.iter().peekable();
+    while out.len() < k {
+        let take_a = match (a.peek(), b.peek()) {
+            (Some(x), Some(y)) => !y.before(x),
+            (Some(_), None) => true,
+            (None, Some(_)) => false,
+            (None, None) => break,
+        };
+        if take_a {
+            out.push(*a.next().expect("peeked"));
+        } else {
+            out.push(b.next().expect("peeked"));
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::format::PhotonTable;
+    use crate::render::{Estimator, PhotonData, PhotonLookup, Scratch};
+    use crate::synthetic::uniform_square;
+    use crate::tiles::TileSpec;
+
+    /// A square of photons with a crowd of 24 on one point, a band lit from the other side
+    /// (normals −z), and fluxes that differ photon to photon.
+    fn map(n: usize) -> crate::synthetic::SyntheticMap {
+        let mut m = uniform_square(n, 7, 1.0);
+        for (i, (x, (f, nl))) in m.position.iter_mut().zip(m.flux.iter_mut().zip(&mut m.normal)).enumerate() {
+            *f = [f[0] * (1.0 + (i % 7) as f32), f[1], f[2] * (1.0 + (i % 3) as f32)];
+            if x[0] > 0.6 && x[0] < 0.7 {
+                *nl = [0.0, 0.0, -1.0];
+            }
+            if i % 97 == 0 && i < 24 * 97 {
+                *x = [0.25, 0.75, 0.0];
+            }
+        }
+        m
+    }
+
+    /// Lookups on a grid over the square and beyond it, facing both ways, and on the crowd.
+    fn lookups() -> Vec<Vec<Lookup>> {
+        let mut all = Vec::new();
+        for row in 0..9 {
+            let tile: Vec<Lookup> = (0..40)
+                .map(|j| {
+                    let (x, y) = (-0.3 + 1.6 * j as f32 / 39.0, -0.2 + 1.4 * row as f32 / 8.0);
+                    let up = if (row + j) % 5 == 0 { -1.0 } else { 1.0 };
+                    Lookup { point: Vec3::new(x, y, 0.0), normal: Vec3::new(0.0, 0.0, up) }
+                })
+                .chain([Lookup { point: Vec3::new(0.25, 0.75, 0.0), normal: Vec3::Z }])
+                .collect();
+            all.push(tile);
+        }
+        all.push(Vec::new());
+        all
+    }
+
+    #[test]
+    fn streamed_estimates_equal_the_whole_maps_bit_for_bit() {
+        for n in [3_000, 10] {
+            let m = map(n);
+            let info = m.info("test", 1, "2026-01-01T00:00:00Z");
+            let table = PhotonTable::from_columns("square", info, &m.columns()).unwrap();
+            let view = table.view();
+            let data = PhotonData { positions: &m.position, flux: &m.flux, normals: Some(&m.normal) };
+            let whole = PhotonLookup::new("square", data).unwrap();
+            let lookups = lookups();
+            for (k, max_radius) in [(15, None), (1, None), (40, None), (15, Some(0.02))] {
+                let knn = Knn { k, kernel: Kernel::Epanechnikov, max_radius };
+                let est = Estimator::Knn { k, kernel: Kernel::Epanechnikov, max_radius };
+                let mut s = Scratch::default();
+                let expected: Vec<Vec<Vec3>> = lookups
+                    .iter()
+                    .map(|t| t.iter().map(|l| whole.irradiance(&est, l.point, l.normal, &mut s)).collect())
+                    .collect();
+                let lit = expected.iter().flatten().filter(|e| e.x > 0.0).count();
+                assert!(n < 100 || k == 1 || lit > 50, "n {n}, k {k}: {lit} lookups see light");
+                for count in [1, 2, 4, 9] {
+                    let tiling = Tiling::new(&m.position, TileSpec { index: 0, count }.grid());
+                    let streamed = StreamedMap::new(&view, "square", tiling).unwrap();
+                    for chunks in [1, 3] {
+                        let got = streamed.estimate(&lookups, knn, chunks, &|_| {}).unwrap();
+                        let bits = |v: &Vec<Vec<Vec3>>| -> Vec<u32> {
+                            v.iter().flatten().flat_map(|e| e.to_array().map(f32::to_bits)).collect()
+                        };
+                        assert_eq!(
+                            bits(&got),
+                            bits(&expected),
+                            "n {n}, k {k}, {count} tiles, {chunks} chunks"
+                        );
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn a_map_with_a_non_finite_photon_is_refused_with_its_index() {
+        let mut m = map(100);
+        m.flux[42][1] = f32::NAN;
+        let info = m.info("test", 1, "2026-01-01T00:00:00Z");
+        let table = PhotonTable::from_columns("square", info, &m.columns()).unwrap();
+        let view = table.view();
+        let streamed = StreamedMap::new(&view, "square", Tiling::new(&m.position, [2, 1])).unwrap();
+        let knn = Knn { k: 15, kernel: Kernel::Epanechnikov, max_radius: None };
+        let e = streamed.estimate(&lookups(), knn, 1, &|_| {}).unwrap_err();
+        assert!(matches!(e, RenderError::NonFinite { index: 42, .. }), "{e}");
+        m.position[7][0] = f32::INFINITY;
+        let info = m.info("test", 1, "2026-01-01T00:00:00Z");
+        let table = PhotonTable::from_columns("square", info, &m.columns()).unwrap();
+        let view = table.view();
+        let e = StreamedMap::new(&view, "square", Tiling::new(&m.position, [2, 1])).err().unwrap();
+        assert!(matches!(e, RenderError::NonFinite { index: 7, .. }), "{e}");
+    }
+
+    #[test]
+    fn the_plan_holds_the_map_whole_when_it_fits_and_streams_it_the_fewest_times() {
+        let d = Demand { photons: 10_000_000, lookups: 1_200_000, k: 15, image_bytes: 40 << 20 };
+        let whole = BASELINE + (WHOLE_PER_PHOTON * 1e7) as u64 + d.image_bytes;
+        assert!(
+            whole_fits(d.photons, d.image_bytes, whole) && !whole_fits(d.photons, d.image_bytes, whole - 1)
+        );
+        // Within a plan's budget: the phases' peaks as the plan counts them.
+        let peak = |p: Plan| {
+            let l = d.lookups as u64;
+            let chunk = d.lookups.div_ceil(p.chunks) as u64 * (lookup_bytes(d.k) + 24);
+            let tile = MEMORY.per_working_photon * MEMORY.halo_growth * d.photons.div_ceil(p.tiles) as f64;
+            let estimate = BASELINE + 60 * l + chunk + (MEMORY.per_photon * d.photons as f64 + tile) as u64;
+            estimate.max(BASELINE + 12 * l + d.image_bytes).max(BASELINE + 64 * l)
+        };
+        let mut last = Plan { tiles: 0, chunks: 0 };
+        for budget in [800u64 << 20, 600 << 20, 400 << 20, 300 << 20] {
+            let p = plan(&d, budget).unwrap();
+            assert!(peak(p) <= budget, "{p:?} at {budget}: {}", peak(p));
+            assert!(p.chunks >= last.chunks, "a smaller budget never streams fewer times");
+            if p.chunks > 1 {
+                // One chunk fewer would not fit with any tiling.
+                let fewer = Plan { chunks: p.chunks - 1, tiles: 1 << 20 };
+                assert!(peak(fewer) > budget || d.photons / fewer.tiles < crate::tiles::MIN_TILE_PHOTONS);
+            }
+            last = p;
+        }
+        let needed = plan(&d, 100 << 20).unwrap_err();
+        assert!(needed > 100 << 20, "{needed}");
+        assert!(
+            plan(&d, needed + (needed >> 4)).is_ok(),
+            "the size named suffices (give or take the chunking)"
+        );
+    }
+
+    #[test]
+    fn merging_keeps_the_k_first_by_distance_then_index() {
+        let c = |dist2: f32, index: u32| Candidate { dist2, index, flux: [index as f32; 3] };
+        let a = [c(1.0, 5), c(2.0, 1), c(2.0, 9)];
+        let b = [c(0.5, 3), c(2.0, 4), c(3.0, 0)];
+        let mut out = Vec::new();
+        merge_best(&a, b.into_iter(), 4, &mut out);
+        let got: Vec<(f32, u32)> = out.iter().map(|c| (c.dist2, c.index)).collect();
+        assert_eq!(got, [(0.5, 3), (1.0, 5), (2.0, 1), (2.0, 4)]);
+        merge_best(&[], b.into_iter(), 5, &mut out);
+        assert_eq!(out.len(), 3);
+    }
+}

@@ -134,6 +134,16 @@ pub fn tiles_for_budget(n: usize, budget: u64, m: &MemoryModel) -> Result<usize,
     Ok(count)
 }
 
+/// The process's resident set now, bytes (Linux: `VmRSS` of /proc/self/status; `None`
+/// elsewhere): what a stage holds before its own work (the program, the scene, the map's
+/// header), which a memory budget must leave room for besides the stage's model.
+pub fn resident_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: u64 = line.trim_start_matches("VmRSS:").trim().trim_end_matches("kB").trim().parse().ok()?;
+    Some(kb * 1024)
+}
+
 /// An nx × ny grid of cells over a map's bounding box, in its two longest axes, cut at the
 /// quantiles of the photons' coordinates so that the tiles hold about equal numbers of photons
 /// (module docs).
@@ -420,6 +430,16 @@ pub fn part_columns(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    #[cfg(target_os = "linux")]
+    fn the_resident_set_grows_by_what_is_touched() {
+        let before = resident_bytes().expect("Linux has /proc/self/status");
+        let touched = vec![1u8; 256 << 20];
+        let after = resident_bytes().unwrap();
+        assert!(after >= before + (128 << 20), "{before} → {after} after touching 256 MiB");
+        drop(std::hint::black_box(touched));
+    }
 
     /// The tile count for a budget is the fewest that fit, a near-square grid, and a budget
     /// below the per-photon part is refused with the bytes needed.

@@ -106,14 +106,20 @@ pub(crate) fn budget_tiling(
 ) -> anyhow::Result<Option<photonkit::tiles::Tiling>> {
     use indicatif::HumanBytes;
     let Some(budget) = budget else { return Ok(None) };
-    let tiles = photonkit::tiles::tiles_for_budget(map.len(), budget, model).map_err(|need| {
-        anyhow::anyhow!(
-            "--memory {}: {doing} {} photons needs at least {} (what the map needs per photon, and one tile)",
-            HumanBytes(budget),
-            map.len(),
-            HumanBytes(need)
-        )
-    })?;
+    // What the process holds already (the program, the scene) is not the stage's to use.
+    let held = photonkit::tiles::resident_bytes().unwrap_or(0);
+    let tiles = photonkit::tiles::tiles_for_budget(map.len(), budget.saturating_sub(held), model).map_err(
+        |need| {
+            anyhow::anyhow!(
+                "--memory {}: {doing} {} photons needs at least {} (what the map needs per photon, one tile, \
+             and the {} the process holds already)",
+                HumanBytes(budget),
+                map.len(),
+                HumanBytes(need + held),
+                HumanBytes(held)
+            )
+        },
+    )?;
     if tiles == 1 {
         return Ok(None);
     }

@@ -41,6 +41,24 @@ impl DetectArgs {
             ..p
         }
     }
+
+    /// These settings as command-line arguments (for a stage run as its subcommand).
+    pub fn to_argv(&self) -> Vec<String> {
+        let mut v = vec![
+            "--kc".to_string(),
+            self.kc.to_string(),
+            "--beta".into(),
+            self.beta.to_string(),
+            "--growths".into(),
+            self.growths.to_string(),
+            "--spectral-scale".into(),
+            self.spectral_scale.to_string(),
+        ];
+        if let Some(k) = self.k_density {
+            v.extend(["--k-density".to_string(), k.to_string()]);
+        }
+        v
+    }
 }
 
 /// Relaxation's settings (Eq. 8–9).
@@ -59,5 +77,10 @@ impl RelaxArgs {
     /// `p` with these settings.
     pub fn apply(&self, p: RelaxParams) -> RelaxParams {
         RelaxParams { iterations: self.iterations, kf: self.kf, ..p }
+    }
+
+    /// These settings as command-line arguments (for a stage run as its subcommand).
+    pub fn to_argv(&self) -> Vec<String> {
+        vec!["--iterations".into(), self.iterations.to_string(), "--kf".into(), self.kf.to_string()]
     }
 }

@@ -57,6 +57,12 @@ pub struct Args {
     /// sphere, see MIN_RELAX_PHOTONS in src/cli/pipeline.rs).
     #[arg(long, value_name = "N", default_value_t = MIN_RELAX_PHOTONS)]
     min_relax_photons: u64,
+    /// Keep the peak memory under SIZE (512M, 8G, 2GiB): the stages run one after another from
+    /// their files, as `photonkit detect`, `relax`, `collapse`, `relax` and `render` with
+    /// `--memory SIZE` (each tile by tile when the whole map would not fit; the maps are the
+    /// same, bit for bit), and the trace spools to disk in pieces of at most a quarter of SIZE.
+    #[arg(long, value_name = "SIZE", value_parser = super::parse_memory)]
+    memory: Option<u64>,
     /// Options passed on to `photonkit render` (after `--`), e.g. `-- --width 300 --height 300`.
     #[arg(last = true, value_name = "RENDER OPTIONS")]
     render: Vec<String>,
@@ -75,6 +81,96 @@ pub const MIN_RELAX_PHOTONS: u64 = 5_000;
 struct RenderCommand {
     #[command(flatten)]
     args: super::render::Args,
+}
+
+/// The pipeline under `--memory budget`: every stage as its subcommand, each in a process of
+/// its own (so that none inherits what an earlier one left allocated), from the previous
+/// stage's file to its own, with `--memory` (the trace: its spool); the stage table as the
+/// pipeline prints it in memory. The maps are those the pipeline makes in memory.
+fn run_budgeted(a: &Args, budget: u64, file: &dyn Fn(&str) -> PathBuf) -> anyhow::Result<()> {
+    let memory = budget.to_string();
+    let path = |name: &str| file(name).display().to_string();
+    let scene: Vec<String> =
+        a.scene.iter().flat_map(|s| ["--scene".to_string(), s.display().to_string()]).collect();
+    let mut trace = vec!["trace".to_string()];
+    trace.extend(a.scene.iter().map(|s| s.display().to_string()));
+    trace.extend(match a.stored {
+        Some(n) => ["--stored".to_string(), n.to_string()],
+        None => ["--photons".to_string(), a.photons.to_string()],
+    });
+    trace.extend([
+        "--seed".to_string(),
+        a.seed.to_string(),
+        "--memory".into(),
+        (budget / 4).min(DEFAULT_SPOOL_MEMORY).to_string(),
+    ]);
+    let with = |command: &str, input: &str, output: &str, extra: Vec<String>| {
+        let mut v = vec![command.to_string(), path(input), "-o".into(), path(output)];
+        if command != "collapse" {
+            v.extend(["--memory".to_string(), memory.clone()]);
+        }
+        v.extend(extra);
+        v
+    };
+    trace.extend(["-o".to_string(), path("traced.phm")]);
+    let stages: [(&str, &str, Vec<String>); 5] = [
+        ("trace", "traced.phm", trace),
+        ("detect", "detected.phm", with("detect", "traced.phm", "detected.phm", a.detect.to_argv())),
+        (
+            "relax (params)",
+            "relaxed-params.phm",
+            with("relax", "detected.phm", "relaxed-params.phm", [a.relax.to_argv(), scene.clone()].concat()),
+        ),
+        ("collapse", "collapsed.phm", with("collapse", "relaxed-params.phm", "collapsed.phm", Vec::new())),
+        (
+            "relax (world)",
+            "relaxed.phm",
+            with("relax", "collapsed.phm", "relaxed.phm", [a.relax.to_argv(), scene].concat()),
+        ),
+    ];
+    let exe = std::env::current_exe().context("finding the photonkit executable for the stages")?;
+    let run = |label: &str, argv: &[String]| -> anyhow::Result<f64> {
+        let t = Instant::now();
+        let mut c = std::process::Command::new(&exe);
+        if super::quiet() {
+            c.arg("--quiet");
+        }
+        let status = c.args(argv).status().with_context(|| format!("starting the {label} stage"))?;
+        anyhow::ensure!(status.success(), "the {label} stage failed (`photonkit {}`)", argv.join(" "));
+        Ok(t.elapsed().as_secs_f64())
+    };
+    for (label, output, argv) in stages {
+        let seconds = run(label, &argv)?;
+        let photons = PhotonMap::open_unverified(&path(output))?.len();
+        report(label, seconds, photons, &file(output), "")?;
+    }
+    let traced = PhotonMap::open_unverified(&path("traced.phm"))?.len() as u64;
+    let rendered = render_source(a, traced);
+    let mut argv = vec!["render".to_string(), path(rendered), "-o".into(), path("render.exr")];
+    argv.extend(a.scene.iter().flat_map(|s| ["--scene".to_string(), s.display().to_string()]));
+    if !a.render.iter().any(|o| o == "--memory" || o.starts_with("--memory=")) {
+        argv.extend(["--memory".to_string(), memory.clone()]);
+    }
+    argv.extend(a.render.iter().cloned());
+    let seconds = run("render", &argv)?;
+    let photons = PhotonMap::open_unverified(&path(rendered))?.len();
+    report("render", seconds, photons, &file("render.exr"), &format!("  (and render.png, from {rendered})"))
+}
+
+/// The map the pipeline renders: the relaxed one, or with fewer than `--min-relax-photons`
+/// stored (and no `--relax-anyway`) the traced one, with a note saying why.
+fn render_source(a: &Args, stored: u64) -> &'static str {
+    if stored < a.min_relax_photons && !a.relax_anyway {
+        super::note!(
+            "note: only {stored} photons stored (fewer than --min-relax-photons {}): relaxation at this \
+             count spreads the caustic instead of sharpening it, so the image is rendered from \
+             traced.phm (relaxed.phm is written all the same; --relax-anyway renders it)",
+            a.min_relax_photons
+        );
+        "traced.phm"
+    } else {
+        "relaxed.phm"
+    }
 }
 
 /// A spinner on a terminal, nothing otherwise.
@@ -105,6 +201,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let file = |name: &str| a.out_dir.join(name);
     let total = Instant::now();
     super::note!("{:<16} {:>10} {:>18}  output", "stage", "time", "");
+    if let Some(budget) = a.memory {
+        run_budgeted(&a, budget, &file)?;
+        return finish(&file, total);
+    }
 
     // Trace.
     let opts = TraceOptions {
@@ -137,48 +237,43 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     )?;
 
     // Detect, relax, collapse, relax: in memory, each stage's map written as it is made.
-    let traced_map = PhotonMap::open_path(&file("traced.phm"))?;
-    let params =
-        PipelineParams { detect: dp, method: None, relax: rp, iterations: [rp.iterations, rp.iterations] };
-    let bar = spinner("detect");
-    let mut on_stage = |done: &StageDone, table: &PhotonTable| -> Result<(), PipelineError> {
-        let name = match done.stage {
-            Stage::Detect => "detected.phm",
-            Stage::RelaxParams => "relaxed-params.phm",
-            Stage::Collapse => "collapsed.phm",
-            Stage::RelaxWorld => "relaxed.phm",
+    {
+        let traced_map = PhotonMap::open_path(&file("traced.phm"))?;
+        let params = PipelineParams {
+            detect: dp,
+            method: None,
+            relax: rp,
+            iterations: [rp.iterations, rp.iterations],
         };
-        table.write(Output::Path(file(name)))?;
-        let note = if done.summary.is_empty() { String::new() } else { format!("  ({})", done.summary) };
-        bar.suspend(|| report(done.stage.label(), done.seconds, done.photons, &file(name), &note))
-            .map_err(|e| PipelineError::Caller(format!("{e:#}")))
-    };
-    let progress = |p: pipeline::Progress| match p {
-        pipeline::Progress::Started(stage) => bar.set_message(stage.label()),
-        pipeline::Progress::Iteration(stage, m) => {
-            bar.set_message(format!("{}: iteration {}", stage.label(), m.iteration + 1))
-        }
-        pipeline::Progress::Note(note) => bar.suspend(|| super::note!("note: {note}")),
-    };
-    let relaxed = pipeline::run(&traced_map.view(), Some(&scene), &params, &mut on_stage, &progress);
-    bar.finish_and_clear();
-    relaxed?;
-    drop(traced_map);
+        let bar = spinner("detect");
+        let mut on_stage = |done: &StageDone, table: &PhotonTable| -> Result<(), PipelineError> {
+            let name = match done.stage {
+                Stage::Detect => "detected.phm",
+                Stage::RelaxParams => "relaxed-params.phm",
+                Stage::Collapse => "collapsed.phm",
+                Stage::RelaxWorld => "relaxed.phm",
+            };
+            table.write(Output::Path(file(name)))?;
+            let note = if done.summary.is_empty() { String::new() } else { format!("  ({})", done.summary) };
+            bar.suspend(|| report(done.stage.label(), done.seconds, done.photons, &file(name), &note))
+                .map_err(|e| PipelineError::Caller(format!("{e:#}")))
+        };
+        let progress = |p: pipeline::Progress| match p {
+            pipeline::Progress::Started(stage) => bar.set_message(stage.label()),
+            pipeline::Progress::Iteration(stage, m) => {
+                bar.set_message(format!("{}: iteration {}", stage.label(), m.iteration + 1))
+            }
+            pipeline::Progress::Note(note) => bar.suspend(|| super::note!("note: {note}")),
+        };
+        let relaxed = pipeline::run(&traced_map.view(), Some(&scene), &params, &mut on_stage, &progress);
+        bar.finish_and_clear();
+        relaxed?;
+        drop(traced_map);
+    }
 
     // Render, with the render subcommand's defaults (the scene's camera, 600×600, 4 samples
     // per pixel, K = 15 Epanechnikov): the relaxed map, or with too few photons the traced one.
-    let rendered = if traced.stored < a.min_relax_photons && !a.relax_anyway {
-        super::note!(
-            "note: only {} photons stored (fewer than --min-relax-photons {}): relaxation at this \
-             count spreads the caustic instead of sharpening it, so the image is rendered from \
-             traced.phm (relaxed.phm is written all the same; --relax-anyway renders it)",
-            traced.stored,
-            a.min_relax_photons
-        );
-        "traced.phm"
-    } else {
-        "relaxed.phm"
-    };
+    let rendered = render_source(&a, traced.stored);
     // The options after `--` are parsed as `photonkit render`'s; the map is the one in memory.
     let mut argv: Vec<std::ffi::OsString> =
         vec!["render".into(), file(rendered).into(), "-o".into(), file("render.exr").into()];
@@ -202,6 +297,11 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         &format!("  (and render.png, from {rendered})"),
     )?;
 
+    finish(&file, total)
+}
+
+/// The table's total and where to look.
+fn finish(file: &dyn Fn(&str) -> PathBuf, total: Instant) -> anyhow::Result<ExitCode> {
     super::note!("{:<16} {:>8.2} s", "total", total.elapsed().as_secs_f64());
     super::note!(
         "look at {} (or the EXR), and at the photons with `photonkit inspect {}`",

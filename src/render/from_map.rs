@@ -315,7 +315,9 @@ pub fn render_map_within(
     // The image, and the samples it keeps for the preview (twice while tiles are assembled).
     let image_bytes = pixels * (12 + 1) + if opts.keep_samples { pixels * opts.spp as u64 * 24 } else { 0 };
     let photons = map.len();
-    if super::tiled::whole_fits(photons, image_bytes, budget) {
+    let baseline = super::tiled::Demand::baseline_now();
+    let demand = super::tiled::Demand { photons, lookups: 0, k, image_bytes, baseline };
+    if super::tiled::whole_fits(&demand, budget) {
         return render_map(map, request, progress);
     }
     let renderer = Renderer {
@@ -327,7 +329,7 @@ pub fn render_map_within(
     // Where the estimate is looked up: the eye paths alone, no photons.
     let lookups = renderer.lookups(&|_| {})?;
     let count: usize = lookups.iter().map(Vec::len).sum();
-    let demand = super::tiled::Demand { photons, lookups: count, k, image_bytes };
+    let demand = super::tiled::Demand { lookups: count, ..demand };
     let plan =
         super::tiled::plan(&demand, budget).map_err(|needed| RenderError::Budget { budget, needed })?;
     let grid = crate::tiles::TileSpec { index: 0, count: plan.tiles }.grid();

@@ -38,9 +38,15 @@ pub fn lookup_bytes(k: usize) -> u64 {
     (4 + 4 + size_of::<Candidate>() * k) as u64
 }
 
-/// What the process holds besides the photons, the lookups and the image: the program, the
-/// scene and its index, the worker threads (measured: docs/tiles.md, "Render").
+/// What the process holds besides the photons, the lookups and the image (the program, the
+/// scene and its index, the worker threads) where it cannot be measured
+/// ([`crate::tiles::resident_bytes`]); measured: 10 MB on the default scene, 30 MB on the
+/// water's.
 pub const BASELINE: u64 = 40 << 20;
+
+/// Room for the worker threads' scratch and the allocator's slack, over what the process held
+/// when the render began.
+pub const HEADROOM: u64 = 8 << 20;
 
 /// Bytes per photon of the render that holds the whole map: its k-NN index and its columns.
 pub const WHOLE_PER_PHOTON: f64 = 86.0;
@@ -60,6 +66,16 @@ pub struct Demand {
     pub k: usize,
     /// The image with what it keeps for the preview, bytes.
     pub image_bytes: u64,
+    /// What the process holds besides: the program, the scene ([`Demand::baseline_now`]).
+    pub baseline: u64,
+}
+
+impl Demand {
+    /// The baseline of a render that begins now: what the process holds and [`HEADROOM`], or
+    /// [`BASELINE`] where that cannot be measured.
+    pub fn baseline_now() -> u64 {
+        crate::tiles::resident_bytes().map_or(BASELINE, |r| r + HEADROOM)
+    }
 }
 
 /// How a streamed estimate fits a budget: the map cut into `tiles`, the lookups into `chunks`
@@ -78,8 +94,8 @@ impl Plan {
 }
 
 /// Whether the render that holds the whole map fits `budget` bytes.
-pub fn whole_fits(photons: usize, image_bytes: u64, budget: u64) -> bool {
-    BASELINE + (WHOLE_PER_PHOTON * photons as f64) as u64 + image_bytes <= budget
+pub fn whole_fits(d: &Demand, budget: u64) -> bool {
+    d.baseline + (WHOLE_PER_PHOTON * d.photons as f64) as u64 + d.image_bytes <= budget
 }
 
 /// How to stream the map of `d` within `budget` bytes: the plan that streams it the fewest
@@ -91,8 +107,8 @@ pub fn whole_fits(photons: usize, image_bytes: u64, budget: u64) -> bool {
 /// image (the estimates and the image).
 pub fn plan(d: &Demand, budget: u64) -> Result<Plan, u64> {
     let lookups = d.lookups as u64;
-    let image = (BASELINE + 12 * lookups + d.image_bytes).max(BASELINE + 64 * lookups);
-    let fixed = BASELINE + 60 * lookups;
+    let image = (d.baseline + 12 * lookups + d.image_bytes).max(d.baseline + 64 * lookups);
+    let fixed = d.baseline + 60 * lookups;
     let per = lookup_bytes(d.k) + 24;
     let most = d.lookups.div_ceil(MIN_CHUNK_LOOKUPS).max(1);
     let mut chunks = 1;
@@ -486,18 +502,22 @@ mod tests {
 
     #[test]
     fn the_plan_holds_the_map_whole_when_it_fits_and_streams_it_the_fewest_times() {
-        let d = Demand { photons: 10_000_000, lookups: 1_200_000, k: 15, image_bytes: 40 << 20 };
-        let whole = BASELINE + (WHOLE_PER_PHOTON * 1e7) as u64 + d.image_bytes;
-        assert!(
-            whole_fits(d.photons, d.image_bytes, whole) && !whole_fits(d.photons, d.image_bytes, whole - 1)
-        );
+        let d = Demand {
+            photons: 10_000_000,
+            lookups: 1_200_000,
+            k: 15,
+            image_bytes: 40 << 20,
+            baseline: 30 << 20,
+        };
+        let whole = d.baseline + (WHOLE_PER_PHOTON * 1e7) as u64 + d.image_bytes;
+        assert!(whole_fits(&d, whole) && !whole_fits(&d, whole - 1));
         // Within a plan's budget: the phases' peaks as the plan counts them.
         let peak = |p: Plan| {
             let l = d.lookups as u64;
             let chunk = d.lookups.div_ceil(p.chunks) as u64 * (lookup_bytes(d.k) + 24);
             let tile = MEMORY.per_working_photon * MEMORY.halo_growth * d.photons.div_ceil(p.tiles) as f64;
-            let estimate = BASELINE + 60 * l + chunk + (MEMORY.per_photon * d.photons as f64 + tile) as u64;
-            estimate.max(BASELINE + 12 * l + d.image_bytes).max(BASELINE + 64 * l)
+            let estimate = d.baseline + 60 * l + chunk + (MEMORY.per_photon * d.photons as f64 + tile) as u64;
+            estimate.max(d.baseline + 12 * l + d.image_bytes).max(d.baseline + 64 * l)
         };
         let mut last = Plan { tiles: 0, chunks: 0 };
         for budget in [800u64 << 20, 600 << 20, 400 << 20, 300 << 20] {

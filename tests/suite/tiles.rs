@@ -294,22 +294,23 @@ fn render_under_a_memory_budget_streams_the_map_into_the_same_image() {
     let dir = tempfile::tempdir().unwrap();
     let path = |name: &str| dir.path().join(name).display().to_string();
     let map = path("traced.phm");
-    run(&["trace", "--photons", "200000", "-o", &map]);
+    run(&["trace", "--photons", "1000000", "-o", &map]);
     let image = ["--width", "48", "--height", "32", "--spp", "2"];
     let (whole, budgeted) = (path("whole.exr"), path("budgeted.exr"));
     let mut args = vec!["render", map.as_str(), "-o", &whole];
     args.extend(image);
     run(&args);
-    // Room for the program and a few tiles of the map's 140 000 photons, not for all of them.
-    let budget = (photonkit::render::tiled::BASELINE + 6_000_000).to_string();
-    let mut args = vec!["render", map.as_str(), "-o", &budgeted, "--memory", &budget];
+    // Room for the program (10–20 MB) and a few tiles of the map's 700 000 photons (60 MB
+    // whole), not for all of them.
+    let budget = "40M";
+    let mut args = vec!["render", map.as_str(), "-o", &budgeted, "--memory", budget];
     args.extend(image);
     let o = photonkit(&args);
     assert!(o.status.success() && stderr(&o).contains("streamed the map in"), "{}", stderr(&o));
     assert!(std::fs::read(&whole).unwrap() == std::fs::read(&budgeted).unwrap(), "EXR");
     assert!(std::fs::read(path("whole.png")).unwrap() == std::fs::read(path("budgeted.png")).unwrap(), "PNG");
     let refused = path("refused.exr");
-    for (budget, says) in [("20M", "needs at least"), ("1G", "")] {
+    for (budget, says) in [("5M", "needs at least"), ("1G", "")] {
         let mut args = vec!["render", map.as_str(), "-o", &refused, "--memory", budget];
         args.extend(image);
         if budget == "1G" {
@@ -320,4 +321,47 @@ fn render_under_a_memory_budget_streams_the_map_into_the_same_image() {
         assert!(stderr(&o).contains(says), "{}", stderr(&o));
         assert!(!Path::new(&refused).exists(), "{budget}");
     }
+}
+
+#[test]
+fn the_pipeline_under_a_memory_budget_makes_the_maps_and_image_it_makes_in_memory() {
+    let dir = tempfile::tempdir().unwrap();
+    let (whole, budgeted) = (dir.path().join("whole"), dir.path().join("budgeted"));
+    let image = ["--", "--width", "48", "--height", "32", "--spp", "1"];
+    let mut args = vec!["pipeline", "--photons", "60000", "--out-dir", whole.to_str().unwrap()];
+    args.extend(image);
+    run(&args);
+    let mut args =
+        vec!["pipeline", "--photons", "60000", "--memory", "25M", "--out-dir", budgeted.to_str().unwrap()];
+    args.extend(image);
+    let o = photonkit(&args);
+    assert!(o.status.success(), "{}", stderr(&o));
+    // Detect and relax ran tile by tile, each stage in its own process.
+    assert!(stderr(&o).contains("detecting in ") && stderr(&o).contains("relaxing in "), "{}", stderr(&o));
+    for stage in ["trace", "detect", "relax (params)", "collapse", "relax (world)", "render", "total"] {
+        assert!(stderr(&o).lines().any(|l| l.starts_with(stage)), "no '{stage}' line in {}", stderr(&o));
+    }
+    for name in ["traced.phm", "detected.phm", "relaxed-params.phm", "collapsed.phm", "relaxed.phm"] {
+        let (a, b) = (
+            PhotonMap::open_path(&whole.join(name)).unwrap(),
+            PhotonMap::open_path(&budgeted.join(name)).unwrap(),
+        );
+        assert_eq!(a.meta().state, b.meta().state, "{name}");
+        let columns = |m: &PhotonMap| -> Vec<(String, u32)> {
+            m.meta().columns.iter().map(|c| (c.name.clone(), c.crc32)).collect()
+        };
+        assert_eq!(columns(&a), columns(&b), "{name}: every column the same");
+    }
+    let png = |d: &Path| std::fs::read(d.join("render.png")).unwrap();
+    assert!(png(&whole) == png(&budgeted), "the same image");
+    let o = photonkit(&[
+        "pipeline",
+        "--photons",
+        "60000",
+        "--memory",
+        "1M",
+        "--out-dir",
+        budgeted.to_str().unwrap(),
+    ]);
+    assert!(!o.status.success() && stderr(&o).contains("--memory"), "{}", stderr(&o));
 }

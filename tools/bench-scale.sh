@@ -32,4 +32,4 @@ stage collapse "$DIR/collapsed.phm" collapse "$DIR/relaxed.phm" -o "$DIR/collaps
 rm "$DIR/relaxed.phm"
 stage relax-collapsed "$DIR/final.phm" relax "$DIR/collapsed.phm" --memory "$BUDGET" -o "$DIR/final.phm"
 rm "$DIR/collapsed.phm"
-stage render "$DIR/render.exr" render "$DIR/final.phm" -o "$DIR/render.exr"
+stage render "$DIR/render.exr" render "$DIR/final.phm" --memory "$BUDGET" -o "$DIR/render.exr"

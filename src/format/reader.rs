@@ -262,6 +262,11 @@ impl Pages<'_> {
     /// Drops the pages of `bytes`, a part of the file, as [`Self::release`] does for all of it
     /// (nothing when `bytes` is not in the file).
     pub fn release_range(&self, bytes: &[u8]) {
+        self.release_around(bytes, 0);
+    }
+
+    /// [`Self::release_range`] of `bytes` grown by `margin` bytes on each side (within the file).
+    fn release_around(&self, bytes: &[u8], margin: usize) {
         #[cfg(unix)]
         if let Some(m) = self.0 {
             let start = bytes.as_ptr() as usize;
@@ -269,10 +274,13 @@ impl Pages<'_> {
             if offset + bytes.len() > m.len() {
                 return;
             }
+            let from = offset.saturating_sub(margin);
+            let to = (offset + bytes.len()).saturating_add(margin).min(m.len());
             // SAFETY: as in `release`.
-            let _ =
-                unsafe { m.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, offset, bytes.len()) };
+            let _ = unsafe { m.unchecked_advise_range(memmap2::UncheckedAdvice::DontNeed, from, to - from) };
         }
+        #[cfg(not(unix))]
+        let _ = (bytes, margin);
     }
 }
 
@@ -291,12 +299,19 @@ impl Pages<'_> {
             if let (Some(&a), Some(&b)) = (ix.first(), ix.last())
                 && a <= b
             {
-                self.release_range(bytemuck::cast_slice(&column[a as usize..=b as usize]));
+                // A page fault maps its neighbours too (the kernel's fault-around, 64 KiB), so
+                // a block's faults map pages of the blocks beside it: release them with it.
+                self.release_around(bytemuck::cast_slice(&column[a as usize..=b as usize]), FAULT_AROUND);
             }
         });
         out
     }
 }
+
+/// Bytes around a gathered block's span released with it: the kernel's fault-around maps up
+/// to 64 KiB about a faulting page, and read-ahead more (measured: with the span alone, half of
+/// a column gathered in four stayed resident at 10⁸ photons).
+const FAULT_AROUND: usize = 1 << 20;
 
 /// Indices a [`Pages::gather`] block copies before it releases their span (at most this many
 /// pages resident per block and column).

@@ -10,7 +10,8 @@ use indicatif::HumanBytes;
 use indicatif::{ProgressBar, ProgressStyle};
 use photonkit::format::{MapView, PhotonMap};
 use photonkit::render::from_map::{
-    CameraChanges, DiagnosticView, Framing, MapRender, Progress, render_map, render_map_within,
+    CameraChanges, DiagnosticView, Framing, MapRender, Progress, render_from_parts, render_map,
+    render_map_within, render_tile_part,
 };
 use photonkit::render::tiled::Progress as EstimateProgress;
 use photonkit::render::{
@@ -110,6 +111,21 @@ pub struct Args {
     /// Needs the k-NN estimate and the scene's camera (no --plane, no --diagnostic).
     #[arg(long, value_name = "SIZE", value_parser = super::parse_memory, conflicts_with_all = ["plane", "diagnostic"])]
     memory: Option<u64>,
+    /// Estimate only map tile i of n (the tiles `detect --tile` cuts) and write a tile part to
+    /// -o (a PHM file): for every lookup of the image, the tile's photons that may be among
+    /// its K nearest. `render MAP --parts PART… -o IMAGE` with the same options makes the image
+    /// from every tile's part, the same byte for byte (docs/tiles.md). Tiles can so run on
+    /// other machines.
+    #[arg(long, value_name = "i/n", value_parser = parse_tile, conflicts_with_all = ["memory", "plane", "diagnostic", "parts"])]
+    tile: Option<photonkit::tiles::TileSpec>,
+    /// Make the image from the tile parts `render MAP --tile i/n` wrote (every tile, any
+    /// order), with the options they were made with.
+    #[arg(long, value_name = "PART", num_args = 1.., conflicts_with_all = ["memory", "plane", "diagnostic"])]
+    parts: Vec<String>,
+}
+
+fn parse_tile(s: &str) -> Result<photonkit::tiles::TileSpec, String> {
+    s.parse().map_err(|e: photonkit::tiles::TileError| e.to_string())
 }
 
 /// Options `render` and `reference` share.
@@ -361,6 +377,10 @@ const DEFAULT_K: usize = 15;
 pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>) -> anyhow::Result<()> {
     for p in [Some(a.output.clone()), a.common.outputs(&a.output).png].into_iter().flatten() {
         super::refuse_input_as_output(&p.to_string_lossy())?;
+        let same = |other: &str| std::fs::canonicalize(other).ok() == std::fs::canonicalize(&p).ok();
+        if p.exists() && a.parts.iter().any(|part| same(part)) {
+            bail!("-o {}: that is one of the --parts being read", p.display());
+        }
     }
     let kernel = match a.kernel {
         KernelArg::Epanechnikov => Kernel::Epanechnikov,
@@ -437,7 +457,22 @@ pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>
         Progress::Estimate(EstimateProgress::Step) => bar.inc(1),
     };
     let t = Instant::now();
+    if let Some(tile) = a.tile {
+        let output = a.output.to_string_lossy().to_string();
+        let t = Instant::now();
+        let part = render_tile_part(map, &request, tile)?;
+        part.write(photonkit::format::Output::parse(&output)).context("writing the tile part")?;
+        super::note!(
+            "photonkit render: tile {tile}: {} candidate photons for the image's lookups in {:.2} s",
+            part.len(),
+            t.elapsed().as_secs_f64()
+        );
+        return Ok(());
+    }
+    let parts = a.parts.iter().map(|p| PhotonMap::open(p)).collect::<Result<Vec<_>, _>>()?;
+    let part_views: Vec<MapView> = parts.iter().map(PhotonMap::view).collect();
     let run = || match a.memory {
+        _ if !part_views.is_empty() => render_from_parts(map, &request, &part_views),
         Some(budget) => render_map_within(map, &request, budget, &progress),
         None => render_map(map, &request, &progress),
     };

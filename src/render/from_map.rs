@@ -295,37 +295,15 @@ pub fn render_map_within(
     progress: &(dyn Fn(Progress) + Sync),
 ) -> Result<Rendered, RenderError> {
     let file = map.file_name();
-    let (mode, remarks) = settle_mode(map, request)?;
-    let Framing::Scene { scene, camera, name } = &request.framing else {
-        return Err(RenderError::Invalid(
-            "--memory renders through a scene's camera, not a --plane view".into(),
-        ));
-    };
-    let Estimator::Knn { k, kernel, max_radius } = request.estimator else {
-        return Err(RenderError::Invalid(format!(
-            "--memory renders the k-NN estimate (the default), not {}",
-            request.estimator.describe()
-        )));
-    };
-    if request.diagnostic.is_some() {
-        return Err(RenderError::Invalid("--memory renders radiance, not a diagnostic view".into()));
-    }
-    let opts = options(request, mode, (camera.resolution[0], camera.resolution[1]));
-    let pixels = opts.width as u64 * opts.height as u64;
-    // The image, and the samples it keeps for the preview (twice while tiles are assembled).
-    let image_bytes = pixels * (12 + 1) + if opts.keep_samples { pixels * opts.spp as u64 * 24 } else { 0 };
+    let Streamable { renderer, knn, remarks, scene: name } = streamable(map, request)?;
+    let k = knn.k;
     let photons = map.len();
     let baseline = super::tiled::Demand::baseline_now();
+    let image_bytes = image_bytes(&renderer.opts);
     let demand = super::tiled::Demand { photons, lookups: 0, k, image_bytes, baseline };
     if super::tiled::whole_fits(&demand, budget) {
         return render_map(map, request, progress);
     }
-    let renderer = Renderer {
-        view: View::Scene { scene, camera: camera.clone() },
-        photons: None,
-        diagnostic: None,
-        opts,
-    };
     // Where the estimate is looked up: the eye paths alone, no photons.
     let lookups = renderer.lookups(&|_| {})?;
     let count: usize = lookups.iter().map(Vec::len).sum();
@@ -336,14 +314,221 @@ pub fn render_map_within(
     let tiling = crate::tiles::Tiling::new(map.positions(), grid);
     map.release_pages();
     let streamed = super::tiled::StreamedMap::new(map, file, tiling)?;
-    let knn = super::tiled::Knn { k, kernel, max_radius };
     let caustic = streamed.estimate(&lookups, knn, plan.chunks, &|p| progress(Progress::Estimate(p)))?;
     drop((lookups, streamed));
     progress(Progress::Start { tiles: renderer.tiles() });
     let (image, stats) = renderer.render_given(&caustic, &|t| progress(Progress::Tiles(t)))?;
     let o = renderer.opts;
-    let (notes, description) = header_notes(&o, request, file, name.clone());
+    let (notes, description) = header_notes(&o, request, file, name);
     Ok(Rendered { image, stats, notes, options: o, description, photons, remarks, plan })
+}
+
+/// A render whose estimates can be made apart from it: its renderer (no photons), the k-NN
+/// estimate's settings, the remarks for the user and the scene's name.
+struct Streamable<'s> {
+    renderer: Renderer<'s>,
+    knn: super::tiled::Knn,
+    remarks: Vec<String>,
+    scene: String,
+}
+
+/// `request` on `map` as a render whose estimates are made apart from it (under `--memory`, or
+/// by tile jobs): the k-NN estimate through a scene's camera, radiance, not a diagnostic view.
+fn streamable<'s>(map: &MapView, request: &'s MapRender) -> Result<Streamable<'s>, RenderError> {
+    let (mode, remarks) = settle_mode(map, request)?;
+    let Framing::Scene { scene, camera, name } = &request.framing else {
+        return Err(RenderError::Invalid(
+            "--memory and --tile render through a scene's camera, not a --plane view".into(),
+        ));
+    };
+    let Estimator::Knn { k, kernel, max_radius } = request.estimator else {
+        return Err(RenderError::Invalid(format!(
+            "--memory and --tile render the k-NN estimate (the default), not {}",
+            request.estimator.describe()
+        )));
+    };
+    if request.diagnostic.is_some() {
+        return Err(RenderError::Invalid(
+            "--memory and --tile render radiance, not a diagnostic view".into(),
+        ));
+    }
+    let opts = options(request, mode, (camera.resolution[0], camera.resolution[1]));
+    let renderer = Renderer {
+        view: View::Scene { scene, camera: camera.clone() },
+        photons: None,
+        diagnostic: None,
+        opts,
+    };
+    let knn = super::tiled::Knn { k, kernel, max_radius };
+    Ok(Streamable { renderer, knn, remarks, scene: name.clone() })
+}
+
+/// The image of `o` with the samples it keeps for the preview (twice while tiles are
+/// assembled), bytes.
+fn image_bytes(o: &RenderOptions) -> u64 {
+    let pixels = o.width as u64 * o.height as u64;
+    pixels * (12 + 1) + if o.keep_samples { pixels * o.spp as u64 * 24 } else { 0 }
+}
+
+/// A render tile part's column of each row's lookup (u32): its place among the image's
+/// lookups in the order the render meets them.
+pub const PART_LOOKUP: &str = "render_lookup";
+/// A render tile part's column of each row's squared distance from its lookup (f32).
+pub const PART_DIST2: &str = "render_dist2";
+
+/// CRC-32 of the lookups' points and normals: which render a part's rows belong to.
+fn lookups_crc(lookups: &[super::Lookup]) -> u32 {
+    let mut h = crc32fast::Hasher::new();
+    for l in lookups {
+        h.update(bytemuck::cast_slice(&[l.point.to_array(), l.normal.to_array()]));
+    }
+    h.finalize()
+}
+
+/// The estimate's settings as a part's record holds them.
+fn knn_record(knn: &super::tiled::Knn) -> serde_json::Value {
+    serde_json::json!({ "k": knn.k, "kernel": knn.kernel.name(), "max_radius": knn.max_radius })
+}
+
+/// Tile `tile` of `map`'s share of the render `request` asks, as a job of its own
+/// (`photonkit render MAP --tile i/n -o PART`): a PHM map of, for each of the image's
+/// lookups, the tile's photons among its K nearest within a bound on the map's K-th (position,
+/// flux, normal, `photon_index`, [`PART_LOOKUP`], [`PART_DIST2`]), whose last record names
+/// the tile, the map and the lookups. [`render_from_parts`] makes the image from every tile's.
+pub fn render_tile_part(
+    map: &MapView,
+    request: &MapRender,
+    tile: crate::tiles::TileSpec,
+) -> Result<crate::format::PhotonTable<'static>, RenderError> {
+    use crate::format::{ColumnSpec, PhotonTable, StageRecord};
+    let start = std::time::Instant::now();
+    let Streamable { renderer, knn, .. } = streamable(map, request)?;
+    let lookups: Vec<super::Lookup> = renderer.lookups(&|_| {})?.concat();
+    let tiling = crate::tiles::Tiling::new(map.positions(), tile.grid());
+    map.release_pages();
+    let streamed = super::tiled::StreamedMap::new(map, map.file_name(), tiling)?;
+    let c = streamed.candidates(&lookups, knn, tile.index)?;
+    drop(streamed);
+    let mut info = map.info().clone();
+    let mut rec = StageRecord::now("render", knn_record(&knn));
+    rec.report = crate::tiles::part_report(
+        map,
+        tile,
+        c.photon.len(),
+        start.elapsed().as_secs_f64(),
+        serde_json::json!({ "lookups": lookups.len(), "lookups_crc32": lookups_crc(&lookups) }),
+    );
+    info.history.push(rec);
+    let gather = |column: &[[f32; 3]]| -> Vec<[f32; 3]> {
+        let v = c.photon.iter().map(|&i| column[i as usize]).collect();
+        map.release_pages();
+        v
+    };
+    let (positions, flux) = (gather(map.positions()), gather(map.flux()));
+    let normals = map.column::<[f32; 3]>(name::NORMAL)?.map(gather);
+    let index: Vec<u64> = c.photon.iter().map(|&i| i as u64).collect();
+    let mut columns: Vec<(ColumnSpec, &[u8])> = vec![
+        (ColumnSpec::of::<[f32; 3]>(name::POSITION), bytemuck::cast_slice(&positions)),
+        (ColumnSpec::of::<[f32; 3]>(name::FLUX), bytemuck::cast_slice(&flux)),
+    ];
+    if let Some(n) = &normals {
+        columns.push((ColumnSpec::of::<[f32; 3]>(name::NORMAL), bytemuck::cast_slice(n)));
+    }
+    columns.extend([
+        (ColumnSpec::of::<u64>(crate::detect::PHOTON_INDEX), bytemuck::cast_slice(&index)),
+        (ColumnSpec::of::<u32>(PART_LOOKUP), bytemuck::cast_slice(&c.lookup)),
+        (ColumnSpec::of::<f32>(PART_DIST2), bytemuck::cast_slice(&c.dist2)),
+    ]);
+    let table = PhotonTable::from_columns(map.file_name(), info, &columns)?.into_owned();
+    Ok(table)
+}
+
+/// The image `request` asks of `map`, its estimates made from the tile parts of every tile
+/// (in any order) that `render MAP --tile i/n` wrote with the same options: the image
+/// [`render_map`] makes, byte for byte. An error names the part at fault: one cut from
+/// another map, made for other lookups or another estimate, a tile given twice or missing.
+pub fn render_from_parts(
+    map: &MapView,
+    request: &MapRender,
+    parts: &[MapView],
+) -> Result<Rendered, RenderError> {
+    let file = map.file_name();
+    let Streamable { renderer, knn, remarks, scene } = streamable(map, request)?;
+    let lookups = renderer.lookups(&|_| {})?;
+    let flat: Vec<super::Lookup> = lookups.iter().flatten().copied().collect();
+    let crc = lookups_crc(&flat) as u64;
+    let bad = |part: &MapView, m: String| RenderError::Invalid(format!("{}: {m}", part.file_name()));
+    let Some(first) = parts.first() else { return Err(RenderError::Invalid("no tile parts given".into())) };
+    let count = crate::tiles::part_record(map, first, "render", "photonkit render")
+        .map_err(|m| bad(first, m))?
+        .tile
+        .count;
+    let mut seen = vec![false; count];
+    let mut rows = Vec::new();
+    for part in parts {
+        let r =
+            crate::tiles::part_record(map, part, "render", "photonkit render").map_err(|m| bad(part, m))?;
+        if r.tile.count != count {
+            return Err(bad(
+                part,
+                format!("a part of {} tiles, where the first is of {count}", r.tile.count),
+            ));
+        }
+        if std::mem::replace(&mut seen[r.tile.index], true) {
+            return Err(bad(part, format!("tile {} is given twice", r.tile)));
+        }
+        let num = |key: &str| r.report.get(key).and_then(serde_json::Value::as_u64);
+        if num("lookups") != Some(flat.len() as u64)
+            || num("lookups_crc32") != Some(crc)
+            || *r.parameters != knn_record(&knn)
+        {
+            return Err(bad(
+                part,
+                "made with other render options (its lookups or its estimate differ from this render's)"
+                    .into(),
+            ));
+        }
+        let column =
+            |name: &str| part.column_bytes(name).ok_or_else(|| bad(part, format!("no {name} column")));
+        let lookup: &[u32] =
+            bytemuck::try_cast_slice(column(PART_LOOKUP)?).map_err(|e| bad(part, e.to_string()))?;
+        let photon: Vec<u64> = part
+            .column::<u64>(crate::detect::PHOTON_INDEX)?
+            .ok_or_else(|| bad(part, "no photon_index column".into()))?
+            .to_vec();
+        let dist2 =
+            part.column::<f32>(PART_DIST2)?.ok_or_else(|| bad(part, format!("no {PART_DIST2} column")))?;
+        let normals = part.column::<[f32; 3]>(name::NORMAL)?;
+        for (j, ((&l, &p), &d)) in lookup.iter().zip(&photon).zip(dist2).enumerate() {
+            if l as usize >= flat.len() || p >= map.len() as u64 {
+                return Err(bad(part, format!("row {j} names a lookup or photon that does not exist")));
+            }
+            rows.push(super::tiled::CandidateRow {
+                lookup: l,
+                photon: p as u32,
+                dist2: d,
+                flux: part.flux()[j],
+                normal: normals.map(|n| n[j]),
+            });
+        }
+    }
+    if let Some(missing) = seen.iter().position(|s| !s) {
+        return Err(RenderError::Invalid(format!("the part of tile {missing}/{count} is missing")));
+    }
+    let estimated = super::tiled::estimate_from_candidates(&flat, rows, knn);
+    let mut at = 0;
+    let caustic: Vec<Vec<Vec3>> = lookups
+        .iter()
+        .map(|l| {
+            at += l.len();
+            estimated[at - l.len()..at].to_vec()
+        })
+        .collect();
+    let (image, stats) = renderer.render_given(&caustic, &|_| {})?;
+    let o = renderer.opts;
+    let (notes, description) = header_notes(&o, request, file, scene);
+    let plan = super::tiled::Plan { tiles: count, chunks: 1 };
+    Ok(Rendered { image, stats, notes, options: o, description, photons: map.len(), remarks, plan })
 }
 
 /// The mode `request` renders `map` in, and what to tell the user about it; checks what can

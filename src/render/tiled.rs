@@ -307,25 +307,10 @@ impl<'m> StreamedMap<'m> {
         Ok(out)
     }
 
-    fn estimate_chunk(
-        &self,
-        lookups: &[Lookup],
-        knn: Knn,
-        progress: &(dyn Fn(Progress) + Sync),
-    ) -> Result<Vec<Vec3>, RenderError> {
-        let (map, tiles) = (self.map, self.tiles());
-        let k = knn.k.max(1);
-        let max2 = knn.max_radius.map_or(f32::INFINITY, |m| m * m);
-        let (positions, flux) = (map.positions(), map.flux());
-        let normals = map.column::<[f32; 3]>(name::NORMAL)?;
-        let bad = |column: &str, index: u32| RenderError::NonFinite {
-            file: self.file.clone(),
-            column: column.to_string(),
-            index: index as u64,
-        };
-        let finite = |x: &[f32; 3]| x.iter().all(|c| c.is_finite());
-        // Each lookup's k-th nearest distance² is at most its k-th among the sample's.
-        let bound: Vec<f32> = lookups
+    /// Each lookup's search radius² before any tile is read: its k-th nearest distance²
+    /// among the sample (at most the limit `max2`), which bounds its k-th nearest in the map.
+    fn bounds(&self, lookups: &[Lookup], k: usize, max2: f32) -> Vec<f32> {
+        lookups
             .par_iter()
             .map_init(Neighbours::default, |nb, l| {
                 self.sample.knn(l.point.to_array(), k, max2, nb);
@@ -334,71 +319,78 @@ impl<'m> StreamedMap<'m> {
                     _ => max2,
                 }
             })
-            .collect();
+            .collect()
+    }
+
+    /// Tile `t`'s photons taken out of the file, checked and indexed.
+    fn load(&self, t: usize) -> Result<LoadedTile<'_>, RenderError> {
+        let map = self.map;
+        let members = &self.by_tile[self.start[t]..self.start[t + 1]];
+        let bad = |column: &str, index: u32| RenderError::NonFinite {
+            file: self.file.clone(),
+            column: column.to_string(),
+            index: index as u64,
+        };
+        let finite = |x: &[f32; 3]| x.iter().all(|c| c.is_finite());
+        // Copied out of the file, whose pages are let go block by block.
+        let pages = map.pages();
+        let pos = pages.gather(map.positions(), members);
+        let flux = pages.gather(map.flux(), members);
+        let normals = map.column::<[f32; 3]>(name::NORMAL)?.map(|ns| pages.gather(ns, members));
+        if let Some(j) = flux.par_iter().position_first(|x| !finite(x)) {
+            return Err(bad("flux", members[j]));
+        }
+        if let Some(j) = normals.as_ref().and_then(|ns| ns.par_iter().position_first(|x| !finite(x))) {
+            return Err(bad("normal", members[j]));
+        }
+        let tree = BoxTree::build(&pos);
+        let (lo, hi) = self.boxes[t];
+        Ok(LoadedTile { members, flux, normals, tree, lo, hi })
+    }
+
+    fn estimate_chunk(
+        &self,
+        lookups: &[Lookup],
+        knn: Knn,
+        progress: &(dyn Fn(Progress) + Sync),
+    ) -> Result<Vec<Vec3>, RenderError> {
+        let k = knn.k.max(1);
+        let max2 = knn.max_radius.map_or(f32::INFINITY, |m| m * m);
+        let bound = self.bounds(lookups, k, max2);
         let mut best = vec![Candidate::default(); lookups.len() * k];
         let mut found = vec![0u32; lookups.len()];
-        // The search radius² of lookup i: its k-th best so far, or the sample's bound.
+        // The search radius² of a lookup: its k-th best so far, or the sample's bound.
         let reach2 = |found: u32, list: &[Candidate], bound: f32| {
             if found as usize == k { list[k - 1].dist2 } else { bound }
         };
-        for t in 0..tiles {
-            let members = &self.by_tile[self.start[t]..self.start[t + 1]];
+        for t in 0..self.tiles() {
             let (lo, hi) = self.boxes[t];
             // Whether some lookup could find one of its k nearest in this tile.
             let wanted = |(i, l): (usize, &Lookup)| {
                 box_dist2(&lo, &hi, &l.point.to_array())
                     <= reach2(found[i], &best[i * k..(i + 1) * k], bound[i])
             };
-            if members.is_empty() || !lookups.par_iter().enumerate().any(wanted) {
+            if self.start[t] == self.start[t + 1] || !lookups.par_iter().enumerate().any(wanted) {
                 progress(Progress::Step);
                 continue;
             }
-            {
-                // The tile's photons, copied out of the file (whose pages are then let go).
-                let pages = map.pages();
-                let pos = pages.gather(positions, members);
-                let fl = pages.gather(flux, members);
-                let nl = normals.map(|ns| pages.gather(ns, members));
-                if let Some(j) = fl.par_iter().position_first(|x| !finite(x)) {
-                    return Err(bad("flux", members[j]));
-                }
-                if let Some(j) = nl.as_ref().and_then(|ns| ns.par_iter().position_first(|x| !finite(x))) {
-                    return Err(bad("normal", members[j]));
-                }
-                let tree = BoxTree::build(&pos);
-                best.par_chunks_mut(k)
-                    .zip(found.par_iter_mut())
-                    .zip(lookups.par_iter().zip(bound.par_iter()))
-                    .for_each_init(
-                        || (Neighbours::default(), Vec::with_capacity(k)),
-                        |(nb, merged), ((list, found), (lookup, &bound))| {
-                            let q = lookup.point.to_array();
-                            let worst2 = reach2(*found, list, bound);
-                            if box_dist2(&lo, &hi, &q) > worst2 {
-                                return;
-                            }
-                            tree.knn(q, k, worst2, nb);
-                            if nb.is_empty() {
-                                return;
-                            }
-                            let n = lookup.normal;
-                            let fresh = nb.as_slice().iter().map(|c| {
-                                let j = c.index as usize;
-                                let faces = nl.as_ref().is_none_or(|ns| Vec3::from_array(ns[j]).dot(n) > 0.0);
-                                Candidate {
-                                    dist2: c.dist2,
-                                    index: members[j],
-                                    flux: if faces { fl[j] } else { [0.0; 3] },
-                                }
-                            });
-                            let have = *found as usize;
-                            merge_best(&list[..have], fresh, k, merged);
-                            list[..merged.len()].copy_from_slice(merged);
-                            *found = merged.len() as u32;
-                        },
-                    );
-                progress(Progress::Step);
-            }
+            let tile = self.load(t)?;
+            best.par_chunks_mut(k)
+                .zip(found.par_iter_mut())
+                .zip(lookups.par_iter().zip(bound.par_iter()))
+                .for_each_init(
+                    || (Neighbours::default(), Vec::with_capacity(k)),
+                    |(nb, merged), ((list, found), (lookup, &bound))| {
+                        let have = *found as usize;
+                        if !tile.find(lookup, k, reach2(*found, list, bound), nb) {
+                            return;
+                        }
+                        merge_best(&list[..have], tile.found(lookup, nb), k, merged);
+                        list[..merged.len()].copy_from_slice(merged);
+                        *found = merged.len() as u32;
+                    },
+                );
+            progress(Progress::Step);
         }
 
         // E(x) = Σ Φ_p w(d_p) over the k nearest, nearest first, as the untiled estimate sums
@@ -406,20 +398,161 @@ impl<'m> StreamedMap<'m> {
         Ok(best
             .par_chunks(k)
             .zip(found.par_iter())
-            .map(|(list, &found)| {
-                let list = &list[..found as usize];
-                let Some(last) = list.last() else { return Vec3::ZERO };
-                let Some(r2) = knn_radius2(list.len(), k, last.dist2, max2) else { return Vec3::ZERO };
-                let mut e = Vec3::ZERO;
-                for c in list {
-                    if c.dist2 <= r2 {
-                        e += Vec3::from_array(c.flux) * knn.kernel.weight(c.dist2, r2);
-                    }
-                }
-                e
-            })
+            .map(|(list, &found)| kernel_sum(&list[..found as usize], k, max2, knn.kernel))
             .collect())
     }
+
+    /// Tile `tile`'s share of the estimate, for a job of its own (`render --tile`): for each
+    /// lookup, the k photons of the tile nearest it within the sample's bound on its k-th
+    /// nearest in the map. The k nearest of the map are among the union of every tile's
+    /// ([`estimate_from_candidates`]).
+    pub fn candidates(
+        &self,
+        lookups: &[Lookup],
+        knn: Knn,
+        tile: usize,
+    ) -> Result<TileCandidates, RenderError> {
+        let k = knn.k.max(1);
+        let max2 = knn.max_radius.map_or(f32::INFINITY, |m| m * m);
+        let mut out = TileCandidates::default();
+        if tile >= self.tiles() || self.start[tile] == self.start[tile + 1] {
+            return Ok(out);
+        }
+        let bound = self.bounds(lookups, k, max2);
+        let t = self.load(tile)?;
+        let rows: Vec<Vec<(u32, f32)>> = lookups
+            .par_iter()
+            .zip(bound.par_iter())
+            .map_init(Neighbours::default, |nb, (lookup, &bound)| {
+                t.find(lookup, k, bound, nb);
+                t.found(lookup, nb).map(|c| (c.index, c.dist2)).collect()
+            })
+            .collect();
+        for (i, r) in rows.into_iter().enumerate() {
+            for (photon, dist2) in r {
+                out.lookup.push(i as u32);
+                out.photon.push(photon);
+                out.dist2.push(dist2);
+            }
+        }
+        Ok(out)
+    }
+}
+
+/// One tile's photons in memory: their indices in the map, flux, normals, index and box.
+struct LoadedTile<'s> {
+    members: &'s [u32],
+    flux: Vec<[f32; 3]>,
+    normals: Option<Vec<[f32; 3]>>,
+    tree: BoxTree,
+    lo: [f32; 3],
+    hi: [f32; 3],
+}
+
+impl LoadedTile<'_> {
+    /// Finds into `nb` the tile's photons among the k nearest `lookup` within distance²
+    /// `reach2`, nearest first (none when the tile's box lies beyond the reach); whether any.
+    fn find(&self, lookup: &Lookup, k: usize, reach2: f32, nb: &mut Neighbours) -> bool {
+        let q = lookup.point.to_array();
+        let far = box_dist2(&self.lo, &self.hi, &q) > reach2;
+        // k = 0 finds nothing: it empties `nb`.
+        self.tree.knn(q, if far { 0 } else { k }, reach2, nb);
+        !nb.is_empty()
+    }
+
+    /// The photons [`Self::find`] found, as candidates with their indices in the map.
+    fn found<'a>(&'a self, lookup: &Lookup, nb: &'a Neighbours) -> impl Iterator<Item = Candidate> + 'a {
+        let n = lookup.normal;
+        nb.as_slice().iter().map(move |c| {
+            let j = c.index as usize;
+            let faces = self.normals.as_ref().is_none_or(|ns| Vec3::from_array(ns[j]).dot(n) > 0.0);
+            Candidate {
+                dist2: c.dist2,
+                index: self.members[j],
+                flux: if faces { self.flux[j] } else { [0.0; 3] },
+            }
+        })
+    }
+}
+
+/// One map tile's share of a streamed estimate ([`StreamedMap::candidates`]): per row, a
+/// lookup (its place among the image's lookups in order), a photon of the tile (its index in
+/// the map) and their squared distance; rows by lookup, each lookup's nearest first.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TileCandidates {
+    /// The lookup of each row.
+    pub lookup: Vec<u32>,
+    /// The photon of each row, its index in the map.
+    pub photon: Vec<u32>,
+    /// Their squared distance, as the index computes it.
+    pub dist2: Vec<f32>,
+}
+
+/// A row of [`estimate_from_candidates`]: a lookup's candidate photon with what its estimate
+/// needs.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CandidateRow {
+    /// The lookup.
+    pub lookup: u32,
+    /// The photon's index in the map.
+    pub photon: u32,
+    /// Their squared distance.
+    pub dist2: f32,
+    /// The photon's flux.
+    pub flux: [f32; 3],
+    /// The photon's normal, when the map has normals.
+    pub normal: Option<[f32; 3]>,
+}
+
+/// The estimate at each of `lookups` from every tile's candidates (in any order): the k first
+/// by (distance², photon index) of each lookup's rows, summed as the untiled estimate sums
+/// them. The same values, bit for bit, as [`StreamedMap::estimate`] when the rows are every
+/// tile's [`StreamedMap::candidates`].
+pub fn estimate_from_candidates(lookups: &[Lookup], mut rows: Vec<CandidateRow>, knn: Knn) -> Vec<Vec3> {
+    let k = knn.k.max(1);
+    let max2 = knn.max_radius.map_or(f32::INFINITY, |m| m * m);
+    rows.par_sort_unstable_by(|a, b| {
+        a.lookup.cmp(&b.lookup).then(a.dist2.total_cmp(&b.dist2)).then(a.photon.cmp(&b.photon))
+    });
+    let mut start = vec![0usize; lookups.len() + 1];
+    for r in &rows {
+        if (r.lookup as usize) < lookups.len() {
+            start[r.lookup as usize + 1] += 1;
+        }
+    }
+    for i in 0..lookups.len() {
+        start[i + 1] += start[i];
+    }
+    lookups
+        .par_iter()
+        .enumerate()
+        .map(|(i, l)| {
+            let mine = &rows[start[i]..start[i + 1]];
+            let list: Vec<Candidate> = mine
+                .iter()
+                .take(k)
+                .map(|r| {
+                    let faces = r.normal.is_none_or(|nm| Vec3::from_array(nm).dot(l.normal) > 0.0);
+                    Candidate { dist2: r.dist2, index: r.photon, flux: if faces { r.flux } else { [0.0; 3] } }
+                })
+                .collect();
+            kernel_sum(&list, k, max2, knn.kernel)
+        })
+        .collect()
+}
+
+/// E = Σ Φ_p w(d_p) over a lookup's k nearest `list`, nearest first, r² the k-th's distance²
+/// (the limit `max2` when fewer were found): the untiled estimate's sum, term for term.
+fn kernel_sum(list: &[Candidate], k: usize, max2: f32, kernel: Kernel) -> Vec3 {
+    let Some(last) = list.last() else { return Vec3::ZERO };
+    let Some(r2) = knn_radius2(list.len(), k, last.dist2, max2) else { return Vec3::ZERO };
+    let mut e = Vec3::ZERO;
+    for c in list {
+        if c.dist2 <= r2 {
+            e += Vec3::from_array(c.flux) * kernel.weight(c.dist2, r2);
+        }
+    }
+    e
 }
 
 /// The `k` first of two lists each sorted by [`Candidate::before`], into `out`.
@@ -518,6 +651,23 @@ mod tests {
                             "n {n}, k {k}, {count} tiles, {chunks} chunks"
                         );
                     }
+                    // Every tile as a job of its own, the candidates put together.
+                    let flat: Vec<Lookup> = lookups.iter().flatten().copied().collect();
+                    let mut rows = Vec::new();
+                    for t in (0..count).rev() {
+                        let c = streamed.candidates(&flat, knn, t).unwrap();
+                        for ((&lookup, &photon), &dist2) in c.lookup.iter().zip(&c.photon).zip(&c.dist2) {
+                            let p = photon as usize;
+                            let normal = Some(m.normal[p]);
+                            rows.push(CandidateRow { lookup, photon, dist2, flux: m.flux[p], normal });
+                        }
+                    }
+                    let from_jobs = estimate_from_candidates(&flat, rows, knn);
+                    let flat_bits: Vec<u32> =
+                        from_jobs.iter().flat_map(|e| e.to_array().map(f32::to_bits)).collect();
+                    let whole_bits: Vec<u32> =
+                        expected.iter().flatten().flat_map(|e| e.to_array().map(f32::to_bits)).collect();
+                    assert_eq!(flat_bits, whole_bits, "n {n}, k {k}, {count} tile jobs");
                 }
             }
         }

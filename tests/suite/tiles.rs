@@ -179,6 +179,25 @@ fn the_local_runner_runs_the_tiles_in_parallel_and_merges_them() {
         std::fs::read(&relaxed).unwrap() == std::fs::read(&out).unwrap(),
         "run-local.sh differs from relax"
     );
+    // And render: the image from the tile jobs' parts is the image.
+    let image = ["--width", "32", "--height", "24", "--spp", "1"];
+    let (whole_exr, tiled_exr) = (dir.path().join("whole.exr"), dir.path().join("tiled.exr"));
+    let mut args = vec!["render", relaxed.as_str(), "-o", whole_exr.to_str().unwrap()];
+    args.extend(image);
+    run(&args);
+    let o = Command::new("bash")
+        .arg(root().join("tools/cluster/run-local.sh"))
+        .args([&relaxed, tiled_exr.to_str().unwrap(), "4", "2", "--"])
+        .args(image)
+        .env("PHOTONKIT", env!("CARGO_BIN_EXE_photonkit"))
+        .env("STAGE", "render")
+        .output()
+        .unwrap();
+    assert!(o.status.success(), "{}", stderr(&o));
+    assert!(
+        std::fs::read(&whole_exr).unwrap() == std::fs::read(&tiled_exr).unwrap(),
+        "run-local.sh differs from render"
+    );
     let o = Command::new("bash")
         .arg(root().join("tools/cluster/run-local.sh"))
         .args([&map, &out, "0"])
@@ -244,6 +263,24 @@ fn bad_tiles_and_bad_parts_are_refused_without_output() {
 /// `detect --memory` and `relax --memory` with a budget the whole map exceeds run tile by tile
 /// in one process and write the untiled file byte for byte; a budget below what the map alone
 /// needs is refused without output.
+/// What a `photonkit STAGE` process holds before its own work on `map`, as its refusal of a
+/// budget of one kilobyte states it ("… and the 7.20 MiB the process holds already").
+fn held_bytes(stage: &str, map: &str) -> u64 {
+    let o = photonkit(&[stage, map, "--memory", "1K", "-o", "-"]);
+    let e = stderr(&o);
+    let before = e.split(" the process holds already").next().unwrap();
+    let mut words = before.rsplit(' ');
+    let (unit, value) = (words.next().unwrap(), words.next().unwrap());
+    let scale = match unit {
+        "B" => 1.0,
+        "KiB" => 1024.0,
+        "MiB" => 1024.0 * 1024.0,
+        "GiB" => 1024.0 * 1024.0 * 1024.0,
+        _ => panic!("no size in {e}"),
+    };
+    (value.parse::<f64>().unwrap() * scale) as u64
+}
+
 #[test]
 fn a_memory_budget_runs_tile_by_tile_with_the_untiled_result() {
     let dir = tempfile::tempdir().unwrap();
@@ -253,8 +290,10 @@ fn a_memory_budget_runs_tile_by_tile_with_the_untiled_result() {
     for map in [&traced, &walled] {
         let (whole, budgeted) = (path("whole.phm"), path("budgeted.phm"));
         run(&["detect", map, "-o", &whole]);
+        // Room for what the process holds already and a few tiles, not for the whole map.
+        let budget = (held_bytes("detect", map) + 2_300_000).to_string();
         let o = Command::new(env!("CARGO_BIN_EXE_photonkit"))
-            .args(["detect", map, "--memory", "3M", "-o", &budgeted])
+            .args(["detect", map, "--memory", &budget, "-o", &budgeted])
             .env("SOURCE_DATE_EPOCH", "1700000000")
             .output()
             .unwrap();
@@ -266,7 +305,8 @@ fn a_memory_budget_runs_tile_by_tile_with_the_untiled_result() {
             let mut args = vec!["relax", detected.as_str(), "-o", &whole];
             args.extend(extra);
             run(&args);
-            let mut args = vec!["relax", detected.as_str(), "--memory", "3M", "-o", &budgeted];
+            let budget = (held_bytes("relax", &detected) + 2_300_000).to_string();
+            let mut args = vec!["relax", detected.as_str(), "--memory", &budget, "-o", &budgeted];
             args.extend(extra);
             let o = Command::new(env!("CARGO_BIN_EXE_photonkit"))
                 .args(&args)
@@ -309,7 +349,47 @@ fn render_under_a_memory_budget_streams_the_map_into_the_same_image() {
     assert!(o.status.success() && stderr(&o).contains("streamed the map in"), "{}", stderr(&o));
     assert!(std::fs::read(&whole).unwrap() == std::fs::read(&budgeted).unwrap(), "EXR");
     assert!(std::fs::read(path("whole.png")).unwrap() == std::fs::read(path("budgeted.png")).unwrap(), "PNG");
+    // Tiles as jobs of their own: every part, in any order, makes the same image.
+    let parts: Vec<String> = (0..4).map(|i| path(&format!("part-{i}.phm"))).collect();
+    for (i, part) in parts.iter().enumerate() {
+        let tile = format!("{i}/4");
+        let mut args = vec!["render", map.as_str(), "--tile", &tile, "-o", part];
+        args.extend(image);
+        run(&args);
+    }
+    let from_parts = path("parts.exr");
+    let mut args = vec![
+        "render",
+        map.as_str(),
+        "-o",
+        &from_parts,
+        "--parts",
+        &parts[2],
+        &parts[0],
+        &parts[3],
+        &parts[1],
+    ];
+    args.extend(image);
+    run(&args);
+    assert!(std::fs::read(&whole).unwrap() == std::fs::read(&from_parts).unwrap(), "EXR from parts");
+    assert!(
+        std::fs::read(path("whole.png")).unwrap() == std::fs::read(path("parts.png")).unwrap(),
+        "PNG from parts"
+    );
     let refused = path("refused.exr");
+    let missing = ["--parts", &parts[0], &parts[1], &parts[2]];
+    let twice = ["--parts", &parts[0], &parts[1], &parts[2], &parts[2]];
+    let other = ["--parts", &parts[0], &parts[1], &parts[2], &parts[3]];
+    for (extra, says) in
+        [(&missing[..], "missing"), (&twice[..], "twice"), (&other[..], "other render options")]
+    {
+        let mut args = vec!["render", map.as_str(), "-o", &refused];
+        args.extend(if says == "other render options" { &["--width", "40"][..] } else { &image[..] });
+        args.extend(extra);
+        let o = photonkit(&args);
+        assert!(!o.status.success() && stderr(&o).contains(says), "{says}: {}", stderr(&o));
+        assert!(!Path::new(&refused).exists(), "{says}");
+    }
     for (budget, says) in [("5M", "needs at least"), ("1G", "")] {
         let mut args = vec!["render", map.as_str(), "-o", &refused, "--memory", budget];
         args.extend(image);

@@ -11,7 +11,9 @@
 #   JOBS    tiles run at once (default: the number of processors)
 #   OPTIONS passed to every tile command (e.g. --kc 30 --method world-pca)
 #
-# STAGE names the stage, `detect` (default) or `relax` (OUT is then `photonkit relax MAP`'s).
+# STAGE names the stage, `detect` (default), `relax` (OUT is then `photonkit relax MAP`'s) or
+# `render` (OUT is then the image `photonkit render MAP -o OUT OPTIONS` writes, made by
+# `photonkit render MAP --parts …` from the parts).
 # PHOTONKIT names the binary (default: photonkit on PATH). The parts go to a temporary
 # directory beside OUT, removed at the end (also on failure or interrupt).
 set -euo pipefail
@@ -27,7 +29,7 @@ case $tiles in ''|*[!0-9]*|0) echo "run-local.sh: TILES must be a whole number �
 case $jobs in ''|*[!0-9]*|0) echo "run-local.sh: JOBS must be a whole number ≥ 1, not '$jobs'" >&2; exit 64;; esac
 photonkit=${PHOTONKIT:-photonkit}
 stage=${STAGE:-detect}
-case $stage in detect|relax) ;; *) echo "run-local.sh: STAGE must be detect or relax, not '$stage'" >&2; exit 64;; esac
+case $stage in detect|relax|render) ;; *) echo "run-local.sh: STAGE must be detect, relax or render, not '$stage'" >&2; exit 64;; esac
 
 parts=$(mktemp -d "$(dirname -- "$out")/.tiles-XXXXXX")
 trap 'rm -rf -- "$parts"' EXIT INT TERM HUP
@@ -35,4 +37,8 @@ trap 'rm -rf -- "$parts"' EXIT INT TERM HUP
 # One command per tile, exactly as the cluster recipes run them.
 seq 0 $((tiles - 1)) | xargs -P "$jobs" -I{} \
     "$photonkit" --quiet "$stage" "$map" --tile "{}/$tiles" -o "$parts/part-{}.phm" "$@"
-"$photonkit" --quiet merge --map "$map" "$parts"/part-*.phm -o "$out"
+if [ "$stage" = render ]; then
+    "$photonkit" --quiet render "$map" --parts "$parts"/part-*.phm -o "$out" "$@"
+else
+    "$photonkit" --quiet merge --map "$map" "$parts"/part-*.phm -o "$out"
+fi

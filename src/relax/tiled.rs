@@ -61,7 +61,10 @@ const MAX_ROUNDS: u32 = 48;
 /// exact choice of `certify`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Options {
-    /// The first halo's width as a multiple of the default.
+    /// The first halo's width in units of 2·(R + 1) mean neighbour spacings (the default
+    /// 2.5 measured: on the 10⁶ water in 12 tiles, 1 left 8–20 % of each tile to later rounds
+    /// that relaxed a working set as large as the tile again, 24.6 s; 2 took 14.8 s, 2.5
+    /// certified every tile in one round, 9.2 s; 3 took 10.1 s and 4 12.2 s).
     pub halo_scale: f64,
     /// Whether steps are certified; without, the first halo's results are kept.
     pub certify: bool,
@@ -69,7 +72,7 @@ pub(crate) struct Options {
 
 impl Default for Options {
     fn default() -> Self {
-        Options { halo_scale: 1.0, certify: true }
+        Options { halo_scale: 2.5, certify: true }
     }
 }
 

@@ -114,7 +114,7 @@ pub struct Args {
     /// Estimate only map tile i of n (the tiles `detect --tile` cuts) and write a tile part to
     /// -o (a PHM file): for every lookup of the image, the tile's photons that may be among
     /// its K nearest. `render MAP --parts PART… -o IMAGE` with the same options makes the image
-    /// from every tile's part, the same byte for byte (docs/tiles.md). Tiles can so run on
+    /// from every tile's part, the same byte for byte (docs/tiles.md), so tiles can run on
     /// other machines.
     #[arg(long, value_name = "i/n", value_parser = parse_tile, conflicts_with_all = ["memory", "plane", "diagnostic", "parts"])]
     tile: Option<photonkit::tiles::TileSpec>,

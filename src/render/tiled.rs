@@ -4,11 +4,13 @@
 //! the map's size; the photons are what does not fit. So the hits stay in memory, each with
 //! the k best photons found so far, and the map streams past them one spatial tile at a time
 //! ([`crate::tiles::Tiling`]): a tile's photons are copied out of the file, indexed, and
-//! searched from every hit that one of them could still improve. The first sweep searches
-//! each hit's own tile (the one its point falls in), which finds nearly all of its k nearest;
-//! the second searches the other tiles, skipping every tile whose photons' box lies farther
-//! from the hit than its k-th best. No halo: every photon is read once per sweep, and a hit
-//! far from any light (most of a floor) searches the tiles near it, not the whole map.
+//! searched from every hit whose k nearest it may hold. Before any tile is read, each hit's k-th
+//! nearest among a sample of the map (one photon in [`SAMPLE_EVERY`]) bounds its search: a
+//! subset's k-th nearest is never nearer than the map's. One sweep over the tiles then reads
+//! each tile at most once, skipping a tile whose photons' box lies beyond the reach of every
+//! hit. No halo: a hit far from any light (most of a floor) searches the tiles near it, not
+//! the whole map. A tile can also be searched alone, as a job of its own
+//! ([`StreamedMap::candidates`], [`estimate_from_candidates`]).
 //!
 //! The result is exact: a hit's k nearest by (distance², photon index) are the k smallest of
 //! the per-tile k nearest within the current k-th distance, merged in that order, and the
@@ -160,8 +162,8 @@ pub struct Knn {
     pub max_radius: Option<f32>,
 }
 
-/// Progress of [`StreamedMap::estimate`]: the steps (per chunk of lookups, two sweeps over
-/// the tiles), then each done.
+/// Progress of [`StreamedMap::estimate`]: the steps (per chunk of lookups, one sweep over the
+/// tiles), then each done.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Progress {
     /// This many steps to go.

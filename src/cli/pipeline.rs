@@ -125,7 +125,7 @@ fn run_budgeted(a: &Args, budget: u64, file: &dyn Fn(&str) -> PathBuf) -> anyhow
         (
             "relax (world)",
             "relaxed.phm",
-            with("relax", "collapsed.phm", "relaxed.phm", [a.relax.to_argv(), scene].concat()),
+            with("relax", "collapsed.phm", "relaxed.phm", [a.relax.to_argv(), scene.clone()].concat()),
         ),
     ];
     let exe = std::env::current_exe().context("finding the photonkit executable for the stages")?;
@@ -147,7 +147,7 @@ fn run_budgeted(a: &Args, budget: u64, file: &dyn Fn(&str) -> PathBuf) -> anyhow
     let traced = PhotonMap::open_unverified(&path("traced.phm"))?.len() as u64;
     let rendered = render_source(a, traced);
     let mut argv = vec!["render".to_string(), path(rendered), "-o".into(), path("render.exr")];
-    argv.extend(a.scene.iter().flat_map(|s| ["--scene".to_string(), s.display().to_string()]));
+    argv.extend(scene);
     if !a.render.iter().any(|o| o == "--memory" || o.starts_with("--memory=")) {
         argv.extend(["--memory".to_string(), memory.clone()]);
     }

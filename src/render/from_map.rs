@@ -488,18 +488,14 @@ pub fn render_from_parts(
                     .into(),
             ));
         }
-        let column =
-            |name: &str| part.column_bytes(name).ok_or_else(|| bad(part, format!("no {name} column")));
-        let lookup: &[u32] =
-            bytemuck::try_cast_slice(column(PART_LOOKUP)?).map_err(|e| bad(part, e.to_string()))?;
-        let photon: Vec<u64> = part
+        let missing = |name: &str| bad(part, format!("no {name} column"));
+        let lookup = part.column::<u32>(PART_LOOKUP)?.ok_or_else(|| missing(PART_LOOKUP))?;
+        let photon = part
             .column::<u64>(crate::detect::PHOTON_INDEX)?
-            .ok_or_else(|| bad(part, "no photon_index column".into()))?
-            .to_vec();
-        let dist2 =
-            part.column::<f32>(PART_DIST2)?.ok_or_else(|| bad(part, format!("no {PART_DIST2} column")))?;
-        let normals = part.column::<[f32; 3]>(name::NORMAL)?;
-        for (j, ((&l, &p), &d)) in lookup.iter().zip(&photon).zip(dist2).enumerate() {
+            .ok_or_else(|| missing(crate::detect::PHOTON_INDEX))?;
+        let dist2 = part.column::<f32>(PART_DIST2)?.ok_or_else(|| missing(PART_DIST2))?;
+        let (flux, normals) = (part.flux(), part.column::<[f32; 3]>(name::NORMAL)?);
+        for (j, ((&l, &p), &d)) in lookup.iter().zip(photon).zip(dist2).enumerate() {
             if l as usize >= flat.len() || p >= map.len() as u64 {
                 return Err(bad(part, format!("row {j} names a lookup or photon that does not exist")));
             }
@@ -507,7 +503,7 @@ pub fn render_from_parts(
                 lookup: l,
                 photon: p as u32,
                 dist2: d,
-                flux: part.flux()[j],
+                flux: flux[j],
                 normal: normals.map(|n| n[j]),
             });
         }
@@ -516,14 +512,7 @@ pub fn render_from_parts(
         return Err(RenderError::Invalid(format!("the part of tile {missing}/{count} is missing")));
     }
     let estimated = super::tiled::estimate_from_candidates(&flat, rows, knn);
-    let mut at = 0;
-    let caustic: Vec<Vec<Vec3>> = lookups
-        .iter()
-        .map(|l| {
-            at += l.len();
-            estimated[at - l.len()..at].to_vec()
-        })
-        .collect();
+    let caustic = super::tiled::per_image_tile(&estimated, &lookups);
     let (image, stats) = renderer.render_given(&caustic, &|_| {})?;
     let o = renderer.opts;
     let (notes, description) = header_notes(&o, request, file, scene);

@@ -299,12 +299,7 @@ impl<'m> StreamedMap<'m> {
         for run in runs.windows(2) {
             let tiles = &lookups[run[0]..run[1]];
             let flat: Vec<Lookup> = tiles.iter().flatten().copied().collect();
-            let estimated = self.estimate_chunk(&flat, knn, progress)?;
-            let mut at = 0;
-            for l in tiles {
-                out.push(estimated[at..at + l.len()].to_vec());
-                at += l.len();
-            }
+            out.extend(per_image_tile(&self.estimate_chunk(&flat, knn, progress)?, tiles));
         }
         Ok(out)
     }
@@ -555,6 +550,19 @@ fn kernel_sum(list: &[Candidate], k: usize, max2: f32, kernel: Kernel) -> Vec3 {
         }
     }
     e
+}
+
+/// `values`, one per lookup in the order of `lookups` flattened, split back into image tiles
+/// as `lookups` holds them (what [`super::Renderer::render_given`] takes).
+pub(crate) fn per_image_tile<T: Copy>(values: &[T], lookups: &[Vec<Lookup>]) -> Vec<Vec<T>> {
+    let mut at = 0;
+    lookups
+        .iter()
+        .map(|l| {
+            at += l.len();
+            values[at - l.len()..at].to_vec()
+        })
+        .collect()
 }
 
 /// The `k` first of two lists each sorted by [`Candidate::before`], into `out`.

@@ -134,6 +134,47 @@ pub fn tiles_for_budget(n: usize, budget: u64, m: &MemoryModel) -> Result<usize,
     Ok(count)
 }
 
+/// A memory budget no tiling meets: the least it takes, bytes (what the map needs per photon,
+/// one tile of [`MIN_TILE_PHOTONS`], and what the process held already).
+#[derive(Clone, Copy, Debug, PartialEq, thiserror::Error)]
+#[error(
+    "a budget of {budget} bytes is too small: {photons} photons need at least {need} bytes, {held} of them held by the process already"
+)]
+pub struct BudgetTooSmall {
+    /// The budget asked for.
+    pub budget: u64,
+    /// The map's photons.
+    pub photons: usize,
+    /// The least budget that would do.
+    pub need: u64,
+    /// What the process held before the stage (the program, the scene, the map's header).
+    pub held: u64,
+}
+
+/// The tiling that keeps a stage of memory model `model` under `budget` bytes on the photons
+/// at `positions`, leaving room for what the process holds already ([`resident_bytes`]):
+/// `None` when the whole map fits ([`tiles_for_budget`] chooses the count, [`Tiling::new`]
+/// the cuts).
+pub fn tiling_for_budget(
+    positions: &[[f32; 3]],
+    budget: u64,
+    model: &MemoryModel,
+) -> Result<Option<Tiling>, BudgetTooSmall> {
+    tiling_beside(positions, budget, resident_bytes().unwrap_or(0), model)
+}
+
+/// [`tiling_for_budget`] with the process holding `held` bytes already.
+fn tiling_beside(
+    positions: &[[f32; 3]],
+    budget: u64,
+    held: u64,
+    model: &MemoryModel,
+) -> Result<Option<Tiling>, BudgetTooSmall> {
+    let tiles = tiles_for_budget(positions.len(), budget.saturating_sub(held), model)
+        .map_err(|need| BudgetTooSmall { budget, photons: positions.len(), need: need + held, held })?;
+    Ok((tiles > 1).then(|| Tiling::new(positions, TileSpec { index: 0, count: tiles }.grid())))
+}
+
 /// The process's resident set now, bytes (Linux: `VmRSS` of /proc/self/status; `None`
 /// elsewhere): what a stage holds before its own work (the program, the scene, the map's
 /// header), which a memory budget must leave room for besides the stage's model.
@@ -465,6 +506,27 @@ mod tests {
         let e = tiles_for_budget(n, 300_000_000, &m).unwrap_err();
         assert!(e > 400_000_000, "{e}");
         assert!(tiles_for_budget(n, 400_100_000, &m).is_err(), "tiles of fewer than 1000 photons");
+    }
+
+    /// A budget's tiling leaves room for what the process holds: none when the whole map fits
+    /// beside it, the tiling [`tiles_for_budget`] chooses for the rest when it does not, and a
+    /// refusal that states the least budget, the process's part included, when no tiling fits.
+    #[test]
+    fn a_budgets_tiling_leaves_room_for_what_the_process_holds() {
+        let m = MemoryModel { per_photon: 40.0, per_working_photon: 300.0, halo_growth: 1.5 };
+        let positions: Vec<[f32; 3]> =
+            (0..20_000).map(|i| [(i % 200) as f32, (i / 200) as f32, 0.0]).collect();
+        let whole = (40 + 450) * 20_000;
+        let held = 100 << 20;
+        assert_eq!(tiling_beside(&positions, held + whole, held, &m), Ok(None));
+        // The same budget with the process holding more takes tiles, as many as the rest needs.
+        let t = tiling_beside(&positions, held + whole, held + whole * 2 / 3, &m).unwrap().expect("tiles");
+        assert_eq!(t.len(), tiles_for_budget(20_000, whole / 3, &m).unwrap());
+        assert!(t.len() >= 4, "{}", t.len());
+        assert_eq!(t, Tiling::new(&positions, t.counts));
+        let e = tiling_beside(&positions, held, held, &m).unwrap_err();
+        let alone = tiles_for_budget(20_000, 0, &m).unwrap_err();
+        assert_eq!(e, BudgetTooSmall { budget: held, photons: 20_000, need: alone + held, held });
     }
 
     #[test]

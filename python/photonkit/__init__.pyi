@@ -136,10 +136,12 @@ def detect(
     k_density: Optional[int] = None,
     gain: float = 0.6,
     mu_sigma: Literal["simulated", "paper"] = "simulated",
+    memory: Optional[Union[int, str]] = None,
 ) -> PhotonMap:
     """Feature detection (Eq. 1–7): a constraint basis per photon (columns basis_u, basis_v,
     lambda2, r_param) for ``relax`` (``photonkit detect``). ``method`` None: param-pca, or
-    world-pca for a map without trajectory parameters."""
+    world-pca for a map without trajectory parameters. ``memory`` ("8G"): detect in spatial
+    tiles when the whole map would not fit, with the same result (``--memory``)."""
 
 def relax(
     map: MapLike,
@@ -151,10 +153,12 @@ def relax(
     step_limit: float = 0.5,
     scene: Optional[PathLike] = None,
     flux_diffusion: float = 0.0,
+    memory: Optional[Union[int, str]] = None,
 ) -> PhotonMap:
     """Relaxation (Eq. 8–9): ``iterations`` of repulsion from the ``kf`` nearest photons along
     each constraint basis (``photonkit relax``). Photons return to their surfaces in ``scene``,
-    or in the scene the map's trace record names when it is found."""
+    or in the scene the map's trace record names when it is found. ``memory`` ("8G"): relax
+    in spatial tiles when the whole map would not fit, with the same result (``--memory``)."""
 
 def collapse(map: MapLike, output: Optional[PathLike] = None) -> PhotonMap:
     """Drops the parameter dimensions from the neighbour search: the next ``relax`` works in
@@ -213,6 +217,7 @@ def render(
     ortho: Optional[float] = None,
     seed: int = 0,
     threads: Optional[int] = None,
+    memory: Optional[Union[int, str]] = None,
 ) -> npt.NDArray[np.float32]:
     """Renders a photon map (``photonkit render``) and returns the image, float32 of shape
     (height, width, 3), top row first: radiance in W/(m²·sr) per RGB channel, or irradiance in
@@ -221,7 +226,9 @@ def render(
     ``output`` (an .exr) the EXR and its PNG preview are written as ``photonkit render -o``
     writes them. ``k`` defaults to 15 (the k-NN estimate); on a map grown by refinement, when
     ``k`` is not given, each estimate gathers within the distance of the 15th nearest of the
-    map's first photons, as ``photonkit render`` does."""
+    map's first photons, as ``photonkit render`` does. ``memory`` ("8G"): the estimate streams
+    the map one spatial tile at a time when the whole would not fit, with the same image
+    (``--memory``; not with ``plane`` or ``diagnostic``)."""
 
 def compare(
     scene: Optional[PathLike] = None,

@@ -130,6 +130,16 @@ impl From<TraceError> for Failure {
     }
 }
 
+impl From<photonkit::tiles::BudgetTooSmall> for Failure {
+    fn from(e: photonkit::tiles::BudgetTooSmall) -> Self {
+        Failure::value(format!(
+            "memory={}: {} photons need at least {} bytes (what the map needs per photon, one tile, and the {} bytes \
+             the process holds already)",
+            e.budget, e.photons, e.need, e.held
+        ))
+    }
+}
+
 impl From<DetectError> for Failure {
     fn from(e: DetectError) -> Failure {
         let kind = match e {
@@ -167,7 +177,7 @@ impl From<RenderError> for Failure {
             RenderError::Format(e) => return e.into(),
             RenderError::Scene(e) => return e.into(),
             RenderError::Io { ref source, .. } => os(source),
-            RenderError::Invalid(_) => Kind::Value,
+            RenderError::Invalid(_) | RenderError::Budget { .. } => Kind::Value,
             _ => Kind::Runtime,
         };
         Failure::described(kind, &e)

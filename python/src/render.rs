@@ -51,7 +51,7 @@ fn plane(s: &str) -> Result<(usize, f32), Failure> {
     k=None, max_radius=None, diffusion_k=500, diffusion_q=0.02, diagnostic=None, threshold=0.5,
     dot_radius=None, plane=None, rect=None, plane_tolerance=1e-3, png=None, no_png=false, exposure=0.0,
     fixed_exposure=false, width=None, height=None, spp=4, specular="split", max_depth=16, eye=None,
-    look_at=None, up=None, fov=None, ortho=None, seed=0, threads=None))]
+    look_at=None, up=None, fov=None, ortho=None, seed=0, threads=None, memory=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn render<'py>(
     py: Python<'py>,
@@ -87,7 +87,12 @@ pub fn render<'py>(
     ortho: Option<f32>,
     seed: u64,
     threads: Option<usize>,
+    memory: Option<&Bound<'py, PyAny>>,
 ) -> PyResult<Bound<'py, PyAny>> {
+    let memory = memory.map(options::memory).transpose()?;
+    if memory.is_some() && (plane.is_some() || diagnostic.is_some()) {
+        return Err(Failure::value("memory cannot be given with plane or diagnostic".into()).into());
+    }
     let map = input(map)?;
     let map = map.get();
     let output = options::opt_path(output)?;
@@ -223,8 +228,21 @@ pub fn render<'py>(
             keep_samples: outputs.is_some(),
             ..MapRender::new(framing)
         };
-        let rendered = render_map(&view, &request, &|_| {})?;
+        let rendered = match memory {
+            Some(budget) => photonkit::render::from_map::render_map_within(&view, &request, budget, &|_| {})?,
+            None => render_map(&view, &request, &|_| {})?,
+        };
         told.extend(rendered.remarks.iter().cloned());
+        let plan = rendered.plan;
+        if plan.tiles > 1 || plan.chunks > 1 {
+            told.push(format!(
+                "the estimate streamed the map in {} tiles, {} pass{}, to stay under memory={}",
+                plan.tiles,
+                plan.chunks,
+                if plan.chunks == 1 { "" } else { "es" },
+                memory.unwrap_or(0)
+            ));
+        }
         if let Some(o) = &outputs {
             photonkit::render::image::write(&rendered.image, o, &rendered.notes)?;
         }

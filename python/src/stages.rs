@@ -244,7 +244,7 @@ fn detect_params(
 #[pyo3(signature = (map, output=None, *, method=None, kc=DetectParams::default().kc,
     beta=DetectParams::default().beta, growths=DetectParams::default().growths,
     spectral_scale=DetectParams::default().spectral_scale, k_density=None, gain=photonkit::detect::DEFAULT_GAIN,
-    mu_sigma="simulated"))]
+    mu_sigma="simulated", memory=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn detect(
     py: Python<'_>,
@@ -258,8 +258,10 @@ pub fn detect(
     k_density: Option<usize>,
     gain: f32,
     mu_sigma: &str,
+    memory: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<PhotonMap> {
     let (requested, p) = detect_params(method, kc, beta, growths, spectral_scale, k_density, gain, mu_sigma)?;
+    let memory = memory.map(options::memory).transpose()?;
     let map = input(map)?;
     let map = map.get();
     let output = options::opt_path(output)?;
@@ -282,7 +284,23 @@ pub fn detect(
             ));
         }
         let t = std::time::Instant::now();
-        let d = photonkit::detect::detect_map(&view, &capped, &|_| {})?;
+        let tiling = match memory {
+            Some(budget) => {
+                photonkit::tiles::tiling_for_budget(view.positions(), budget, &photonkit::detect::MEMORY)?
+            }
+            None => None,
+        };
+        let d = match &tiling {
+            Some(tiling) => {
+                told.push(format!(
+                    "detecting in {} tiles to stay under memory={}",
+                    tiling.len(),
+                    memory.unwrap_or(0)
+                ));
+                photonkit::detect::detect_map_tiled(&view, &capped, tiling, &|_| {}, &mut |_, _, _| {})?
+            }
+            None => photonkit::detect::detect_map(&view, &capped, &|_| {})?,
+        };
         let table = photonkit::detect::detected_map(&view, &d, &capped, t.elapsed().as_secs_f64())?;
         Ok((finish(table, output, "writing the detected map")?, told))
     })?;
@@ -340,7 +358,7 @@ fn relax_params(
 #[pyo3(signature = (map, output=None, *, iterations=RelaxParams::default().iterations,
     kf=RelaxParams::default().kf, epsilon=RelaxParams::default().epsilon,
     step_limit=RelaxParams::default().step_limit, scene=None,
-    flux_diffusion=RelaxParams::default().flux_diffusion))]
+    flux_diffusion=RelaxParams::default().flux_diffusion, memory=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn relax(
     py: Python<'_>,
@@ -352,8 +370,10 @@ pub fn relax(
     step_limit: f32,
     scene: Option<&Bound<'_, PyAny>>,
     flux_diffusion: f32,
+    memory: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<PhotonMap> {
     let p = relax_params(iterations, kf, epsilon, step_limit, flux_diffusion)?;
+    let memory = memory.map(options::memory).transpose()?;
     let map = input(map)?;
     let map = map.get();
     let output = options::opt_path(output)?;
@@ -373,7 +393,22 @@ pub fn relax(
         }
         let t = std::time::Instant::now();
         let scene = relax_scene(&view, scene.as_deref(), &mut told)?;
-        let relaxed = photonkit::relax::relax_map_on(&view, &capped, scene.as_ref(), |_| {})?;
+        let model = photonkit::relax::tiled::memory(scene.is_some());
+        let tiling = match memory {
+            Some(budget) => photonkit::tiles::tiling_for_budget(view.positions(), budget, &model)?,
+            None => None,
+        };
+        let relaxed = match &tiling {
+            Some(tiling) => {
+                told.push(format!(
+                    "relaxing in {} tiles to stay under memory={}",
+                    tiling.len(),
+                    memory.unwrap_or(0)
+                ));
+                photonkit::relax::relax_tiled(&view, &capped, scene.as_ref(), tiling, |_, _, _| {})?
+            }
+            None => photonkit::relax::relax_map_on(&view, &capped, scene.as_ref(), |_| {})?,
+        };
         if relaxed.refused_moves > 0 {
             told.push(format!(
                 "{} moves were refused because the photon's surface was not found where it moved",

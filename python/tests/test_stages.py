@@ -200,3 +200,55 @@ def test_compare_reports_every_method_against_the_truth(tmp_path):
     whole = [r for r in rows if r["region"] == "all"]
     assert all(r["nrmse"] > 0 and r["photons"] > 0 for r in whole)
     assert "Our method" in result["table"]
+
+
+def resident_bytes():
+    """This process's resident set now (Linux), which a memory budget must leave room for."""
+    with open("/proc/self/status") as status:
+        kb = next(int(line.split()[1]) for line in status if line.startswith("VmRSS:"))
+    return kb * 1024
+
+
+def test_a_memory_budget_tiles_detect_relax_and_render_into_the_same_results(tmp_path, reproducible, caplog):
+    """`memory=` chooses a tiling as `--memory` does; the tiled maps and image are the whole
+    map's, byte for byte; a budget no tiling meets is a ValueError naming what it needs."""
+    import logging
+
+    traced = photonkit.trace(stored=40_000, output=tmp_path / "traced.phm")
+    n = len(traced)
+    whole = photonkit.detect(traced, kc=30)
+    # detect holds 72 B per photon of the map, and 200 B per photon of a tile's working set
+    # (3 times the tile): room for a third of that over the process's own resident set.
+    budget = resident_bytes() + 72 * n + 200 * n
+    with caplog.at_level(logging.INFO, logger="photonkit"):
+        tiled = photonkit.detect(traced, kc=30, memory=budget)
+    assert any("detecting in" in r.getMessage() and "tiles" in r.getMessage() for r in caplog.records)
+    for column in ["basis_u", "basis_v", "lambda2", "r_param"]:
+        assert tiled[column].tobytes() == whole[column].tobytes(), column
+
+    relaxed = photonkit.relax(whole, iterations=2)
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="photonkit"):
+        relaxed_tiled = photonkit.relax(whole, iterations=2, memory=resident_bytes() + 72 * n + 200 * n)
+    assert any("relaxing in" in r.getMessage() for r in caplog.records)
+    assert relaxed_tiled["position"].tobytes() == relaxed["position"].tobytes()
+
+    image = photonkit.render(relaxed, width=48, height=32, spp=1)
+    # The least budget the render takes, as its refusal of a smaller one states it.
+    with pytest.raises(ValueError, match="needs at least") as refused:
+        photonkit.render(relaxed, width=48, height=32, spp=1, memory="1M")
+    least = int(str(refused.value).rsplit(" ", 1)[1])
+    caplog.clear()
+    with caplog.at_level(logging.INFO, logger="photonkit"):
+        streamed = photonkit.render(relaxed, width=48, height=32, spp=1, memory=least + (256 << 10))
+    assert any("streamed the map" in r.getMessage() for r in caplog.records)
+    assert streamed.tobytes() == image.tobytes()
+
+    for stage in [
+        lambda: photonkit.detect(traced, memory="1M"),
+        lambda: photonkit.relax(whole, memory="1M"),
+    ]:
+        with pytest.raises(ValueError, match="at least"):
+            stage()
+    with pytest.raises(ValueError, match="plane"):
+        photonkit.render(relaxed, plane="y=0", memory="1G")

@@ -106,27 +106,21 @@ pub(crate) fn budget_tiling(
 ) -> anyhow::Result<Option<photonkit::tiles::Tiling>> {
     use indicatif::HumanBytes;
     let Some(budget) = budget else { return Ok(None) };
-    // What the process holds already (the program, the scene) is not the stage's to use.
-    let held = photonkit::tiles::resident_bytes().unwrap_or(0);
-    let tiles = photonkit::tiles::tiles_for_budget(map.len(), budget.saturating_sub(held), model).map_err(
-        |need| {
-            anyhow::anyhow!(
-                "--memory {}: {doing} {} photons needs at least {} (what the map needs per photon, one tile, \
+    let tiling = photonkit::tiles::tiling_for_budget(map.positions(), budget, model).map_err(|e| {
+        anyhow::anyhow!(
+            "--memory {}: {doing} {} photons needs at least {} (what the map needs per photon, one tile, \
              and the {} the process holds already)",
-                HumanBytes(budget),
-                map.len(),
-                HumanBytes(need + held),
-                HumanBytes(held)
-            )
-        },
-    )?;
-    if tiles == 1 {
-        return Ok(None);
+            HumanBytes(budget),
+            e.photons,
+            HumanBytes(e.need),
+            HumanBytes(e.held)
+        )
+    })?;
+    if let Some(t) = &tiling {
+        let [nx, ny] = t.counts;
+        note!("{doing} in {} tiles ({nx}×{ny}) to stay under --memory {}", t.len(), HumanBytes(budget));
     }
-    let grid = photonkit::tiles::TileSpec { index: 0, count: tiles }.grid();
-    let tiling = photonkit::tiles::Tiling::new(map.positions(), grid);
-    note!("{doing} in {tiles} tiles ({}×{}) to stay under --memory {}", grid[0], grid[1], HumanBytes(budget));
-    Ok(Some(tiling))
+    Ok(tiling)
 }
 
 /// A tile's rounds as `--tile` and `--memory` report them: per round, the photons still to

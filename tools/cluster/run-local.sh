@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Detect (or relax) a photon map tile by tile on this machine: the same per-tile commands a
-# cluster runs (detect-slurm.sh, detect-k8s.yaml), JOBS at a time with xargs -P, then the merge.
+# cluster runs (tiles-slurm.sh, detect-k8s.yaml), JOBS at a time with xargs -P, then the merge.
 #
 #   tools/cluster/run-local.sh MAP OUT TILES [JOBS] [-- OPTIONS...]
 #

@@ -226,7 +226,7 @@ def render(
     ``output`` (an .exr) the EXR and its PNG preview are written as ``photonkit render -o``
     writes them. ``k`` defaults to 15 (the k-NN estimate); on a map grown by refinement, when
     ``k`` is not given, each estimate gathers within the distance of the 15th nearest of the
-    map's first photons, as ``photonkit render`` does. ``memory`` ("8G"): the estimate streams
+    map's first photons, narrowed where detection held them, as ``photonkit render`` does. ``memory`` ("8G"): the estimate streams
     the map one spatial tile at a time when the whole would not fit, with the same image
     (``--memory``; not with ``plane`` or ``diagnostic``)."""
 

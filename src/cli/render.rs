@@ -396,7 +396,7 @@ pub(super) fn render_view(a: &Args, map: &MapView, scene: Option<(&Scene, &str)>
         && photonkit::refine::first_photons(map).is_some();
     if grown {
         super::note!(
-            "photonkit render: the map grew in refinement: each estimate gathers within the distance of the {k}th nearest of its photons before it grew (-k sets a plain k-NN estimate)"
+            "photonkit render: the map grew in refinement: each estimate gathers within the distance of the {k}th nearest of its photons before it grew, narrowed where detection held them (-k sets a plain k-NN estimate)"
         );
     }
     let estimator = match a.estimator {

@@ -68,7 +68,7 @@ pub struct RefineParams {
 }
 
 /// The default exponent of a held photon's prior weight ([`RefineParams::prior_hold`]).
-pub const PRIOR_HOLD: f32 = 2.0;
+pub const PRIOR_HOLD: f32 = 1.0;
 
 /// The default weight of the map's own fluxes, in passes (docs/progressive.md, "The prior").
 pub const PRIOR_PASSES: f32 = 4.0;
@@ -485,6 +485,33 @@ pub fn first_photons<'a>(map: &MapView<'a>) -> Option<&'a [[f32; 3]]> {
         }
         _ => None,
     }
+}
+
+/// How fast a grown map's kernel narrows at features ([`radius_factors`]): at a photon that
+/// detection held on its line (Eq. 7's f = 0) the radius after P passes is P^(−1/6) of its
+/// first, so its area shrinks as P^(−1/3), progressive photon mapping's R² ∝ P^(α−1) with
+/// α = 2/3; a free photon's (f = 1) keeps its area.
+pub const FEATURE_NARROWING: f32 = 1.0 / 3.0;
+
+/// The factor on a grown map's kernel radius at each of its first photons
+/// ([`first_photons`]; docs/progressive.md, "Rendering a grown map"):
+/// P^(−[`FEATURE_NARROWING`]·(1 − f)/2) after P passes, f = |v_b| the photon's freedom across
+/// its constraint (Eq. 7; 1 without a `basis_v` column). At a feature the kernel's blur is the
+/// error that remains once the cells' flux has converged, so there it narrows as PPM's does; in
+/// smooth light a narrower kernel would only add noise. Empty for a map that did not grow.
+pub fn radius_factors(map: &MapView) -> Vec<f32> {
+    let (Some(sites), Some(rec)) = (first_photons(map), RefineRecord::of(map)) else {
+        return Vec::new();
+    };
+    let freedom = map.column::<[f32; 3]>(name::BASIS_V).ok().flatten();
+    (0..sites.len())
+        .map(|i| radius_factor(rec.passes_done, freedom.map_or(1.0, |v| glam::Vec3::from(v[i]).length())))
+        .collect()
+}
+
+/// [`radius_factors`]' factor after `passes` at a photon of freedom `f` (clamped to [0, 1]).
+fn radius_factor(passes: u64, f: f32) -> f32 {
+    (passes.max(1) as f32).powf(-FEATURE_NARROWING * (1.0 - f.clamp(0.0, 1.0)) / 2.0)
 }
 
 /// The hierarchy's columns of a map refined with growth, if it has them (roots' τ from `stats`).

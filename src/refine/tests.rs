@@ -495,3 +495,45 @@ fn a_held_photon_s_prior_weighs_more_by_its_freedom() {
     let free = stats.cell_flux(9).x;
     assert!((free / 0.001 - 1.0).abs() < 0.5, "free: its cell's flux, about 1 mW: {free}");
 }
+
+/// A grown map's kernel narrows at features only: its factor is 1 at a free photon and
+/// P^(−1/6) at a held one after P passes (PPM's radius), in closed form; refined from a detected
+/// map, every first photon gets the factor its freedom |basis_v| gives, and a map without a
+/// constraint basis keeps its kernel.
+#[test]
+fn a_grown_map_s_kernel_narrows_at_held_photons_only() {
+    assert_eq!(radius_factor(64, 1.0), 1.0);
+    assert!((radius_factor(64, 0.0) - 0.5).abs() < 1e-6);
+    assert!((radius_factor(64, 0.5) - 64f32.powf(-1.0 / 12.0)).abs() < 1e-6);
+    assert_eq!(radius_factor(1, 0.0), 1.0);
+    assert_eq!(radius_factor(64, 7.0), 1.0, "freedom is at most 1");
+
+    let dir = tempfile::tempdir().unwrap();
+    let (traced, scene) = traced_map(dir.path());
+    let p = RefineParams { passes: 3, photons_per_pass: Some(100_000), ..RefineParams::default() };
+    let grown = refine(&traced.view(), &scene, &p, None, &mut |_| Ok(true)).unwrap();
+    let n0 = traced.len();
+    assert!(grown.len() > n0);
+    assert_eq!(radius_factors(&grown.view()), vec![1.0; n0], "no basis: every factor 1");
+    assert!(radius_factors(&traced.view()).is_empty(), "a map that did not grow");
+
+    let dp = crate::detect::DetectParams::default();
+    let d = crate::detect::detect_map(&traced.view(), &dp, &|_| {}).unwrap();
+    let path = dir.path().join("detected.phm");
+    crate::detect::detected_map(&traced.view(), &d, &dp, 0.0)
+        .unwrap()
+        .write(Output::Path(path.clone()))
+        .unwrap();
+    let detected = PhotonMap::open_path(&path).unwrap();
+    let grown = refine(&detected.view(), &scene, &p, None, &mut |_| Ok(true)).unwrap();
+    let view = grown.view();
+    let factors = radius_factors(&view);
+    let v = view.column::<[f32; 3]>(name::BASIS_V).unwrap().unwrap();
+    assert_eq!(factors.len(), n0);
+    for (i, &c) in factors.iter().enumerate() {
+        let f = glam::Vec3::from(v[i]).length().min(1.0);
+        assert!((c - 3f32.powf(-(1.0 - f) / 6.0)).abs() < 1e-6, "photon {i}: {c} at freedom {f}");
+    }
+    let held = factors.iter().filter(|&&c| c < 0.95).count();
+    assert!(held > 0 && held < n0 / 2, "{held} of {n0} photons narrowed");
+}

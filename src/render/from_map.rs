@@ -244,7 +244,7 @@ pub fn render_map(
                 "{file}: the local-radius estimate needs a map grown by `photonkit refine --growth`"
             ))
         })?;
-        photons = photons.with_own_radius_map(sites);
+        photons = photons.with_own_radius_map(sites, &crate::refine::radius_factors(map));
     }
     let diagnostic = match (diagnostic, &near_plane) {
         (Some(d), Some(keep)) => {

@@ -129,8 +129,8 @@ impl Seed<'_> {
         if let Estimator::LocalRadius { .. } = estimator {
             // A grown map: the radius comes from its photons before it grew.
             let view = map.view();
-            lookup =
-                lookup.with_own_radius_map(crate::refine::first_photons(&view).unwrap_or(map.positions()));
+            let sites = crate::refine::first_photons(&view).unwrap_or(map.positions());
+            lookup = lookup.with_own_radius_map(sites, &crate::refine::radius_factors(&view));
         }
         let renderer = Renderer {
             view: View::Scene { scene: self.scene, camera: self.target.camera.clone() },

@@ -25,7 +25,7 @@ use std::f32::consts::PI;
 use glam::{Vec2, Vec3};
 
 use super::RenderError;
-use crate::spatial::{BoxTree, Neighbours};
+use crate::spatial::{BoxTree, Neighbour, Neighbours};
 
 /// A radially symmetric kernel of radius r, normalised so ∫ w dA = 1 over the disc.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -185,17 +185,29 @@ pub struct PhotonLookup<'a> {
 
 /// The photons that set [`Estimator::LocalRadius`]'s radius: the caller's (a progressive
 /// reference's first pass, kept across passes) or the lookup's own (a grown map's photons as
-/// they were before it grew, [`PhotonLookup::with_own_radius_map`]).
+/// they were before it grew, each with a factor on the radius,
+/// [`PhotonLookup::with_own_radius_map`]).
 enum RadiusMap<'a> {
     Borrowed(&'a BoxTree),
-    Owned(BoxTree),
+    Owned(BoxTree, Vec<f32>),
 }
 
 impl RadiusMap<'_> {
     fn tree(&self) -> &BoxTree {
         match self {
             RadiusMap::Borrowed(t) => t,
-            RadiusMap::Owned(t) => t,
+            RadiusMap::Owned(t, _) => t,
+        }
+    }
+
+    /// The factor on the radius at a point whose k nearest sites are `near`: the mean of
+    /// theirs (1 for a borrowed map).
+    fn factor(&self, near: &[Neighbour]) -> f32 {
+        match self {
+            RadiusMap::Owned(_, factors) if !near.is_empty() => {
+                near.iter().map(|nb| factors[nb.index as usize]).sum::<f32>() / near.len() as f32
+            }
+            _ => 1.0,
         }
     }
 }
@@ -249,9 +261,16 @@ impl<'a> PhotonLookup<'a> {
 
     /// These photons, for [`Estimator::LocalRadius`] lookups whose radius at a point comes from
     /// the points `sites` (a map grown by refinement: its photons before it grew,
-    /// [`crate::refine::first_photons`]).
-    pub fn with_own_radius_map(mut self, sites: &[[f32; 3]]) -> Self {
-        self.radius_map = Some(RadiusMap::Owned(BoxTree::build(sites)));
+    /// [`crate::refine::first_photons`]): the distance to the k-th nearest site, times the mean
+    /// of those k sites' `factors` (one per site, [`crate::refine::radius_factors`]; empty: 1
+    /// for every site).
+    pub fn with_own_radius_map(mut self, sites: &[[f32; 3]], factors: &[f32]) -> Self {
+        debug_assert!(factors.is_empty() || factors.len() == sites.len(), "one factor per site");
+        let factors = match factors.len() == sites.len() {
+            true => factors.to_vec(),
+            false => vec![1.0; sites.len()],
+        };
+        self.radius_map = Some(RadiusMap::Owned(BoxTree::build(sites), factors));
         self
     }
 
@@ -379,9 +398,10 @@ impl<'a> PhotonLookup<'a> {
         }
     }
 
-    /// E(x) = Σ Φ_p w(d_p) over the photons within r = scale · (the k-th nearest distance of
-    /// the radius map's photons from x); zero where the map has fewer than k photons or
-    /// they sit on x.
+    /// E(x) = Σ Φ_p w(d_p) over the photons within r = scale · c(x) · (the k-th nearest
+    /// distance of the radius map's photons from x), c(x) the mean factor of those k (1 but
+    /// for a grown map's own sites); zero where the map has fewer than k photons or they sit
+    /// on x.
     fn local_radius_irradiance(
         &self,
         k: usize,
@@ -391,13 +411,14 @@ impl<'a> PhotonLookup<'a> {
         n: Vec3,
         s: &mut Scratch,
     ) -> Vec3 {
-        let (Some(map), Some(index)) = (self.radius_map.as_ref().map(RadiusMap::tree), &self.index) else {
+        let (Some(map_of), Some(index)) = (self.radius_map.as_ref(), &self.index) else {
             return Vec3::ZERO;
         };
+        let map = map_of.tree();
         s.last = None;
         map.knn(x.to_array(), k, f32::INFINITY, &mut s.nb);
         let Some(kth) = s.nb.last().filter(|_| s.nb.len() == k) else { return Vec3::ZERO };
-        let r = kth.dist2.sqrt() * scale;
+        let r = kth.dist2.sqrt() * scale * map_of.factor(s.nb.as_slice());
         let r2 = r * r;
         if !(r2 > 0.0 && r2.is_finite()) {
             return Vec3::ZERO;

@@ -426,7 +426,7 @@ fn a_grown_map_gathers_within_its_first_photons_radius() {
     let flux: Vec<[f32; 3]> = (0..pos.len()).map(|i| [1e-3 * (1.0 + (i % 7) as f32), 1e-3, 1e-3]).collect();
     let lookup = PhotonLookup::new("t", PhotonData { positions: &pos, flux: &flux, normals: None })
         .unwrap()
-        .with_own_radius_map(&roots);
+        .with_own_radius_map(&roots, &[]);
     let est = Estimator::LocalRadius { k: 15, scale: 1.0, kernel: Kernel::Epanechnikov };
     assert!(lookup.serves(&est));
     let mut s = Scratch::default();
@@ -437,6 +437,36 @@ fn a_grown_map_gathers_within_its_first_photons_radius() {
         to_roots.sort_by(f32::total_cmp);
         let r2 = to_roots[14];
         let want: f64 = pos
+            .iter()
+            .zip(&flux)
+            .map(|(&p, f)| f[0] as f64 * Kernel::Epanechnikov.weight(d2(p, x), r2) as f64)
+            .sum();
+        let got = lookup.irradiance(&est, x, Vec3::Z, &mut s).x as f64;
+        assert!((got - want).abs() <= 1e-4 * want.abs() + 1e-9, "point {j}: {got} vs {want}");
+    }
+}
+
+/// A grown map's sites with factors on the radius: at x the radius is the k-th nearest site's
+/// distance times the mean factor of those k sites, against a brute-force sum.
+#[test]
+fn a_grown_map_s_radius_takes_the_mean_factor_of_its_k_sites() {
+    let (roots, _) = uniform_square(2_000, 1.0, 1.0, 23);
+    let factors: Vec<f32> = roots.iter().map(|r| if r[0] < 0.0 { 0.5 } else { 1.0 }).collect();
+    let flux: Vec<[f32; 3]> = (0..roots.len()).map(|i| [1e-3 * (1.0 + (i % 5) as f32), 1e-3, 1e-3]).collect();
+    let lookup = PhotonLookup::new("t", PhotonData { positions: &roots, flux: &flux, normals: None })
+        .unwrap()
+        .with_own_radius_map(&roots, &factors);
+    let est = Estimator::LocalRadius { k: 15, scale: 1.0, kernel: Kernel::Epanechnikov };
+    let mut s = Scratch::default();
+    let mut rng = PhotonRng::new(24, 0);
+    let d2 = |a: [f32; 3], b: Vec3| (Vec3::from(a) - b).length_squared();
+    for j in 0..50 {
+        let x = Vec3::new(-0.45 + 0.9 * rng.next_f32(), -0.45 + 0.9 * rng.next_f32(), 0.0);
+        let mut near: Vec<(f32, usize)> = roots.iter().enumerate().map(|(i, &r)| (d2(r, x), i)).collect();
+        near.sort_by(|a, b| a.0.total_cmp(&b.0));
+        let c = near[..15].iter().map(|&(_, i)| factors[i]).sum::<f32>() / 15.0;
+        let r2 = near[14].0 * c * c;
+        let want: f64 = roots
             .iter()
             .zip(&flux)
             .map(|(&p, f)| f[0] as f64 * Kernel::Epanechnikov.weight(d2(p, x), r2) as f64)

@@ -293,6 +293,58 @@ impl Tiling {
         ([self.columns[ix], rows[iy]], [self.columns[ix + 1], rows[iy + 1]])
     }
 
+    /// The photons of each tile, ascending within each: a count and a placement pass over
+    /// `positions` into one allocation (the tiles a run of every tile shares, so no tile scans
+    /// the whole map for its own photons; one block, so freeing it returns it to the system).
+    pub fn buckets(&self, positions: &[[f32; 3]]) -> Buckets {
+        use rayon::prelude::*;
+        let counts = positions
+            .par_chunks(1 << 16)
+            .map(|xs| {
+                let mut c = vec![0usize; self.len()];
+                xs.iter().for_each(|&x| c[self.tile_of(x)] += 1);
+                c
+            })
+            .reduce(|| vec![0usize; self.len()], |a, b| a.iter().zip(&b).map(|(x, y)| x + y).collect());
+        let mut start = Vec::with_capacity(self.len() + 1);
+        start.push(0usize);
+        for c in &counts {
+            start.push(start.last().copied().unwrap_or(0) + c);
+        }
+        let mut next = start.clone();
+        let mut photons = vec![0u32; positions.len()];
+        for (i, &x) in positions.iter().enumerate() {
+            let t = self.tile_of(x);
+            photons[next[t]] = i as u32;
+            next[t] += 1;
+        }
+        Buckets { photons, start }
+    }
+
+    /// The tiles whose cells meet `b`, the end cells taken open outward (they hold whatever
+    /// lies beyond the map's box): every photon that `b` contains is in one of them.
+    pub fn tiles_meeting(&self, b: &HaloBox) -> Vec<usize> {
+        let span = |borders: &[f64], c: usize| {
+            let lo = if c == 0 { f64::NEG_INFINITY } else { borders[c] };
+            let hi = if c + 2 == borders.len() { f64::INFINITY } else { borders[c + 1] };
+            (lo, hi)
+        };
+        let mut out = Vec::new();
+        for ix in 0..self.counts[0] {
+            let (xl, xh) = span(&self.columns, ix);
+            if !(xl <= b.hi[0] && b.lo[0] <= xh) {
+                continue;
+            }
+            for iy in 0..self.counts[1] {
+                let (yl, yh) = span(&self.rows[ix], iy);
+                if yl <= b.hi[1] && b.lo[1] <= yh {
+                    out.push(iy * self.counts[0] + ix);
+                }
+            }
+        }
+        out
+    }
+
     /// Tile `tile`'s cell grown by `halo` (metres, ≥ 0; ∞ for the whole map) in the cut axes.
     ///
     /// # Panics
@@ -314,6 +366,20 @@ impl Tiling {
             }
         }
         HaloBox { axes: self.axes, lo, hi }
+    }
+}
+
+/// Each tile's photons ([`Tiling::buckets`]): indices into the map, ascending within a tile.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Buckets {
+    photons: Vec<u32>,
+    start: Vec<usize>,
+}
+
+impl Buckets {
+    /// Tile `tile`'s photons, ascending.
+    pub fn tile(&self, tile: usize) -> &[u32] {
+        &self.photons[self.start[tile]..self.start[tile + 1]]
     }
 }
 
@@ -610,6 +676,48 @@ mod tests {
             }
             pos.reverse();
             assert_eq!(Tiling::new(&pos, grid), t);
+        }
+    }
+
+    /// Each tile's bucket is its photons, ascending, and the photons of the tiles a halo box
+    /// meets include every photon the box contains, for boxes of every size (photons on cuts,
+    /// one with a non-finite coordinate, boxes open to the map's sides).
+    #[test]
+    fn buckets_and_the_tiles_a_box_meets_hold_every_photon_it_contains() {
+        let mut pos: Vec<[f32; 3]> = (0..3000u32)
+            .map(|i| {
+                let h = i.wrapping_mul(2_654_435_761);
+                [(h % 37) as f32 * 0.1, ((h >> 8) % 23) as f32 * 0.1, ((h >> 16) % 3) as f32 * 0.01]
+            })
+            .collect();
+        pos.push([f32::NAN, 1.0, 0.0]);
+        for grid in [[1, 1], [2, 1], [3, 3], [7, 1], [4, 3]] {
+            let t = Tiling::new(&pos, grid);
+            let buckets = t.buckets(&pos);
+            for tile in 0..t.len() {
+                let want: Vec<u32> =
+                    (0..pos.len() as u32).filter(|&i| t.tile_of(pos[i as usize]) == tile).collect();
+                assert_eq!(buckets.tile(tile), &want[..], "{grid:?} tile {tile}");
+            }
+            for tile in 0..t.len() {
+                for halo in [0.0, 0.05, 0.1, 0.35, 1.0, f64::INFINITY] {
+                    let b = t.halo_box(tile, halo);
+                    let meeting = t.tiles_meeting(&b);
+                    let mut got: Vec<u32> = meeting
+                        .iter()
+                        .flat_map(|&m| buckets.tile(m).iter().copied())
+                        .filter(|&i| b.contains(pos[i as usize]))
+                        .collect();
+                    got.sort_unstable();
+                    let want: Vec<u32> =
+                        (0..pos.len() as u32).filter(|&i| b.contains(pos[i as usize])).collect();
+                    assert_eq!(got, want, "{grid:?} tile {tile} halo {halo}");
+                    assert!(meeting.contains(&tile));
+                    if halo == 0.0 && tile == 0 && t.len() > 4 {
+                        assert!(meeting.len() < t.len(), "{grid:?}: a bare corner cell meets every tile");
+                    }
+                }
+            }
         }
     }
 

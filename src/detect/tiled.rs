@@ -48,10 +48,11 @@ pub struct TileDetection {
 /// What detection keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
 /// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiles and the memory budget"): the map's
 /// results per photon (the constraint basis, λ2, r_param, factor and outcome, and their copies
-/// as the output is written), and per photon a tile works on its columns, indices and search
-/// scratch; the first halo takes in a few times the tile's photons.
+/// as the output is written, and its tile's index in [`Shared`]), and per photon a tile works
+/// on its columns, indices and search scratch; the first halo takes in a few times the tile's
+/// photons.
 pub const MEMORY: crate::tiles::MemoryModel =
-    crate::tiles::MemoryModel { per_photon: 72.0, per_working_photon: 200.0, halo_growth: 3.0 };
+    crate::tiles::MemoryModel { per_photon: 76.0, per_working_photon: 200.0, halo_growth: 3.0 };
 
 /// Rounds after which the halo is the whole map (a guard: doubling reaches it long before).
 const MAX_ROUNDS: u32 = 48;
@@ -68,7 +69,24 @@ pub fn detect_tile(
     tile: usize,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<TileDetection, DetectError> {
-    detect_tile_with(input, p, tiling, tile, Options::default(), progress)
+    detect_tile_with(input, p, tiling, tile, Options::default(), None, progress)
+}
+
+/// What the tiles of one run share, computed once: each tile's photons and each emitter's
+/// parameter range over the whole map. Without it every tile scans the whole map for both (a
+/// tile job, [`detect_tile`], reads the map once anyway).
+pub(super) struct Shared {
+    buckets: crate::tiles::Buckets,
+    ranges: Option<Vec<Range>>,
+}
+
+impl Shared {
+    /// The tiles of `tiling` over `input`'s photons.
+    pub(super) fn new(input: &DetectInput, tiling: &Tiling) -> Self {
+        let buckets = tiling.buckets(input.positions);
+        let ranges = input.params.map(|_| ranges(&input.points(true), None));
+        Shared { buckets, ranges }
+    }
 }
 
 /// How [`detect_tile_with`] sizes and checks its halos (for tests: the defaults are the only
@@ -95,6 +113,7 @@ pub(super) fn detect_tile_with(
     tiling: &Tiling,
     tile: usize,
     opts: Options,
+    shared: Option<&Shared>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<TileDetection, DetectError> {
     check_params(p)?;
@@ -115,14 +134,16 @@ pub(super) fn detect_tile_with(
         input.points(false).check(Space::World)?;
     }
     let pos = input.positions;
-    let interior: Vec<u32> =
-        (0..n as u32).into_par_iter().filter(|&i| tiling.tile_of(pos[i as usize]) == tile).collect();
+    let interior: Vec<u32> = match shared {
+        Some(s) => s.buckets.tile(tile).to_vec(),
+        None => (0..n as u32).into_par_iter().filter(|&i| tiling.tile_of(pos[i as usize]) == tile).collect(),
+    };
     let mut out = TileDetection { r_param: param_search.then(Vec::new), ..Default::default() };
     if interior.is_empty() {
         return Ok(out);
     }
     let (r_param, param_rounds) = if param_search {
-        let (r, rounds) = tile_radius(input, &interior, p, opts)?;
+        let (r, rounds) = tile_radius(input, &interior, p, opts, shared.and_then(|s| s.ranges.as_deref()))?;
         (Some(r), rounds)
     } else {
         (None, 0)
@@ -139,10 +160,21 @@ pub(super) fn detect_tile_with(
             (Some(r), true) => Some(ParamNear::new(input, &interior, &pending, r, p.growths)?),
             _ => None,
         };
-        let members: Vec<u32> = (0..n as u32)
-            .into_par_iter()
-            .filter(|&i| halo.contains(pos[i as usize]) && near.as_ref().is_none_or(|f| f.admits(i as usize)))
-            .collect();
+        let member =
+            |i: u32| halo.contains(pos[i as usize]) && near.as_ref().is_none_or(|f| f.admits(i as usize));
+        // The same photons either way, ascending: from the tiles the box meets, or the map.
+        let meeting = shared.map(|s| (s, tiling.tiles_meeting(&halo)));
+        let members: Vec<u32> = match meeting {
+            Some((s, tiles)) if tiles.len() < tiling.len() => {
+                let mut m: Vec<u32> = tiles
+                    .par_iter()
+                    .flat_map_iter(|&t| s.buckets.tile(t).iter().copied().filter(|&i| member(i)))
+                    .collect();
+                m.par_sort_unstable();
+                m
+            }
+            _ => (0..n as u32).into_par_iter().filter(|&i| member(i)).collect(),
+        };
         out.working_set = out.working_set.max(members.len());
         out.per_round.push([pending.len(), members.len()]);
         // Labelled as the whole map labels them: Z-order on the map's box, ties by file index.
@@ -380,11 +412,15 @@ fn tile_radius(
     interior: &[u32],
     p: &DetectParams,
     opts: Options,
+    map_ranges: Option<&[Range]>,
 ) -> Result<(Vec<f32>, u32), DetectError> {
     let points = input.points(true);
     let Some(column) = input.params else { return Ok((vec![0.0; interior.len()], 0)) };
     let k = p.k_density.unwrap_or(p.kc);
-    let all = ranges(&points, None);
+    let all = match map_ranges {
+        Some(r) => r.to_vec(),
+        None => ranges(&points, None),
+    };
     let inner = ranges(&points, Some(interior));
     let dims = |e: usize| column.dims_of(e as u16).min(MAX_PARAM_DIMS);
     let mut radius = vec![0f32; interior.len()];
@@ -485,8 +521,9 @@ pub fn tiled_with(
     on_tile: &mut dyn FnMut(usize, usize, &TileDetection),
 ) -> Result<Detection, DetectError> {
     let mut whole: Option<Assembly> = None;
+    let shared = Shared::new(input, tiling);
     for t in 0..tiling.len() {
-        let part = detect_tile(input, p, tiling, t, progress)?;
+        let part = detect_tile_with(input, p, tiling, t, Options::default(), Some(&shared), progress)?;
         whole
             .get_or_insert_with(|| Assembly::new(input.positions.len(), part.r_param.is_some()))
             .add(&part)?;

@@ -171,7 +171,7 @@ fn certificates_make_small_halos_exact_and_are_needed() {
     let tiling = Tiling::new(&m.position, [3, 3]);
     let run = |opts: Options| {
         let parts: Vec<TileDetection> =
-            (0..9).map(|t| detect_tile_with(&inp, &p, &tiling, t, opts, &|_| {}).unwrap()).collect();
+            (0..9).map(|t| detect_tile_with(&inp, &p, &tiling, t, opts, None, &|_| {}).unwrap()).collect();
         let rounds = parts
             .iter()
             .map(|t| (t.rounds, t.param_rounds))

@@ -409,6 +409,17 @@ fn the_variable_kernel_keeps_the_flux() {
     assert!((total - 1.0).abs() < 0.005, "flux {total} W per channel, expected 1");
 }
 
+/// Σ Φ_p w(d_p) over every photon, brute force: the red channel of the Epanechnikov estimate
+/// of radius² `r2` at `x`.
+fn epanechnikov_sum(pos: &[[f32; 3]], flux: &[[f32; 3]], x: Vec3, r2: f32) -> f64 {
+    pos.iter()
+        .zip(flux)
+        .map(|(&p, f)| {
+            f[0] as f64 * Kernel::Epanechnikov.weight((Vec3::from(p) - x).length_squared(), r2) as f64
+        })
+        .sum()
+}
+
 /// A grown map's estimate ([`PhotonLookup::with_own_radius_map`]): the radius at x is the
 /// distance to the k-th nearest of the map's photons before it grew, and every photon of the
 /// grown map within it counts, against a brute-force sum.
@@ -436,11 +447,7 @@ fn a_grown_map_gathers_within_its_first_photons_radius() {
         let mut to_roots: Vec<f32> = roots.iter().map(|&r| d2(r, x)).collect();
         to_roots.sort_by(f32::total_cmp);
         let r2 = to_roots[14];
-        let want: f64 = pos
-            .iter()
-            .zip(&flux)
-            .map(|(&p, f)| f[0] as f64 * Kernel::Epanechnikov.weight(d2(p, x), r2) as f64)
-            .sum();
+        let want = epanechnikov_sum(&pos, &flux, x, r2);
         let got = lookup.irradiance(&est, x, Vec3::Z, &mut s).x as f64;
         assert!((got - want).abs() <= 1e-4 * want.abs() + 1e-9, "point {j}: {got} vs {want}");
     }
@@ -466,11 +473,7 @@ fn a_grown_map_s_radius_takes_the_mean_factor_of_its_k_sites() {
         near.sort_by(|a, b| a.0.total_cmp(&b.0));
         let c = near[..15].iter().map(|&(_, i)| factors[i]).sum::<f32>() / 15.0;
         let r2 = near[14].0 * c * c;
-        let want: f64 = roots
-            .iter()
-            .zip(&flux)
-            .map(|(&p, f)| f[0] as f64 * Kernel::Epanechnikov.weight(d2(p, x), r2) as f64)
-            .sum();
+        let want = epanechnikov_sum(&roots, &flux, x, r2);
         let got = lookup.irradiance(&est, x, Vec3::Z, &mut s).x as f64;
         assert!((got - want).abs() <= 1e-4 * want.abs() + 1e-9, "point {j}: {got} vs {want}");
     }

@@ -47,10 +47,10 @@ pub struct TileDetection {
 
 /// What detection keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
 /// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiles and the memory budget"): the map's
-/// results per photon (the constraint basis, λ2, r_param, factor and outcome, and their copies
-/// as the output is written, and its tile's index in [`Shared`]), and per photon a tile works
-/// on its columns, indices and search scratch; the first halo takes in a few times the tile's
-/// photons.
+/// results per photon (the constraint basis, λ2, r_param, factor and outcome, their copies as
+/// the output is written, and its place in the run's tile index, `Shared`), and per photon a
+/// tile works on its columns, indices and search scratch; the first halo takes in a few times
+/// the tile's photons.
 pub const MEMORY: crate::tiles::MemoryModel =
     crate::tiles::MemoryModel { per_photon: 76.0, per_working_photon: 200.0, halo_growth: 3.0 };
 

@@ -136,7 +136,7 @@ impl Estimator {
             Estimator::Radius { radius, kernel } => format!("radius {radius} m, {} kernel", kernel.name()),
             Estimator::LocalRadius { k, scale, kernel } => {
                 format!(
-                    "radius {scale} × the {k}-NN distance of the radius map (a progressive reference's first pass, a grown map's photons before it grew), {} kernel",
+                    "radius {scale} × the {k}-NN distance of the radius map (a progressive reference's first pass, or a grown map's photons before it grew, narrowed where detection held them), {} kernel",
                     kernel.name()
                 )
             }

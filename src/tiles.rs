@@ -163,8 +163,9 @@ pub fn tiling_for_budget(
     tiling_beside(positions, budget, resident_bytes().unwrap_or(0), model)
 }
 
-/// [`tiling_for_budget`] with the process holding `held` bytes already.
-fn tiling_beside(
+/// [`tiling_for_budget`] with the process holding `held` bytes already (read by the caller
+/// before anything else of the stage).
+pub fn tiling_beside(
     positions: &[[f32; 3]],
     budget: u64,
     held: u64,
@@ -654,17 +655,21 @@ mod tests {
         assert_eq!(tiles, [2, 3, 2, 3, 2, 3, 1, 2]);
     }
 
+    /// 3000 photons with coordinates on a coarse lattice: many ties, many photons on cuts.
+    fn lattice_map() -> Vec<[f32; 3]> {
+        (0..3000u32)
+            .map(|i| {
+                let h = i.wrapping_mul(2_654_435_761);
+                [(h % 37) as f32 * 0.1, ((h >> 8) % 23) as f32 * 0.1, ((h >> 16) % 3) as f32 * 0.01]
+            })
+            .collect()
+    }
+
     /// Every photon is in the tile whose cell holds it (half-open, closed at the map's high
     /// sides), and the cuts are the same whatever the order of the photons.
     #[test]
     fn tiles_partition_the_map_and_do_not_depend_on_its_order() {
-        let mut pos: Vec<[f32; 3]> = (0..3000u32)
-            .map(|i| {
-                let h = i.wrapping_mul(2_654_435_761);
-                // Coordinates on a coarse lattice: many ties, many photons on cuts.
-                [(h % 37) as f32 * 0.1, ((h >> 8) % 23) as f32 * 0.1, ((h >> 16) % 3) as f32 * 0.01]
-            })
-            .collect();
+        let mut pos = lattice_map();
         for grid in [[1, 1], [2, 1], [2, 2], [3, 3], [7, 1], [4, 3]] {
             let t = Tiling::new(&pos, grid);
             for &x in &pos {
@@ -684,12 +689,7 @@ mod tests {
     /// one with a non-finite coordinate, boxes open to the map's sides).
     #[test]
     fn buckets_and_the_tiles_a_box_meets_hold_every_photon_it_contains() {
-        let mut pos: Vec<[f32; 3]> = (0..3000u32)
-            .map(|i| {
-                let h = i.wrapping_mul(2_654_435_761);
-                [(h % 37) as f32 * 0.1, ((h >> 8) % 23) as f32 * 0.1, ((h >> 16) % 3) as f32 * 0.01]
-            })
-            .collect();
+        let mut pos = lattice_map();
         pos.push([f32::NAN, 1.0, 0.0]);
         for grid in [[1, 1], [2, 1], [3, 3], [7, 1], [4, 3]] {
             let t = Tiling::new(&pos, grid);

@@ -112,23 +112,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(tile) = a.tile {
         return run_tile(&map.view(), &p, tile, &a.output, bar, t);
     }
-    // What the process holds before the tiling reads the map's positions (the budget's share).
-    let held = photonkit::tiles::resident_bytes().unwrap_or(0);
-    let tiling = super::budget_tiling(&map, a.memory, &detect::MEMORY, "detecting")?;
-    let d = if let Some(tiling) = &tiling {
-        let mut warned = false;
-        detect::detect_map_tiled(&map.view(), &p, tiling, &|k| bar.inc(k), &mut |tile, tiles, part| {
-            let working = part.per_round.iter().map(|r| r[1]).max().unwrap_or(0);
-            bar.suspend(|| {
-                super::warn_over_budget(
-                    &mut warned,
-                    a.memory,
-                    &detect::MEMORY,
-                    (map.len(), held),
-                    tile,
-                    working,
-                )
-            });
+    let budgeted = super::budget_tiling(&map, a.memory, &detect::MEMORY, "detecting")?;
+    let d = if let Some((tiling, mut budget)) = budgeted {
+        detect::detect_map_tiled(&map.view(), &p, &tiling, &|k| bar.inc(k), &mut |tile, tiles, part| {
+            bar.suspend(|| budget.check(tile, &part.per_round));
             bar.suspend(|| {
                 super::note!(
                     "tile {tile}/{tiles}: {} photons; measured per round / working set: {}",

@@ -96,17 +96,20 @@ pub(crate) fn finite_f64(s: &str) -> Result<f64, String> {
 }
 
 /// The tiling `--memory BUDGET` needs for a stage with memory model `model` on `map` (`None`:
-/// the whole map fits, or no budget was given), noted on standard error; `doing` names the
-/// work in messages ("detecting").
+/// the whole map fits, or no budget was given), noted on standard error, with the check its
+/// tiles' working sets are held to ([`BudgetCheck`]); `doing` names the work in messages
+/// ("detecting").
 pub(crate) fn budget_tiling(
     map: &photonkit::format::PhotonMap,
     budget: Option<u64>,
     model: &photonkit::tiles::MemoryModel,
     doing: &str,
-) -> anyhow::Result<Option<photonkit::tiles::Tiling>> {
+) -> anyhow::Result<Option<(photonkit::tiles::Tiling, BudgetCheck)>> {
     use indicatif::HumanBytes;
     let Some(budget) = budget else { return Ok(None) };
-    let tiling = photonkit::tiles::tiling_for_budget(map.positions(), budget, model).map_err(|e| {
+    // What the process holds before the tiling reads the map's positions: not the stage's to use.
+    let held = photonkit::tiles::resident_bytes().unwrap_or(0);
+    let tiling = photonkit::tiles::tiling_beside(map.positions(), budget, held, model).map_err(|e| {
         anyhow::anyhow!(
             "--memory {}: {doing} {} photons needs at least {} (what the map needs per photon, one tile, \
              and the {} the process holds already)",
@@ -116,37 +119,43 @@ pub(crate) fn budget_tiling(
             HumanBytes(e.held)
         )
     })?;
-    if let Some(t) = &tiling {
+    Ok(tiling.map(|t| {
         let [nx, ny] = t.counts;
         note!("{doing} in {} tiles ({nx}×{ny}) to stay under --memory {}", t.len(), HumanBytes(budget));
-    }
-    Ok(tiling)
+        (t, BudgetCheck { budget, model: *model, photons: map.len(), held, warned: false })
+    }))
 }
 
-/// Warns, once per run (`warned`), when a tile under `--memory BUDGET` worked on so many
-/// photons that the stage's model of a map of `n` photons, with the `held` bytes the process
-/// held before, exceeds the budget by more than the model's accuracy (5 %, measured on the
-/// water at 10⁶ and 10⁷): its halo grew past what the tiling allowed for, to certify every
-/// result (far-reaching searches or moves, as in a sparse surround).
-pub(crate) fn warn_over_budget(
-    warned: &mut bool,
-    budget: Option<u64>,
-    model: &photonkit::tiles::MemoryModel,
-    (n, held): (usize, u64),
-    tile: usize,
-    working: usize,
-) {
-    let Some(budget) = budget else { return };
-    let need = held as f64 + model.per_photon * n as f64 + model.per_working_photon * working as f64;
-    if !*warned && need > 1.05 * budget as f64 {
-        *warned = true;
-        note!(
-            "warning: tile {tile} worked on {working} of the {n} photons: its halo grew to certify every result \
-             (far-reaching searches or moves, as in a sparse surround), so the peak may exceed --memory {} \
-             (about {})",
-            indicatif::HumanBytes(budget),
-            indicatif::HumanBytes(need as u64)
-        );
+/// What a `--memory` run's tiles are held to: the stage's model of the map's photons, with what
+/// the process held before, within the budget.
+pub(crate) struct BudgetCheck {
+    budget: u64,
+    model: photonkit::tiles::MemoryModel,
+    photons: usize,
+    held: u64,
+    warned: bool,
+}
+
+impl BudgetCheck {
+    /// Warns, once per run, when tile `tile`'s largest working set (of its rounds, `per_round`
+    /// as [`rounds_text`] reads them) makes the model exceed the budget by more than its
+    /// accuracy (5 %, measured on the water at 10⁶ and 10⁷): its halo grew past what the tiling
+    /// allowed for, to certify every result (far-reaching searches or moves, as in a sparse
+    /// surround).
+    pub(crate) fn check(&mut self, tile: usize, per_round: &[[usize; 2]]) {
+        let working = per_round.iter().map(|r| r[1]).max().unwrap_or(0);
+        let (m, n) = (&self.model, self.photons);
+        let need = self.held as f64 + m.per_photon * n as f64 + m.per_working_photon * working as f64;
+        if !self.warned && need > 1.05 * self.budget as f64 {
+            self.warned = true;
+            note!(
+                "warning: tile {tile} worked on {working} of the {n} photons: its halo grew to certify every \
+                 result (far-reaching searches or moves, as in a sparse surround), so the peak may exceed \
+                 --memory {} (about {})",
+                indicatif::HumanBytes(self.budget),
+                indicatif::HumanBytes(need as u64)
+            );
+        }
     }
 }
 

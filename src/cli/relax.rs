@@ -139,21 +139,15 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     // Photons returned to their surfaces carry new normals too.
     let model = relax::tiled::memory(scene.is_some());
-    // What the process holds before the tiling reads the map's positions (the budget's share).
-    let held = photonkit::tiles::resident_bytes().unwrap_or(0);
-    let tiling = super::budget_tiling(&map, a.memory, &model, "relaxing")?;
-    let relaxed = if let Some(tiling) = &tiling {
+    let budgeted = super::budget_tiling(&map, a.memory, &model, "relaxing")?;
+    let relaxed = if let Some((tiling, mut budget)) = budgeted {
         bar.set_length(tiling.len() as u64);
         bar.set_style(
             ProgressStyle::with_template("relax {bar:30} {pos}/{len} tiles {elapsed} (eta {eta})")
                 .expect("valid template"),
         );
-        let mut warned = false;
-        let relaxed = relax::relax_tiled(&map.view(), &p, scene.as_ref(), tiling, |tile, tiles, part| {
-            let working = part.per_round.iter().map(|r| r[1]).max().unwrap_or(0);
-            bar.suspend(|| {
-                super::warn_over_budget(&mut warned, a.memory, &model, (map.len(), held), tile, working)
-            });
+        let relaxed = relax::relax_tiled(&map.view(), &p, scene.as_ref(), &tiling, |tile, tiles, part| {
+            bar.suspend(|| budget.check(tile, &part.per_round));
             bar.set_position(tile as u64 + 1);
             bar.suspend(|| {
                 super::note!(

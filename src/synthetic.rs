@@ -160,7 +160,33 @@ pub fn collimated_cusp(n: usize, seed: u64) -> SyntheticMap {
 /// x = 0.1·u + 0.4·t, y = 0.02·v with t = (λ − 380)/340: the spectrum spreads the beam over
 /// 0.4 m along x, each photon's flux that of its wavelength's colour.
 pub fn dispersed_beam(n: usize, seed: u64) -> SyntheticMap {
-    use crate::format::Parameterisation;
+    spectral_beam(n, seed, |u, v, rng| {
+        let t = rng.random::<f32>();
+        ([0.1 * u + 0.4 * t, 0.02 * v, 0.0], 380.0 + 340.0 * t)
+    })
+}
+
+/// `n` photons of a collimated beam whose optics focus each of two wavelengths, 450 and 650 nm
+/// (alternately), onto its own line through the origin (format 1.1's `rect_uv_spectral`):
+/// (u, v) uniform on the emitter, landing at s·(0, 1) for 450 nm and s·(1, 0) for
+/// 650 nm, s = 0.3·(u − ½), whatever v. The two filaments cross at the origin, where photons of
+/// both wavelengths left the same part of the emitter (u near ½).
+pub fn two_wavelength_lines(n: usize, seed: u64) -> SyntheticMap {
+    let mut k = 0;
+    spectral_beam(n, seed, move |u, _, _| {
+        k += 1;
+        let s = 0.3 * (u - 0.5);
+        if k % 2 == 0 { ([0.0, s, 0.0], 450.0) } else { ([s, 0.0, 0.0], 650.0) }
+    })
+}
+
+/// `n` photons of one `rect_uv_spectral` emitter of 10 W: (u, v) uniform, and `land(u, v, rng)`
+/// their landing point and wavelength (nm), each photon's flux that of its wavelength's colour.
+fn spectral_beam(
+    n: usize,
+    seed: u64,
+    mut land: impl FnMut(f32, f32, &mut Pcg64Mcg) -> ([f32; 3], f32),
+) -> SyntheticMap {
     let mut e = collimated_emitter(0, 10.0);
     e.parameterisation = Parameterisation::RectUvSpectral;
     e.param_dims = 3;
@@ -169,10 +195,10 @@ pub fn dispersed_beam(n: usize, seed: u64) -> SyntheticMap {
     let mut rng = Pcg64Mcg::seed_from_u64(seed);
     let per = 10.0 / 3.0 / n.max(1) as f64;
     for _ in 0..n {
-        let (u, v, t) = (rng.random::<f32>(), rng.random::<f32>(), rng.random::<f32>());
-        let l = 380.0 + 340.0 * t;
+        let (u, v) = (rng.random::<f32>(), rng.random::<f32>());
+        let (x, l) = land(u, v, &mut rng);
         let flux = crate::scene::material::wavelength_rgb(l).to_array().map(|c| (per * c as f64) as f32);
-        m.push([0.1 * u + 0.4 * t, 0.02 * v, 0.0], flux, [0.0, 0.0, -1.0], 0, &[u, v, l], 2.0);
+        m.push(x, flux, [0.0, 0.0, -1.0], 0, &[u, v, l], 2.0);
     }
     m
 }

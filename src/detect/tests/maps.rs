@@ -357,10 +357,10 @@ fn a_wavelength_parameter_frees_the_interior_of_a_dispersed_beam() {
 /// ([`crate::synthetic::two_wavelength_lines`]). Near the crossing, without the wavelength among
 /// the parameters, a photon's (u, v) ball holds both lines, and its Kc nearest form an X: no
 /// basis follows the photon's own line, and the X is not held as a line is (measured over
-/// seeds: mean factor 0.16–0.24, |u_b| along the own line 0.61–0.66). With it (S = 1: the two wavelengths lie about 0.24 apart in parameter
-/// space, beyond the ball's 0.15), the ball holds the photon's own line only, and it is held
-/// along it: the filaments are told apart, as the paper's Fig. 3 tells sheets apart. Both with
-/// the paper's fixed ball.
+/// seeds: mean factor 0.16–0.24, |u_b| along the own line 0.61–0.66). With it (S = 1: the two
+/// wavelengths lie about 0.24 apart in parameter space, beyond the ball's 0.15), the ball holds
+/// the photon's own line only, and it is held along it: the filaments are told apart, as the
+/// paper's Fig. 3 tells sheets apart. Both with the paper's fixed ball.
 #[test]
 fn a_wavelength_parameter_tells_two_wavelengths_filaments_apart() {
     use crate::format::{Output, PhotonMap, write_map};

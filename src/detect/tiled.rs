@@ -72,21 +72,39 @@ pub fn detect_tile(
     detect_tile_with(input, p, tiling, tile, Options::default(), None, progress)
 }
 
-/// What the tiles of one run share, computed once: each tile's photons and each emitter's
-/// parameter range over the whole map. Without it every tile scans the whole map for both (a
-/// tile job, [`detect_tile`], reads the map once anyway).
+/// What the tiles of one run share, computed once: each tile's photons, each emitter's
+/// parameter range over the whole map, and the whole map's checks. Without it every tile scans
+/// the whole map for these (a tile job, [`detect_tile`], reads the map once anyway).
 pub(super) struct Shared {
     buckets: crate::tiles::Buckets,
     ranges: Option<Vec<Range>>,
+    normals_ok: bool,
 }
 
 impl Shared {
-    /// The tiles of `tiling` over `input`'s photons.
-    pub(super) fn new(input: &DetectInput, tiling: &Tiling) -> Self {
+    /// The tiles of `tiling` over `input`'s photons, checked for `p` ([`checked`]).
+    pub(super) fn new(input: &DetectInput, tiling: &Tiling, p: &DetectParams) -> Result<Self, DetectError> {
+        let normals_ok = checked(input, p)?;
         let buckets = tiling.buckets(input.positions);
         let ranges = input.params.map(|_| ranges(&input.points(true), None));
-        Shared { buckets, ranges }
+        Ok(Shared { buckets, ranges, normals_ok })
     }
+}
+
+/// The whole map's photons checked as [`super::detect`] checks them for `p`, so a tile fails
+/// where the whole map fails; returns whether every normal is usable (a map-wide quantity).
+fn checked(input: &DetectInput, p: &DetectParams) -> Result<bool, DetectError> {
+    let has_params = input.has_params();
+    if p.method == Method::ParamPca && !has_params {
+        return Err(DetectError::NoParameters { file: "<input>".into() });
+    }
+    let normals_ok = input.normals.is_some_and(|ns| ns.iter().all(|&n| unit_normal(n).is_some()));
+    if has_params && p.method == Method::ParamPca {
+        input.points(true).check(Space::Params)?;
+    } else if !(p.method == Method::None && normals_ok) {
+        input.points(false).check(Space::World)?;
+    }
+    Ok(normals_ok)
 }
 
 /// How [`detect_tile_with`] sizes and checks its halos (for tests: the defaults are the only
@@ -122,17 +140,11 @@ pub(super) fn detect_tile_with(
     }
     let n = input.positions.len();
     let p = &p.capped(n);
-    let has_params = input.has_params();
-    if p.method == Method::ParamPca && !has_params {
-        return Err(DetectError::NoParameters { file: "<input>".into() });
-    }
-    let param_search = has_params && p.method == Method::ParamPca;
-    let normals_ok = input.normals.is_some_and(|ns| ns.iter().all(|&n| unit_normal(n).is_some()));
-    if param_search {
-        input.points(true).check(Space::Params)?;
-    } else if !(p.method == Method::None && normals_ok) {
-        input.points(false).check(Space::World)?;
-    }
+    let param_search = input.has_params() && p.method == Method::ParamPca;
+    let normals_ok = match shared {
+        Some(s) => s.normals_ok,
+        None => checked(input, p)?,
+    };
     let pos = input.positions;
     let interior: Vec<u32> = match shared {
         Some(s) => s.buckets.tile(tile).to_vec(),
@@ -465,14 +477,27 @@ fn tile_radius(
             emitters: emitters.as_deref(),
         };
         let index = SpatialIndex::build(&sub, Space::Params)?;
-        let found: Vec<(f32, bool)> = pending
+        // Queried in the index's order, so that consecutive queries share their candidates
+        // (in file order they jump across parameter space); the results do not depend on it.
+        let mut rank = vec![0u32; members.len()];
+        for (r, &l) in index.order().iter().enumerate() {
+            rank[l as usize] = r as u32;
+        }
+        let mut by_rank: Vec<(u32, usize, usize)> = pending
+            .iter()
+            .map(|&q| {
+                let l = members.binary_search(&interior[q]).expect("interior photons are candidates");
+                (rank[l], l, q)
+            })
+            .collect();
+        by_rank.par_sort_unstable();
+        let found: Vec<(usize, f32, bool)> = by_rank
             .par_chunks(CHUNK)
             .flat_map_iter(|qs| {
                 let mut nb = Neighbours::farthest_only(k);
                 qs.iter()
-                    .map(|&q| {
+                    .map(|&(_, l, q)| {
                         let g = interior[q];
-                        let l = members.binary_search(&g).expect("interior photons are candidates");
                         index.knn(&sub.query(l, None), k, &mut nb);
                         let b = &boxes[points.emitter(g as usize) as usize];
                         let certified = b.is_whole()
@@ -481,19 +506,20 @@ fn tile_radius(
                                 && nb.max_dist2().is_some_and(|d2| {
                                     within_margin(d2, b.margin(points.params_of(g as usize)))
                                 }));
-                        (radius_of(&nb, p.kc, p.beta), certified)
+                        (q, radius_of(&nb, p.kc, p.beta), certified)
                     })
                     .collect::<Vec<_>>()
             })
             .collect();
         let mut next = Vec::new();
-        for (&q, &(r, certified)) in pending.iter().zip(&found) {
+        for &(q, r, certified) in &found {
             if certified {
                 radius[q] = r;
             } else {
                 next.push(q);
             }
         }
+        next.sort_unstable();
         pending = next;
         scale *= 2.0;
     }
@@ -521,7 +547,8 @@ pub fn tiled_with(
     on_tile: &mut dyn FnMut(usize, usize, &TileDetection),
 ) -> Result<Detection, DetectError> {
     let mut whole: Option<Assembly> = None;
-    let shared = Shared::new(input, tiling);
+    check_params(p)?;
+    let shared = Shared::new(input, tiling, p)?;
     for t in 0..tiling.len() {
         let part = detect_tile_with(input, p, tiling, t, Options::default(), Some(&shared), progress)?;
         whole

@@ -271,15 +271,22 @@ impl<'r, 'm> TiledRun<'r, 'm> {
     /// The file indices of the photons in `halo`, in label order.
     fn members(&self, halo: &HaloBox) -> Vec<u32> {
         let pos = self.map.positions();
-        let mut labels: Vec<u32> = (0..self.tiling.len())
+        let meeting: Vec<usize> = (0..self.tiling.len())
             .filter(|&t| {
                 let (lo, hi, _) = self.extents[t];
                 (0..2).all(|k| lo[k] <= halo.hi[k] && hi[k] >= halo.lo[k])
             })
-            .flat_map(|t| self.by_tile[t].iter().copied())
-            .filter(|&l| halo.contains(pos[self.order[l as usize] as usize]))
             .collect();
-        labels.sort_unstable();
+        let mut labels: Vec<u32> = meeting
+            .par_iter()
+            .flat_map_iter(|&t| {
+                self.by_tile[t]
+                    .iter()
+                    .copied()
+                    .filter(|&l| halo.contains(pos[self.order[l as usize] as usize]))
+            })
+            .collect();
+        labels.par_sort_unstable();
         labels.into_iter().map(|l| self.order[l as usize]).collect()
     }
 
@@ -297,9 +304,9 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                         * scale;
                 !self.by_tile[t].is_empty() && gap < r as f64 * most + reach
             })
-            .flat_map(|t| self.by_tile[t].iter().copied())
-            .collect::<Vec<u32>>()
+            .collect::<Vec<usize>>()
             .into_par_iter()
+            .flat_map_iter(|t| self.by_tile[t].iter().copied())
             .filter_map(|l| {
                 let x = pos[self.order[l as usize] as usize];
                 if halo.contains(x) {

@@ -95,7 +95,8 @@ pub struct Args {
     #[arg(long, value_name = "W", value_parser = super::finite_f32, default_value_t = photonkit::refine::RefineParams::default().prior_passes)]
     refine_prior: f32,
     /// a of ours-progressive: a photon detection held weighs w / f^a passes, f its freedom
-    /// across its constraint (0: every photon's prior weighs w)
+    /// across its constraint, unless it lies on the border of its lit parameter domain (0:
+    /// every photon's prior weighs w)
     #[arg(long, value_name = "A", value_parser = super::finite_f32, default_value_t = photonkit::refine::RefineParams::default().prior_hold)]
     refine_prior_hold: f32,
     /// Photons per progressive pass (default: --photons).

@@ -50,9 +50,10 @@ pub struct Args {
     #[arg(long, value_name = "W", value_parser = super::finite_f32, default_value_t = RefineParams::default().prior_passes)]
     prior_passes: f32,
     /// a: a photon that detection held on its line weighs w / f^a passes, f its freedom across
-    /// the constraint (|v_b|, 1 free, floored at 0.001), so held photons at folds and edges keep
-    /// more of the relaxed map's flux (0: every photon's prior weighs w, which suits caustics of
-    /// steps and bands such as a prism's; docs/progressive.md, "The prior")
+    /// the constraint (|v_b|, 1 free, floored at 0.001), so held photons at folds keep more of
+    /// the relaxed map's flux; held photons on the border of their emitter's lit parameter
+    /// domain (where the light stops: a beam's edge, the spectrum's end, a shadow) weigh w, as
+    /// free ones do (0: every photon's prior weighs w; docs/progressive.md, "The prior")
     #[arg(long, value_name = "A", value_parser = super::finite_f32, default_value_t = RefineParams::default().prior_hold)]
     prior_hold: f32,
     /// Kf: neighbours of the repulsion (Eq. 8).

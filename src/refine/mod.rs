@@ -61,8 +61,9 @@ pub struct RefineParams {
     #[serde(default)]
     pub prior_passes: f32,
     /// The exponent a of a held photon's prior: photon i's weight is w / f_i^a, f_i its freedom
-    /// across its constraint (|v_b|, floored at 10⁻³), so photons that detection held keep
-    /// the relaxed map's flux (docs/progressive.md, "The prior"). 0: every photon's is w.
+    /// across its constraint (|v_b|, floored at 10⁻³), so photons that detection held at folds
+    /// keep the relaxed map's flux; w for those on their parameter domain's border
+    /// ([`border_scores`]; docs/progressive.md, "The prior"). 0: every photon's is w.
     #[serde(default)]
     pub prior_hold: f32,
 }
@@ -180,21 +181,112 @@ struct Start {
 }
 
 /// Each photon's prior weight in passes (docs/progressive.md, "The prior"): `w` for a free
-/// photon, w / max(f, 10⁻³)^`hold` for one whose freedom across its constraint is f = |v_b|
-/// (Eq. 7's factor: 1 free, 0 held on its line; `basis_v` from detect), so a photon that
-/// detection held keeps the relaxed map's flux, which at folds and edges measured better than
-/// its cell's (the cell straddles the feature).
-fn prior_weights(n: usize, w: f32, hold: f32, basis_v: Option<&[[f32; 3]]>) -> Vec<f32> {
+/// photon, w / max(f, 10⁻³)^(`hold`·(1 − b)) for one whose freedom across its constraint is
+/// f = |v_b| (Eq. 7's factor: 1 free, 0 held on its line; `basis_v` from detect) and whose
+/// parameter neighbourhood lies on the border of its emitter's lit domain to the degree b
+/// ([`border_weight`] of [`border_scores`]; 0 without `border`). A photon held at a fold keeps
+/// the relaxed map's flux, which there measured better than its cell's (the cell straddles
+/// the fold's peak); one held at an edge where the light stops (the emitter's border, the
+/// spectrum's end, a shadow) weighs w like a free one: there its cell's flux measured better.
+fn prior_weights(
+    n: usize,
+    w: f32,
+    hold: f32,
+    basis_v: Option<&[[f32; 3]]>,
+    border: Option<&[f32]>,
+) -> Vec<f32> {
     match basis_v {
         Some(v) if hold > 0.0 => v
             .iter()
-            .map(|v| {
+            .enumerate()
+            .map(|(i, v)| {
                 let f = glam::Vec3::from(*v).length();
-                w / f.clamp(1e-3, 1.0).powf(hold)
+                let b = border.map_or(0.0, |s| border_weight(s[i]));
+                w / f.clamp(1e-3, 1.0).powf(hold * (1.0 - b))
             })
             .collect(),
         _ => vec![w; n],
     }
+}
+
+/// Neighbours in a photon's [`border_scores`] (itself not counted).
+pub const BORDER_NEIGHBOURS: usize = 32;
+
+/// The border scores at which [`border_weight`] starts and reaches 1: inside the domain the
+/// score of 32 neighbours is about 0.12 (the mean of 32 offsets spread over a disc), on a
+/// straight border 4/(3π) ≈ 0.42 (a half disc's centroid); measured on the closed-form scenes
+/// (docs/progressive.md, "The prior").
+pub const BORDER_SCORES: [f32; 2] = [0.12, 0.22];
+
+/// How much a photon with this [`border_scores`] score is on its domain's border: 0 below
+/// [`BORDER_SCORES`]\[0\], 1 above \[1\], linear between.
+pub fn border_weight(score: f32) -> f32 {
+    let [lo, hi] = BORDER_SCORES;
+    ((score - lo) / (hi - lo)).clamp(0.0, 1.0)
+}
+
+/// Per photon of `map`, how one-sided its neighbourhood in parameter space is:
+/// |mean_j (p_j − p_i)| / r over its [`BORDER_NEIGHBOURS`] nearest photons j of the same
+/// emitter, r the distance to the farthest of them, in the parameter space detection searched
+/// (a wavelength scaled as detect recorded it). About 0.12 where photons surround p_i, 0.42
+/// where they lie on one side only: where the light stops in parameter space (an emitter's
+/// border, the spectrum's end, a shadow; a fold, where two sheets of the same parameters meet,
+/// is surrounded). `None` for a map without parameters.
+pub fn border_scores(map: &MapView) -> Result<Option<Vec<f32>>, RefineError> {
+    use crate::spatial::{Neighbours, ParamColumn, PointSet, Space, SpatialIndex};
+    use rayon::prelude::*;
+    let input = |message: String| RefineError::Input { file: map.file_name().to_string(), message };
+    let Some(spec) = map.spec(name::PARAMS) else { return Ok(None) };
+    let stride = spec.components as usize;
+    let values: &[f32] = bytemuck::try_cast_slice(map.column_bytes(name::PARAMS).unwrap_or(&[]))
+        .map_err(|e| input(format!("params column: {e}")))?;
+    if stride == 0 || values.len() != stride * map.len() {
+        return Err(input(format!(
+            "params column holds {} values, expected {}",
+            values.len(),
+            stride * map.len()
+        )));
+    }
+    let emitters_meta = &map.info().emitters;
+    let dims: Vec<u32> = emitters_meta.iter().map(|e| e.param_dims).collect();
+    let emitters = map.column::<u16>(name::EMITTER)?;
+    let factors: Vec<Vec<f32>> = emitters_meta.iter().map(|e| e.param_scales()).collect();
+    let scaled = ParamColumn { values, stride, dims: &dims }.scaled(emitters, &factors);
+    let points = PointSet {
+        positions: map.positions(),
+        params: Some(ParamColumn { values: &scaled, stride, dims: &dims }),
+        emitters,
+    };
+    let index = SpatialIndex::build(&points, Space::Params).map_err(|e| input(e.to_string()))?;
+    let k = BORDER_NEIGHBOURS + 1;
+    let scores = (0..points.len())
+        .into_par_iter()
+        .map_init(
+            || Neighbours::with_capacity(k),
+            |nb, i| {
+                let own = points.params_of(i);
+                if own.is_empty() {
+                    return 0.0;
+                }
+                index.knn(&points.query(i, None), k, nb);
+                let (mut sum, mut far2, mut m) = ([0f64; crate::spatial::MAX_PARAM_DIMS], 0f32, 0usize);
+                for n in nb.as_slice().iter().filter(|n| n.index as usize != i) {
+                    for (s, (q, p)) in sum.iter_mut().zip(points.params_of(n.index as usize).iter().zip(own))
+                    {
+                        *s += (q - p) as f64;
+                    }
+                    far2 = far2.max(n.dist2);
+                    m += 1;
+                }
+                if m == 0 || far2 <= 0.0 {
+                    return 0.0;
+                }
+                let offset = sum.iter().map(|s| (s / m as f64).powi(2)).sum::<f64>().sqrt();
+                (offset / (far2 as f64).sqrt()) as f32
+            },
+        )
+        .collect();
+    Ok(Some(scores))
 }
 
 fn start(map: &MapView, per_pass: u64, prior_passes: f32, prior_hold: f32) -> Result<Start, RefineError> {
@@ -235,7 +327,11 @@ fn start(map: &MapView, per_pass: u64, prior_passes: f32, prior_hold: f32) -> Re
         .ok_or_else(|| input("names no trace: refinement continues the trace's emission sequence".into()))?;
     let next_emission = trace.report.emission_range.map_or(trace.report.emitted, |r| r[1]);
     let freedom = map.column::<[f32; 3]>(name::BASIS_V)?;
-    let weights = prior_weights(primal.len(), prior_passes, prior_hold, freedom);
+    let border = match (freedom, prior_hold > 0.0) {
+        (Some(_), true) => border_scores(map)?,
+        _ => None,
+    };
+    let weights = prior_weights(primal.len(), prior_passes, prior_hold, freedom, border.as_deref());
     let stats = Statistics::start_weighted(&primal.flux, &weights);
     let total = primal.total_flux();
     Ok(Start {

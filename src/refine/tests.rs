@@ -474,13 +474,13 @@ fn a_growing_refinement_keeps_the_energy_and_resumes_to_the_same_map() {
 fn a_held_photon_s_prior_weighs_more_by_its_freedom() {
     // w / f^a with f = |v_b| floored at 10⁻³; no basis, or a = 0: w for every photon.
     let v = [[0.0, 1.0, 0.0], [0.3, 0.4, 0.0], [0.0, 0.0, 0.0], [0.0, 1e-5, 0.0]];
-    let w = prior_weights(4, 4.0, 2.0, Some(&v));
+    let w = prior_weights(4, 4.0, 2.0, Some(&v), None);
     let want = [4.0, 4.0 / 0.25, 4.0e6, 4.0e6];
     for (g, e) in w.iter().zip(want) {
         assert!((g / e - 1.0).abs() < 1e-5, "{w:?}");
     }
-    assert_eq!(prior_weights(4, 4.0, 0.0, Some(&v)), vec![4.0; 4]);
-    assert_eq!(prior_weights(3, 4.0, 2.0, None), vec![4.0; 3]);
+    assert_eq!(prior_weights(4, 4.0, 0.0, Some(&v), None), vec![4.0; 4]);
+    assert_eq!(prior_weights(3, 4.0, 2.0, None, None), vec![4.0; 3]);
     // The statistics start from those weights: a photon's estimate is
     // (w_i·φ_i + τ_i)/(w_i + P_i), so after a pass the held one keeps its own flux and the
     // free one moves most of the way to its cell's.
@@ -536,4 +536,103 @@ fn a_grown_map_s_kernel_narrows_at_held_photons_only() {
     }
     let held = factors.iter().filter(|&&c| c < 0.95).count();
     assert!(held > 0 && held < n0 / 2, "{held} of {n0} photons narrowed");
+}
+
+fn written(dir: &std::path::Path, m: &crate::synthetic::SyntheticMap) -> PhotonMap {
+    let path = dir.join("synthetic.phm");
+    crate::format::write_map(
+        Output::Path(path.clone()),
+        m.info("test", 0, "2026-12-06T00:00:00Z"),
+        &m.columns(),
+    )
+    .unwrap();
+    PhotonMap::open_path(&path).unwrap()
+}
+
+/// The border score against its closed forms on photons uniform on the emitter's square: the
+/// mean offset of 32 neighbours spread over a disc, E|m| = sqrt(π/2)·r/sqrt(4·32) ≈ 0.11·r
+/// (a Rayleigh length with σ² = r²/(4·32) per axis), inside; a half disc's centroid,
+/// 4r/(3π) ≈ 0.42·r, on a straight border.
+#[test]
+fn the_border_score_is_a_half_disc_s_centroid_on_the_border_and_small_inside() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = crate::synthetic::uniform_square(40_000, 3, 1.0);
+    let scores = border_scores(&written(dir.path(), &m).view()).unwrap().unwrap();
+    let uv = |i: usize| (m.params[2 * i], m.params[2 * i + 1]);
+    let mean = |keep: &dyn Fn(f32, f32) -> bool| {
+        let s: Vec<f32> = (0..m.len()).filter(|&i| keep(uv(i).0, uv(i).1)).map(|i| scores[i]).collect();
+        (s.iter().sum::<f32>() / s.len() as f32, s.len())
+    };
+    let inside = |x: f32| (0.2..0.8).contains(&x);
+    let (s_in, n_in) = mean(&|u, v| inside(u) && inside(v));
+    let want_in = (std::f32::consts::PI / 2.0).sqrt() / (4.0f32 * 32.0).sqrt();
+    assert!(
+        n_in > 10_000 && (s_in / want_in - 1.0).abs() < 0.1,
+        "inside: {s_in} over {n_in}, want {want_in}"
+    );
+    let (s_border, n_border) = mean(&|u, v| u < 0.001 && inside(v));
+    let want_border = 4.0 / (3.0 * std::f32::consts::PI);
+    assert!(
+        n_border > 10 && (s_border / want_border - 1.0).abs() < 0.1,
+        "border: {s_border} over {n_border}, want {want_border}"
+    );
+    assert!(border_weight(s_in) < 0.05 && border_weight(s_border) == 1.0);
+}
+
+/// The border score against a brute-force scan of every photon's 32 nearest in parameter
+/// space; and at a fold (where the cusp map's dx/du = 0, photons of both sides in parameter
+/// space meet in world space) it is the interior's, not a border's.
+#[test]
+fn the_border_score_matches_brute_force_and_tells_a_fold_from_a_border() {
+    let dir = tempfile::tempdir().unwrap();
+    let m = crate::synthetic::collimated_cusp(3000, 5);
+    let scores = border_scores(&written(dir.path(), &m).view()).unwrap().unwrap();
+    let p = |i: usize| [m.params[2 * i], m.params[2 * i + 1]];
+    for i in (0..m.len()).step_by(7) {
+        let mut d: Vec<(f32, usize)> = (0..m.len())
+            .filter(|&j| j != i)
+            .map(|j| ((p(j)[0] - p(i)[0]).powi(2) + (p(j)[1] - p(i)[1]).powi(2), j))
+            .collect();
+        d.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+        let near = &d[..BORDER_NEIGHBOURS];
+        let c = near.iter().fold([0f64; 2], |c, &(_, j)| {
+            [c[0] + (p(j)[0] - p(i)[0]) as f64, c[1] + (p(j)[1] - p(i)[1]) as f64]
+        });
+        let k = BORDER_NEIGHBOURS as f64;
+        let want = ((c[0] / k).powi(2) + (c[1] / k).powi(2)).sqrt() / (near[near.len() - 1].0 as f64).sqrt();
+        assert!(
+            (scores[i] as f64 - want).abs() < 1e-4 * want.max(1e-3),
+            "photon {i}: {} against {want}",
+            scores[i]
+        );
+    }
+    // The fold: dx/du = 0.6 − 0.5π·cos(2π(u − ½)) = 0 at u − ½ = ±acos(0.6/(0.5π))/(2π).
+    let s_fold = (0.6 / (0.5 * std::f64::consts::PI)).acos() / (2.0 * std::f64::consts::PI);
+    let at_fold: Vec<f32> = (0..m.len())
+        .filter(|&i| {
+            let (u, v) = (p(i)[0] as f64, p(i)[1] as f64);
+            ((u - 0.5).abs() - s_fold).abs() < 0.01 && (0.2..0.8).contains(&v)
+        })
+        .map(|i| scores[i])
+        .collect();
+    let at_border: Vec<f32> = (0..m.len())
+        .filter(|&i| p(i)[0] < 0.005 && (0.2..0.8).contains(&p(i)[1]))
+        .map(|i| scores[i])
+        .collect();
+    let mean = |s: &[f32]| s.iter().sum::<f32>() / s.len() as f32;
+    assert!(at_fold.len() > 50 && at_border.len() > 5, "{} {}", at_fold.len(), at_border.len());
+    assert!(mean(&at_fold) < BORDER_SCORES[0] + 0.02, "fold: {}", mean(&at_fold));
+    assert!(mean(&at_border) > BORDER_SCORES[1], "border: {}", mean(&at_border));
+}
+
+#[test]
+fn a_held_photon_on_its_domain_s_border_weighs_as_a_free_one() {
+    // Held (f = 0.1, a = 1): w / f inside the domain, w on its border, between in between.
+    let v = [[0.0, 0.1, 0.0]; 3];
+    let border = [0.0, 0.5, 0.17];
+    let w = prior_weights(3, 4.0, 1.0, Some(&v), Some(&border));
+    let between = 4.0 / 0.1f32.powf(1.0 - border_weight(0.17));
+    assert!((w[0] / 40.0 - 1.0).abs() < 1e-5 && (w[1] / 4.0 - 1.0).abs() < 1e-5, "{w:?}");
+    assert!((w[2] / between - 1.0).abs() < 1e-5 && w[2] > 4.0 && w[2] < 40.0, "{w:?}");
+    assert!((border_weight(0.17) - 0.5).abs() < 1e-5);
 }

@@ -350,7 +350,7 @@ impl Seed<'_> {
             let (img, render_secs) = self.render(&refined, estimator)?;
             let times = StageTimes::of(self.trace_secs, Some(det), Some(rel + secs), render_secs);
             let setting = format!(
-                "{}, then {n} passes of {} ({} iterations each, growth γ = {:.3}, prior of {} passes / f^{}), {}",
+                "{}, then {n} passes of {} ({} iterations each, growth γ = {:.3}, prior of {} passes / f^{} off the domain border), {}",
                 method.name(),
                 o.refine_photons_per_pass.unwrap_or(o.photons),
                 o.refine_iterations,

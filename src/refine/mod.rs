@@ -259,33 +259,36 @@ pub fn border_scores(map: &MapView) -> Result<Option<Vec<f32>>, RefineError> {
     };
     let index = SpatialIndex::build(&points, Space::Params).map_err(|e| input(e.to_string()))?;
     let k = BORDER_NEIGHBOURS + 1;
-    let scores = (0..points.len())
-        .into_par_iter()
-        .map_init(
-            || Neighbours::with_capacity(k),
-            |nb, i| {
-                let own = points.params_of(i);
-                if own.is_empty() {
-                    return 0.0;
+    // Queried in the index's order, whose neighbouring queries share their tree nodes.
+    let order = index.order();
+    let mut found = vec![0f32; order.len()];
+    found.par_chunks_mut(1024).zip(order.par_chunks(1024)).for_each(|(out, ids)| {
+        let mut nb = Neighbours::with_capacity(k).without_coords();
+        for (score, &i) in out.iter_mut().zip(ids) {
+            let i = i as usize;
+            let own = points.params_of(i);
+            if own.is_empty() {
+                continue;
+            }
+            index.knn(&points.query(i, None), k, &mut nb);
+            let (mut sum, mut far2, mut m) = ([0f64; crate::spatial::MAX_PARAM_DIMS], 0f32, 0usize);
+            for n in nb.as_slice().iter().filter(|n| n.index as usize != i) {
+                for (s, (q, p)) in sum.iter_mut().zip(points.params_of(n.index as usize).iter().zip(own)) {
+                    *s += (q - p) as f64;
                 }
-                index.knn(&points.query(i, None), k, nb);
-                let (mut sum, mut far2, mut m) = ([0f64; crate::spatial::MAX_PARAM_DIMS], 0f32, 0usize);
-                for n in nb.as_slice().iter().filter(|n| n.index as usize != i) {
-                    for (s, (q, p)) in sum.iter_mut().zip(points.params_of(n.index as usize).iter().zip(own))
-                    {
-                        *s += (q - p) as f64;
-                    }
-                    far2 = far2.max(n.dist2);
-                    m += 1;
-                }
-                if m == 0 || far2 <= 0.0 {
-                    return 0.0;
-                }
+                far2 = far2.max(n.dist2);
+                m += 1;
+            }
+            if m > 0 && far2 > 0.0 {
                 let offset = sum.iter().map(|s| (s / m as f64).powi(2)).sum::<f64>().sqrt();
-                (offset / (far2 as f64).sqrt()) as f32
-            },
-        )
-        .collect();
+                *score = (offset / (far2 as f64).sqrt()) as f32;
+            }
+        }
+    });
+    let mut scores = vec![0f32; points.len()];
+    for (&i, &s) in order.iter().zip(&found) {
+        scores[i as usize] = s;
+    }
     Ok(Some(scores))
 }
 

@@ -213,7 +213,7 @@ fn prior_weights(
 pub const BORDER_NEIGHBOURS: usize = 32;
 
 /// The border scores at which [`border_weight`] starts and reaches 1: inside the domain the
-/// score of 32 neighbours is about 0.12 (the mean of 32 offsets spread over a disc), on a
+/// score of 32 neighbours is about 0.11 (the mean of 32 offsets spread over a disc), on a
 /// straight border 4/(3π) ≈ 0.42 (a half disc's centroid); measured on the closed-form scenes
 /// (docs/progressive.md, "The prior").
 pub const BORDER_SCORES: [f32; 2] = [0.12, 0.22];
@@ -228,7 +228,7 @@ pub fn border_weight(score: f32) -> f32 {
 /// Per photon of `map`, how one-sided its neighbourhood in parameter space is:
 /// |mean_j (p_j − p_i)| / r over its [`BORDER_NEIGHBOURS`] nearest photons j of the same
 /// emitter, r the distance to the farthest of them, in the parameter space detection searched
-/// (a wavelength scaled as detect recorded it). About 0.12 where photons surround p_i, 0.42
+/// (a wavelength scaled as detect recorded it). About 0.11 where photons surround p_i, 0.42
 /// where they lie on one side only: where the light stops in parameter space (an emitter's
 /// border, the spectrum's end, a shadow; a fold, where two sheets of the same parameters meet,
 /// is surrounded). `None` for a map without parameters.

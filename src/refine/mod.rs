@@ -99,6 +99,10 @@ pub enum RefineError {
     /// Tracing a pass's fresh photons failed.
     #[error(transparent)]
     Trace(#[from] TraceError),
+    /// The map's columns are not as detection reads them (its parameters, for
+    /// [`border_scores`]).
+    #[error(transparent)]
+    Detect(#[from] crate::detect::DetectError),
     /// The map cannot be refined (no trace record, a column missing or of the wrong shape).
     #[error("{file}: {message}")]
     Input {
@@ -235,29 +239,20 @@ pub fn border_weight(score: f32) -> f32 {
 pub fn border_scores(map: &MapView) -> Result<Option<Vec<f32>>, RefineError> {
     use crate::spatial::{Neighbours, ParamColumn, PointSet, Space, SpatialIndex};
     use rayon::prelude::*;
-    let input = |message: String| RefineError::Input { file: map.file_name().to_string(), message };
-    let Some(spec) = map.spec(name::PARAMS) else { return Ok(None) };
-    let stride = spec.components as usize;
-    let values: &[f32] = bytemuck::try_cast_slice(map.column_bytes(name::PARAMS).unwrap_or(&[]))
-        .map_err(|e| input(format!("params column: {e}")))?;
-    if stride == 0 || values.len() != stride * map.len() {
-        return Err(input(format!(
-            "params column holds {} values, expected {}",
-            values.len(),
-            stride * map.len()
-        )));
-    }
-    let emitters_meta = &map.info().emitters;
-    let dims: Vec<u32> = emitters_meta.iter().map(|e| e.param_dims).collect();
-    let emitters = map.column::<u16>(name::EMITTER)?;
-    let factors: Vec<Vec<f32>> = emitters_meta.iter().map(|e| e.param_scales()).collect();
-    let scaled = ParamColumn { values, stride, dims: &dims }.scaled(emitters, &factors);
+    let columns = crate::detect::map_input(map)?;
+    let Some(params) = columns.params else { return Ok(None) };
+    // The parameter space detection searched: each emitter's dimensions, a wavelength scaled
+    // as detect recorded it.
+    let emitters = &map.info().emitters;
+    let dims: Vec<u32> = emitters.iter().map(|e| e.param_dims).collect();
+    let factors: Vec<Vec<f32>> = emitters.iter().map(|e| e.param_scales()).collect();
+    let scaled = ParamColumn { dims: &dims, ..params }.scaled(columns.emitters, &factors);
     let points = PointSet {
-        positions: map.positions(),
-        params: Some(ParamColumn { values: &scaled, stride, dims: &dims }),
-        emitters,
+        positions: columns.positions,
+        params: Some(ParamColumn { values: &scaled, dims: &dims, ..params }),
+        emitters: columns.emitters,
     };
-    let index = SpatialIndex::build(&points, Space::Params).map_err(|e| input(e.to_string()))?;
+    let index = SpatialIndex::build(&points, Space::Params).map_err(crate::detect::DetectError::from)?;
     let k = BORDER_NEIGHBOURS + 1;
     // Queried in the index's order, whose neighbouring queries share their tree nodes.
     let order = index.order();

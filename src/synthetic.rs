@@ -68,6 +68,15 @@ impl SyntheticMap {
         c
     }
 
+    /// Writes these photons to `path` as a PHM file and opens it (for tests).
+    #[cfg(test)]
+    pub fn written_to(&self, path: &std::path::Path) -> crate::format::PhotonMap {
+        let info = self.info("test", 0, "2026-11-23T00:00:00Z");
+        crate::format::write_map(crate::format::Output::Path(path.to_path_buf()), info, &self.columns())
+            .unwrap();
+        crate::format::PhotonMap::open_path(path).unwrap()
+    }
+
     /// Metadata for the map, with a history entry stamped at `time` (fixed for reproducible files).
     pub fn info(&self, generator: &str, seed: u64, time: &str) -> MapInfo {
         let mut info = MapInfo::new(self.emitters.clone(), State::Traced);

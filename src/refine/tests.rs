@@ -538,17 +538,6 @@ fn a_grown_map_s_kernel_narrows_at_held_photons_only() {
     assert!(held > 0 && held < n0 / 2, "{held} of {n0} photons narrowed");
 }
 
-fn written(dir: &std::path::Path, m: &crate::synthetic::SyntheticMap) -> PhotonMap {
-    let path = dir.join("synthetic.phm");
-    crate::format::write_map(
-        Output::Path(path.clone()),
-        m.info("test", 0, "2026-12-06T00:00:00Z"),
-        &m.columns(),
-    )
-    .unwrap();
-    PhotonMap::open_path(&path).unwrap()
-}
-
 /// The border score against its closed forms on photons uniform on the emitter's square: the
 /// mean offset of 32 neighbours spread over a disc, E|m| = sqrt(π/2)·r/sqrt(4·32) ≈ 0.11·r
 /// (a Rayleigh length with σ² = r²/(4·32) per axis), inside; a half disc's centroid,
@@ -557,7 +546,7 @@ fn written(dir: &std::path::Path, m: &crate::synthetic::SyntheticMap) -> PhotonM
 fn the_border_score_is_a_half_disc_s_centroid_on_the_border_and_small_inside() {
     let dir = tempfile::tempdir().unwrap();
     let m = crate::synthetic::uniform_square(40_000, 3, 1.0);
-    let scores = border_scores(&written(dir.path(), &m).view()).unwrap().unwrap();
+    let scores = border_scores(&m.written_to(&dir.path().join("synthetic.phm")).view()).unwrap().unwrap();
     let uv = |i: usize| (m.params[2 * i], m.params[2 * i + 1]);
     let mean = |keep: &dyn Fn(f32, f32) -> bool| {
         let s: Vec<f32> = (0..m.len()).filter(|&i| keep(uv(i).0, uv(i).1)).map(|i| scores[i]).collect();
@@ -586,7 +575,7 @@ fn the_border_score_is_a_half_disc_s_centroid_on_the_border_and_small_inside() {
 fn the_border_score_matches_brute_force_and_tells_a_fold_from_a_border() {
     let dir = tempfile::tempdir().unwrap();
     let m = crate::synthetic::collimated_cusp(3000, 5);
-    let scores = border_scores(&written(dir.path(), &m).view()).unwrap().unwrap();
+    let scores = border_scores(&m.written_to(&dir.path().join("synthetic.phm")).view()).unwrap().unwrap();
     let p = |i: usize| [m.params[2 * i], m.params[2 * i + 1]];
     for i in (0..m.len()).step_by(7) {
         let mut d: Vec<(f32, usize)> = (0..m.len())

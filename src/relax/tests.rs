@@ -337,14 +337,7 @@ fn basis_factor_zero_never_moves_along_p2_and_factor_one_moves_along_both() {
 
 /// Writes `m` into `dir` as `file` and opens it.
 fn map_in(dir: &std::path::Path, file: &str, m: &crate::synthetic::SyntheticMap) -> crate::format::PhotonMap {
-    let path = dir.join(file);
-    crate::format::write_map(
-        crate::format::Output::Path(path.clone()),
-        m.info("test", 0, "2026-11-23T00:00:00Z"),
-        &m.columns(),
-    )
-    .unwrap();
-    crate::format::PhotonMap::open_path(&path).unwrap()
+    m.written_to(&dir.join(file))
 }
 
 /// Relaxes `map` and writes it to `dir/file`, returning the written map.

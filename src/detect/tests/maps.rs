@@ -310,7 +310,6 @@ fn a_grown_ball_keeps_filaments_and_edges_held() {
 /// (u, v) from its mean, recomputed here by brute force.
 #[test]
 fn a_wavelength_parameter_frees_the_interior_of_a_dispersed_beam() {
-    use crate::format::{Output, PhotonMap, write_map};
     let m = crate::synthetic::dispersed_beam(12_000, 23);
     let n = m.len();
     let interior: Vec<usize> = (0..n)
@@ -328,10 +327,7 @@ fn a_wavelength_parameter_frees_the_interior_of_a_dispersed_beam() {
     assert!(f < 0.3, "without the wavelength the interior is a filament: mean factor {f}");
 
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("dispersed.phm");
-    write_map(Output::Path(path.clone()), m.info("dispersed", 23, "2026-12-04T00:00:00Z"), &m.columns())
-        .unwrap();
-    let map = PhotonMap::open_path(&path).unwrap();
+    let map = m.written_to(&dir.path().join("dispersed.phm"));
     assert_eq!(map.version(), (1, 1), "a spectral dimension is a version 1.1 feature");
     let p = DetectParams { spectral_scale: 50.0, ..p };
     let d = detect_map(&map.view(), &p, &|_| {}).unwrap();
@@ -363,7 +359,6 @@ fn a_wavelength_parameter_frees_the_interior_of_a_dispersed_beam() {
 /// paper's Fig. 3 tells sheets apart. Both with the paper's fixed ball.
 #[test]
 fn a_wavelength_parameter_tells_two_wavelengths_filaments_apart() {
-    use crate::format::{Output, PhotonMap, write_map};
     let m = crate::synthetic::two_wavelength_lines(12_000, 29);
     // Within 0.9 mm of the crossing.
     let crossing: Vec<usize> = (0..m.len()).filter(|&i| (m.params[3 * i] - 0.5).abs() < 0.003).collect();
@@ -385,10 +380,7 @@ fn a_wavelength_parameter_tells_two_wavelengths_filaments_apart() {
     assert!(f > 0.1 && a < 0.8, "without the wavelength the crossing is an X: mean factor {f}, along {a}");
 
     let dir = tempfile::tempdir().unwrap();
-    let path = dir.path().join("two-lines.phm");
-    write_map(Output::Path(path.clone()), m.info("two lines", 29, "2026-12-06T00:00:00Z"), &m.columns())
-        .unwrap();
-    let map = PhotonMap::open_path(&path).unwrap();
+    let map = m.written_to(&dir.path().join("two-lines.phm"));
     let d = detect_map(&map.view(), &DetectParams { spectral_scale: 1.0, ..p }, &|_| {}).unwrap();
     let (f, _) = band_means(&d, &crossing);
     let a = along(&d);

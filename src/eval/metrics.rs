@@ -329,6 +329,11 @@ pub struct RegionErrors {
     /// over cells where both are lit (NaN where none is). A grey-level error leaves it 0; a
     /// spectrum's colour grain raises it.
     pub chroma_rms: f64,
+    /// Colour noise: the root of the mean over the region's cells (lit in at least two seeds'
+    /// images and in the truth) of the variance across seeds of the cell's chromaticity
+    /// (summed over its three components, unbiased); NaN with one seed. `chroma_rms`² is
+    /// about this squared plus the colour's bias, so this is the part relaxation can lower.
+    pub chroma_sd: f64,
 }
 
 /// The chromaticity (r, g, b)/(r + g + b) of a cell, `None` where it is unlit.
@@ -365,6 +370,7 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
             bias2: f64::NAN,
             variance: f64::NAN,
             chroma_rms: f64::NAN,
+            chroma_sd: f64::NAN,
         };
         if cells.is_empty() {
             return nan;
@@ -372,12 +378,24 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
         let (mut mse, mut bias2, mut var, mut tsum) = (0.0, 0.0, 0.0, 0.0);
         let mut rel = Vec::with_capacity(cells.len() * images.len());
         let (mut chroma2, mut chroma_n) = (0.0, 0usize);
+        let (mut chroma_var, mut chroma_var_n) = (0.0, 0usize);
         for &i in &cells {
             let t = truth[i];
             if let Some(ct) = chromaticity(t) {
-                for cx in images.iter().filter_map(|im| chromaticity(im[i])) {
+                let lit: Vec<[f64; 3]> = images.iter().filter_map(|im| chromaticity(im[i])).collect();
+                for cx in &lit {
                     chroma2 += (0..3).map(|c| (cx[c] - ct[c]).powi(2)).sum::<f64>();
                     chroma_n += 1;
+                }
+                if lit.len() > 1 {
+                    let k = lit.len() as f64;
+                    chroma_var += (0..3)
+                        .map(|c| {
+                            let m = lit.iter().map(|x| x[c]).sum::<f64>() / k;
+                            lit.iter().map(|x| (x[c] - m).powi(2)).sum::<f64>() / (k - 1.0)
+                        })
+                        .sum::<f64>();
+                    chroma_var_n += 1;
                 }
             }
             tsum += t[0] + t[1] + t[2];
@@ -411,6 +429,7 @@ pub fn region_errors(images: &[Vec<[f64; 3]>], truth: &[[f64; 3]], classes: &[Re
             bias2: if several { bias2 / n / (norm * norm) } else { f64::NAN },
             variance: if several { var / n / (norm * norm) } else { f64::NAN },
             chroma_rms: if chroma_n > 0 { (chroma2 / chroma_n as f64).sqrt() } else { f64::NAN },
+            chroma_sd: if chroma_var_n > 0 { (chroma_var / chroma_var_n as f64).sqrt() } else { f64::NAN },
             ..nan
         }
     };
@@ -636,5 +655,24 @@ mod tests {
         // The whole image: two lit cells, one off by 1/24.
         assert!((e[0].chroma_rms - (1.0f64 / 48.0).sqrt()).abs() < 1e-12, "{}", e[0].chroma_rms);
         assert!(e[4].chroma_rms.is_nan(), "the dark cell has no chromaticity to compare");
+    }
+
+    /// Chroma noise: two seeds rendering a grey cell as (2, 1, 1) and (1, 1, 2) have
+    /// chromaticities (½, ¼, ¼) and (¼, ¼, ½), so the unbiased variance across them is
+    /// (¼)²/2 in the first and last components, 1/16 in all; a cell both seeds render alike has
+    /// none, so the mean over two cells is 1/32. Their common colour bias leaves it untouched,
+    /// while the chroma RMS counts it.
+    #[test]
+    fn chroma_sd_is_the_spread_across_seeds_and_not_the_bias() {
+        let truth = vec![[1.0; 3], [1.0; 3]];
+        let classes = vec![Region::Smooth; 2];
+        let a = vec![[2.0, 1.0, 1.0], [2.0, 1.0, 1.0]];
+        let b = vec![[1.0, 1.0, 2.0], [2.0, 1.0, 1.0]];
+        let e = region_errors(&[a.clone(), b], &truth, &classes)[0];
+        assert!((e.chroma_sd - (1.0f64 / 32.0).sqrt()).abs() < 1e-12, "{}", e.chroma_sd);
+        let biased = region_errors(&[a.clone(), a.clone()], &truth, &classes)[0];
+        assert_eq!(biased.chroma_sd, 0.0);
+        assert!(biased.chroma_rms > 0.2, "{}", biased.chroma_rms);
+        assert!(region_errors(&[a], &truth, &classes)[0].chroma_sd.is_nan(), "one seed has no spread");
     }
 }

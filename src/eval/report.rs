@@ -94,8 +94,14 @@ pub fn table_markdown(rows: &[Row]) -> String {
             _ => "-".into(),
         });
     }
-    line(&mut s, "smooth chroma RMS", &|r| {
-        r.regions.iter().find(|e| e.region == Some(Region::Smooth)).map_or("-".into(), |e| num(e.chroma_rms))
+    line(&mut s, "smooth chroma RMS (noise s.d.)", &|r| {
+        r.regions.iter().find(|e| e.region == Some(Region::Smooth)).map_or("-".into(), |e| {
+            if e.chroma_sd.is_nan() {
+                num(e.chroma_rms)
+            } else {
+                format!("{} ({})", num(e.chroma_rms), num(e.chroma_sd))
+            }
+        })
     });
     line(&mut s, "seeds", &|r| r.seeds.to_string());
     line(&mut s, "setting", &|r| r.setting.clone());
@@ -108,13 +114,13 @@ fn sci(x: f64) -> String {
 
 /// Every row of every run as CSV: per method, setting and run, one line for the whole image
 /// (`region` = `all`) and one per region class. Times are means over the seeds; `nrmse`,
-/// `median_rel`, `p90_rel`, `bias2`, `variance` and `chroma_rms` are the region's ([`super::metrics::RegionErrors`]); the
+/// `median_rel`, `p90_rel`, `bias2`, `variance`, `chroma_rms` and `chroma_sd` are the region's ([`super::metrics::RegionErrors`]); the
 /// whole-image-only measures (`rmse`, `rel_mse`, `ssim`, `edge_nrmse`, `overlap_nrmse`, means
 /// over the seeds) are empty on region lines.
 pub fn csv(runs: &[Run]) -> String {
     let mut s = String::from(
         "run,method,setting,emitted,photons,radiance_k,seeds,trace_s,detect_s,relax_s,render_s,total_s,seconds,\
-         region,cells,nrmse,median_rel,p90_rel,bias2,variance,chroma_rms,rmse,rel_mse,ssim,edge_nrmse,overlap_nrmse\n",
+         region,cells,nrmse,median_rel,p90_rel,bias2,variance,chroma_rms,chroma_sd,rmse,rel_mse,ssim,edge_nrmse,overlap_nrmse\n",
     );
     let opt = |t: Option<f64>| t.map_or(String::new(), |x| format!("{x:.6}"));
     let quote = |x: &str| format!("\"{}\"", x.replace('"', "\"\""));
@@ -126,7 +132,7 @@ pub fn csv(runs: &[Run]) -> String {
                 let only = |x: f64| if whole { format!("{x:.6e}") } else { String::new() };
                 let _ = writeln!(
                     s,
-                    "{},{},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{},{},{},{},{}",
+                    "{},{},{},{},{},{},{},{},{},{},{},{:.6},{:.6},{},{},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{:.6e},{},{},{},{},{}",
                     quote(&run.label),
                     r.method.slug(),
                     quote(&r.setting),
@@ -148,6 +154,7 @@ pub fn csv(runs: &[Run]) -> String {
                     g.bias2,
                     g.variance,
                     g.chroma_rms,
+                    g.chroma_sd,
                     only(e.rmse),
                     only(e.rel_mse),
                     only(e.ssim),

@@ -163,10 +163,9 @@ pub fn run(
     let t = Instant::now();
     let d = detect::detect_map(traced, &dp, &|_| {})?;
     let seconds = t.elapsed().as_secs_f64();
-    let detected = detect::detected_map(traced, &d, &dp, seconds)?;
     let summary = format!("{}, {:.1} % constrained", method.name(), 100.0 * d.summary.constrained_fraction());
+    let detected = detect::detected_map(traced, d, &dp, seconds)?;
     on_stage(&StageDone { stage: Stage::Detect, seconds, photons: traced.len(), summary }, &detected)?;
-    drop(d);
 
     let [before, after] = p.iterations;
     let relaxed_params = match before {
@@ -260,7 +259,7 @@ mod tests {
                 table.write(Output::Path(path.clone())).unwrap();
                 PhotonMap::open_path(&path).unwrap()
             };
-            let mut map = reopen(detect::detected_map(&traced.view(), &d, &dp, 0.0).unwrap(), "d.phm");
+            let mut map = reopen(detect::detected_map(&traced.view(), d, &dp, 0.0).unwrap(), "d.phm");
             let mut files = vec![(Stage::Detect, std::fs::read(dir.path().join("d.phm")).unwrap())];
             let relax_file = |map: &PhotonMap, n: usize, name: &str| {
                 let rp = RelaxParams { iterations: n, ..p.relax };

@@ -535,6 +535,54 @@ pub fn part_columns(
         .collect()
 }
 
+/// A sum of f64 values that does not depend on their order: a value is its integer
+/// significand times a power of two, and the significands of each power are added exactly as
+/// integers; the total is formed from them in a fixed order. Tiles that each sum their photons
+/// and add their sums together give the whole map's sum bit for bit (docs/tiles.md).
+#[derive(Clone, Debug)]
+pub struct ExactSum {
+    /// Per binary exponent (from the smallest subnormal's), the sum of significands.
+    by_exponent: Vec<i128>,
+}
+
+impl Default for ExactSum {
+    fn default() -> Self {
+        ExactSum { by_exponent: vec![0; 2048] }
+    }
+}
+
+impl ExactSum {
+    /// Adds `x` (finite; others are ignored).
+    pub fn add(&mut self, x: f64) {
+        if !x.is_finite() || x == 0.0 {
+            return;
+        }
+        let bits = x.to_bits();
+        let biased = ((bits >> 52) & 0x7ff) as usize;
+        let fraction = (bits & ((1u64 << 52) - 1)) as i128;
+        // x = significand · 2^(biased − 1075), with the implicit bit for normal numbers.
+        let (significand, slot) = if biased == 0 { (fraction, 1) } else { (fraction | 1 << 52, biased) };
+        self.by_exponent[slot] += if x < 0.0 { -significand } else { significand };
+    }
+
+    /// Adds another sum's values.
+    pub fn merge(&mut self, other: &ExactSum) {
+        for (a, b) in self.by_exponent.iter_mut().zip(&other.by_exponent) {
+            *a += b;
+        }
+    }
+
+    /// The total (rounded once per exponent used, the same whatever the order of the values).
+    pub fn total(&self) -> f64 {
+        self.by_exponent
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| **s != 0)
+            .map(|(slot, &s)| s as f64 * 2f64.powi(slot as i32 - 1075))
+            .sum()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -285,9 +285,11 @@ pub fn detect(
         }
         let t = std::time::Instant::now();
         let tiling = match memory {
-            Some(budget) => {
-                photonkit::tiles::tiling_for_budget(view.positions(), budget, &photonkit::detect::MEMORY)?
-            }
+            Some(budget) => photonkit::tiles::tiling_for_budget(
+                view.positions(),
+                budget,
+                &photonkit::detect::memory(&view),
+            )?,
             None => None,
         };
         let d = match &tiling {
@@ -301,7 +303,7 @@ pub fn detect(
             }
             None => photonkit::detect::detect_map(&view, &capped, &|_| {})?,
         };
-        let table = photonkit::detect::detected_map(&view, &d, &capped, t.elapsed().as_secs_f64())?;
+        let table = photonkit::detect::detected_map(&view, d, &capped, t.elapsed().as_secs_f64())?;
         Ok((finish(table, output, "writing the detected map")?, told))
     })?;
     notes(py, &told)?;

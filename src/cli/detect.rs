@@ -112,7 +112,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     if let Some(tile) = a.tile {
         return run_tile(&map.view(), &p, tile, &a.output, bar, t);
     }
-    let budgeted = super::budget_tiling(&map, a.memory, &detect::MEMORY, "detecting")?;
+    let budgeted = super::budget_tiling(&map, a.memory, &detect::memory(&map.view()), "detecting")?;
     let d = if let Some((tiling, mut budget)) = budgeted {
         detect::detect_map_tiled(&map.view(), &p, &tiling, &|k| bar.inc(k), &mut |tile, tiles, part| {
             bar.suspend(|| budget.check(tile, &part.per_round));
@@ -129,10 +129,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     };
     bar.finish_and_clear();
     let seconds = t.elapsed().as_secs_f64();
-    detect::detected_map(&map.view(), &d, &p, seconds)?
+    let s = d.summary.clone();
+    detect::detected_map(&map.view(), d, &p, seconds)?
         .write(Output::parse(&a.output))
         .context("writing the detected map")?;
-    let s = &d.summary;
     super::note!(
         "detected {} photons with {} (Kc = {}) in {seconds:.2} s ({:.2} µs/photon): {:.1} % constrained \
          (factor < 0.5), mean factor {:.3}{}",

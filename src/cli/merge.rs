@@ -47,14 +47,14 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             super::print_record(&a.output)?;
             return Ok(ExitCode::SUCCESS);
         }
-        let (table, d) = photonkit::detect::merge_parts(&source.view(), &parts)?;
+        let (table, summary) = photonkit::detect::merge_parts(&source.view(), &parts)?;
         table.write(Output::parse(&a.output)).context("writing the detected map")?;
         super::note!(
             "photonkit merge: {} tile parts, {} photons: {:.1} % constrained (factor < 0.5), mean factor {:.3}",
             maps.len(),
-            d.summary.photons,
-            100.0 * d.summary.constrained_fraction(),
-            d.summary.mean_factor
+            summary.photons,
+            100.0 * summary.constrained_fraction(),
+            summary.mean_factor
         );
         super::print_record(&a.output)?;
         return Ok(ExitCode::SUCCESS);

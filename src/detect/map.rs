@@ -114,6 +114,12 @@ pub fn detect_map_tiled(
     Ok(d)
 }
 
+/// What detecting `map` keeps in memory, for a budget ([`super::tiled::memory`]).
+pub fn memory(map: &MapView) -> crate::tiles::MemoryModel {
+    let spectral = map.info().emitters.iter().any(|e| e.is_spectral());
+    super::tiled::memory(spectral.then(|| map.spec(name::PARAMS).map_or(0, |c| c.components as usize)))
+}
+
 /// An error of [`detect`] named after `map`.
 fn in_map(map: &MapView, e: DetectError) -> DetectError {
     match e {
@@ -227,11 +233,12 @@ pub fn spectral_scales(
 /// column carried through unchanged (borrowed), state `detected`, and a stage record.
 pub fn detected_map<'a>(
     map: &MapView<'a>,
-    d: &Detection,
+    d: Detection,
     p: &DetectParams,
     seconds: f64,
 ) -> Result<PhotonTable<'a>, DetectError> {
-    detected_map_with(map, d, record_parameters(p, &d.spectral_scales), seconds)
+    let parameters = record_parameters(p, &d.spectral_scales);
+    detected_map_with(map, d, parameters, seconds)
 }
 
 /// The parameters a detect record holds: `p`, and the spectral scale S when some emitter's
@@ -248,7 +255,7 @@ pub fn record_parameters(p: &DetectParams, scales: &[Option<f32>]) -> serde_json
 /// ([`record_parameters`]): how `photonkit merge` writes a map detected tile by tile.
 pub fn detected_map_with<'a>(
     map: &MapView<'a>,
-    d: &Detection,
+    d: Detection,
     parameters: serde_json::Value,
     seconds: f64,
 ) -> Result<PhotonTable<'a>, DetectError> {
@@ -272,11 +279,12 @@ pub fn detected_map_with<'a>(
     for column in [name::BASIS_U, name::BASIS_V, name::LAMBDA2, name::R_PARAM] {
         table.remove(column);
     }
-    table.set(name::BASIS_U, &d.basis_u)?;
-    table.set(name::BASIS_V, &d.basis_v)?;
-    table.set(name::LAMBDA2, &d.lambda2)?;
-    if let Some(r) = &d.r_param {
-        table.set(name::R_PARAM, r)?;
+    // The columns move into the table: a map's results are not held twice while it is written.
+    table.set_vec(name::BASIS_U, d.basis_u)?;
+    table.set_vec(name::BASIS_V, d.basis_v)?;
+    table.set_vec(name::LAMBDA2, d.lambda2)?;
+    if let Some(r) = d.r_param {
+        table.set_vec(name::R_PARAM, r)?;
     }
     Ok(table)
 }

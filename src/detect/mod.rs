@@ -55,7 +55,7 @@ pub use constraint::{
 };
 pub use map::{
     PreparedInput, choose_method, detect_map, detect_map_tile, detect_map_tiled, detected_map,
-    detected_map_with, map_input, record_parameters, spectral_scales,
+    detected_map_with, map_input, memory, record_parameters, spectral_scales,
 };
 pub use noise::{NoiseModel, Row, SIMULATED, in_disc, lambda2_of, simulate};
 pub use part::{FACTOR, OUTCOME, PHOTON_INDEX, merge_parts, tile_part};
@@ -216,13 +216,19 @@ impl Permuted {
     /// `input`'s photons `order[0], order[1], …`.
     fn of(input: &DetectInput, order: &[u32], method: Method) -> Permuted {
         use crate::spatial::order::permuted;
+        // A tile's photons are scattered over every page of the file: each column's pages are
+        // released once it is copied, so at most one column's stay resident.
+        let pages = input.pages;
         Permuted {
-            positions: permuted(input.positions, order, 1),
-            normals: input.normals.map(|v| permuted(v, order, 1)),
+            positions: released(pages, permuted(input.positions, order, 1)),
+            normals: released(pages, input.normals.map(|v| permuted(v, order, 1))),
             // Only the gradient method weighs neighbours by their flux.
-            flux: input.flux.filter(|_| method == Method::Gradient).map(|v| permuted(v, order, 1)),
-            emitters: input.emitters.map(|v| permuted(v, order, 1)),
-            values: input.params.map(|c| permuted(c.values, order, c.stride)),
+            flux: released(
+                pages,
+                input.flux.filter(|_| method == Method::Gradient).map(|v| permuted(v, order, 1)),
+            ),
+            emitters: released(pages, input.emitters.map(|v| permuted(v, order, 1))),
+            values: released(pages, input.params.map(|c| permuted(c.values, order, c.stride))),
         }
     }
 
@@ -237,6 +243,12 @@ impl Permuted {
             pages: Default::default(),
         }
     }
+}
+
+/// `v`, once the pages of the file it was copied from are released ([`DetectInput::pages`]).
+pub(crate) fn released<T>(pages: crate::format::Pages, v: T) -> T {
+    pages.release();
+    v
 }
 
 impl<'a> DetectInput<'a> {
@@ -416,31 +428,65 @@ pub fn detect(
         lambda2: unpermuted(&d.lambda2, &order),
         r_param: d.r_param.map(|r| unpermuted(&r, &order)),
         spectral_scales: Vec::new(),
-        summary: summarise(&unpermuted(&factors, &order), &unpermuted(&outcomes, &order)),
+        summary: summarise(&factors, &outcomes),
     })
 }
 
-/// The report's counts over photons given in file order: each photon's Eq. 7 factor and how
-/// its constraint was decided. The mean factor is summed in this order, so a map assembled
-/// from tiles ([`tiled`], [`assemble`]) reports the same bits as the whole map.
+/// The [`Summary`] of photons with these factors and outcomes ([`SummarySums`]).
 pub fn summarise(factors: &[f32], outcomes: &[Outcome]) -> Summary {
-    let n = factors.len();
-    let mut s = Summary { photons: n, ..Default::default() };
-    let mut factor_sum = 0.0f64;
-    for (&f, o) in factors.iter().zip(outcomes) {
-        factor_sum += f as f64;
-        match o {
-            Outcome::Measured => s.measured += 1,
-            Outcome::TooFew => s.too_few += 1,
-            Outcome::Coincident => s.coincident += 1,
-            Outcome::Unconstrained => {}
-        }
-        if f < 0.5 {
-            s.constrained += 1;
+    let mut sums = SummarySums::default();
+    sums.add(factors, outcomes);
+    sums.summary()
+}
+
+/// The sums a [`Summary`] is formed from, added in any order and merged across tiles: the
+/// summary does not depend on either (its mean factor comes from an exact sum), so a map
+/// detected tile by tile reports what the whole map does without keeping every photon's
+/// factor.
+#[derive(Clone, Debug, Default)]
+pub struct SummarySums {
+    counts: Summary,
+    factor: crate::tiles::ExactSum,
+}
+
+impl SummarySums {
+    /// Adds photons with these factors and outcomes.
+    pub fn add(&mut self, factors: &[f32], outcomes: &[Outcome]) {
+        let s = &mut self.counts;
+        for (&f, o) in factors.iter().zip(outcomes) {
+            s.photons += 1;
+            self.factor.add(f as f64);
+            match o {
+                Outcome::Measured => s.measured += 1,
+                Outcome::TooFew => s.too_few += 1,
+                Outcome::Coincident => s.coincident += 1,
+                Outcome::Unconstrained => {}
+            }
+            if f < 0.5 {
+                s.constrained += 1;
+            }
         }
     }
-    s.mean_factor = if n > 0 { factor_sum / n as f64 } else { 0.0 };
-    s
+
+    /// Adds another set of photons' sums.
+    pub fn merge(&mut self, other: &SummarySums) {
+        let (s, o) = (&mut self.counts, &other.counts);
+        s.photons += o.photons;
+        s.measured += o.measured;
+        s.too_few += o.too_few;
+        s.coincident += o.coincident;
+        s.constrained += o.constrained;
+        self.factor.merge(&other.factor);
+    }
+
+    /// The summary of every photon added.
+    pub fn summary(&self) -> Summary {
+        let n = self.counts.photons;
+        Summary {
+            mean_factor: if n > 0 { self.factor.total() / n as f64 } else { 0.0 },
+            ..self.counts.clone()
+        }
+    }
 }
 
 /// Photons whose factor is below this are measured again in a grown ball when theirs binds.
@@ -655,7 +701,7 @@ fn measure(
 }
 
 mod tiled;
-pub use tiled::{Assembly, MEMORY, TileDetection, assemble, detect_tile, tiled, tiled_with};
+pub use tiled::{Assembly, TileDetection, assemble, detect_tile, tiled, tiled_with};
 
 #[cfg(test)]
 pub(crate) mod tests;

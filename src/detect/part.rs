@@ -11,8 +11,7 @@ use serde_json::{Value, json};
 
 use super::map::with_spectral_scales;
 use super::{
-    DetectError, DetectParams, Detection, Outcome, TileDetection, assemble, detected_map_with,
-    record_parameters,
+    DetectError, DetectParams, Outcome, TileDetection, assemble, detected_map_with, record_parameters,
 };
 use crate::format::{MapView, PhotonTable, StageRecord, State, name};
 use crate::tiles::{TileSpec, part_columns, part_record, part_report};
@@ -121,7 +120,7 @@ fn part_detection(part: &MapView) -> Result<TileDetection, DetectError> {
 pub fn merge_parts<'a>(
     map: &MapView<'a>,
     parts: &[MapView],
-) -> Result<(PhotonTable<'a>, Detection), DetectError> {
+) -> Result<(PhotonTable<'a>, super::Summary), DetectError> {
     let bad = |file: &str, message: String| DetectError::Input { file: file.to_string(), message };
     let Some(first) = parts.first() else { return Err(bad(map.file_name(), "no tile parts given".into())) };
     let infos = parts.iter().map(|p| part_info(map, p)).collect::<Result<Vec<_>, _>>()?;
@@ -145,5 +144,6 @@ pub fn merge_parts<'a>(
     let mut d = assemble(map.len(), &detections).map_err(|e| bad(map.file_name(), e.to_string()))?;
     d.spectral_scales = scales.clone();
     let seconds = infos.iter().map(|i| i.seconds).sum();
-    Ok((detected_map_with(map, &d, parameters.clone(), seconds)?, d))
+    let summary = d.summary.clone();
+    Ok((detected_map_with(map, d, parameters.clone(), seconds)?, summary))
 }

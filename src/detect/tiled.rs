@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::{
     CHUNK, DetectError, DetectInput, DetectParams, Detection, Measured, Method, Outcome, Permuted,
-    check_params, measure, radius_of, summarise, unit_normal, world_index,
+    check_params, measure, radius_of, released, unit_normal, world_index,
 };
 use crate::spatial::order::{locality_order_in, permuted};
 use crate::spatial::{MAX_PARAM_DIMS, Neighbours, ParamColumn, PointSet, Space, SpatialIndex};
@@ -47,12 +47,18 @@ pub struct TileDetection {
 
 /// What detection keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
 /// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiles and the memory budget"): the map's
-/// results per photon (the constraint basis, λ2, r_param, factor and outcome, their copies as
-/// the output is written, and its place in the run's tile index, `Shared`), and per photon a
-/// tile works on its columns, indices and search scratch; the first halo takes in a few times
-/// the tile's photons.
-pub const MEMORY: crate::tiles::MemoryModel =
-    crate::tiles::MemoryModel { per_photon: 76.0, per_working_photon: 200.0, halo_growth: 3.0 };
+/// results per photon (the constraint basis, λ2 and r_param, which the written map takes over
+/// without a copy, and its place in the run's tile index, `Shared`; with a wavelength among the
+/// parameters, their scaled copy too: `spectral_params`, the parameters' components), and per
+/// photon a tile works on its columns, indices and search scratch; the first halo takes in a
+/// few times the tile's photons.
+pub fn memory(spectral_params: Option<usize>) -> crate::tiles::MemoryModel {
+    crate::tiles::MemoryModel {
+        per_photon: 52.0 + spectral_params.map_or(0.0, |c| 4.0 * c as f64),
+        per_working_photon: 200.0,
+        halo_growth: 3.0,
+    }
+}
 
 /// Rounds after which the halo is the whole map (a guard: doubling reaches it long before).
 const MAX_ROUNDS: u32 = 48;
@@ -187,6 +193,8 @@ pub(super) fn detect_tile_with(
             }
             _ => (0..n as u32).into_par_iter().filter(|&i| member(i)).collect(),
         };
+        // Choosing the members read their positions (and parameters) across the file.
+        input.pages.release();
         out.working_set = out.working_set.max(members.len());
         out.per_round.push([pending.len(), members.len()]);
         // Labelled as the whole map labels them: Z-order on the map's box, ties by file index.
@@ -302,10 +310,10 @@ impl<'a> ParamNear<'a> {
                 b
             })
             .collect();
-        let positions = permuted(input.positions, &ids, 1);
-        let values = permuted(column.values, &ids, column.stride);
-        let emitter_ids = input.emitters.map(|e| permuted(e, &ids, 1));
-        input.pages.release();
+        let pages = input.pages;
+        let positions = released(pages, permuted(input.positions, &ids, 1));
+        let values = released(pages, permuted(column.values, &ids, column.stride));
+        let emitter_ids = released(pages, input.emitters.map(|e| permuted(e, &ids, 1)));
         let index = {
             let sub = PointSet {
                 positions: &positions,
@@ -467,10 +475,12 @@ fn tile_radius(
                 active[e] && boxes[e].contains(points.params_of(j as usize))
             })
             .collect();
-        let positions = permuted(input.positions, &members, 1);
-        let values = permuted(column.values, &members, column.stride);
-        let emitters = input.emitters.map(|e| permuted(e, &members, 1));
-        input.pages.release();
+        let pages = input.pages;
+        // The scan read every photon's parameters; the gathers read one column at a time.
+        pages.release();
+        let positions = released(pages, permuted(input.positions, &members, 1));
+        let values = released(pages, permuted(column.values, &members, column.stride));
+        let emitters = released(pages, input.emitters.map(|e| permuted(e, &members, 1)));
         let sub = PointSet {
             positions: &positions,
             params: Some(ParamColumn { values: &values, ..column }),
@@ -549,6 +559,8 @@ pub fn tiled_with(
     let mut whole: Option<Assembly> = None;
     check_params(p)?;
     let shared = Shared::new(input, tiling, p)?;
+    // Checking and bucketing read every photon's columns: their pages are not the tiles' to hold.
+    input.pages.release();
     for t in 0..tiling.len() {
         let part = detect_tile_with(input, p, tiling, t, Options::default(), Some(&shared), progress)?;
         whole
@@ -570,12 +582,15 @@ pub fn assemble(n: usize, parts: &[TileDetection]) -> Result<Detection, DetectEr
 }
 
 /// The whole map's detection put together tile by tile ([`assemble`]), so a run of every tile
-/// in one process holds one tile's results at a time besides the map's.
+/// in one process holds one tile's results at a time besides the map's columns: per photon its
+/// basis, λ2 and r_param, and a bit for whether a tile gave it (the report's counts and factor
+/// sum are summed as the tiles come, [`super::SummarySums`]).
 pub struct Assembly {
     d: Detection,
-    factors: Vec<f32>,
-    outcomes: Vec<Outcome>,
-    seen: Vec<bool>,
+    sums: super::SummarySums,
+    /// One bit per photon: given by a tile.
+    seen: Vec<u64>,
+    n: usize,
 }
 
 impl Assembly {
@@ -589,16 +604,16 @@ impl Assembly {
                 r_param: with_r.then(|| vec![0.0; n]),
                 ..Default::default()
             },
-            factors: vec![0f32; n],
-            outcomes: vec![Outcome::Unconstrained; n],
-            seen: vec![false; n],
+            sums: Default::default(),
+            seen: vec![0; n.div_ceil(64)],
+            n,
         }
     }
 
     /// Adds one tile's photons.
     pub fn add(&mut self, t: &TileDetection) -> Result<(), DetectError> {
         let bad = |m: String| Err(DetectError::Parameter(m));
-        let (d, n) = (&mut self.d, self.seen.len());
+        let (d, n) = (&mut self.d, self.n);
         if t.r_param.is_some() != d.r_param.is_some() {
             return bad("the tiles disagree on having r_param".into());
         }
@@ -612,29 +627,37 @@ impl Assembly {
         }
         for (k, &i) in t.indices.iter().enumerate() {
             let i = i as usize;
-            match self.seen.get_mut(i) {
-                None => return bad(format!("photon {i} is not in a map of {n}")),
-                Some(true) => return bad(format!("photon {i} is in two tiles")),
-                Some(s) => *s = true,
+            if i >= n {
+                return bad(format!("photon {i} is not in a map of {n}"));
             }
+            let (word, bit) = (&mut self.seen[i / 64], 1u64 << (i % 64));
+            if *word & bit != 0 {
+                return bad(format!("photon {i} is in two tiles"));
+            }
+            *word |= bit;
             d.basis_u[i] = t.basis_u[k];
             d.basis_v[i] = t.basis_v[k];
             d.lambda2[i] = t.lambda2[k];
             if let (Some(r), Some(tr)) = (&mut d.r_param, &t.r_param) {
                 r[i] = tr[k];
             }
-            self.factors[i] = t.factor[k];
-            self.outcomes[i] = t.outcome[k];
         }
+        self.sums.add(&t.factor, &t.outcome);
         Ok(())
     }
 
     /// The detection, once every photon was added.
     pub fn finish(mut self) -> Result<Detection, DetectError> {
-        if let Some(i) = self.seen.iter().position(|s| !s) {
+        let missing = self.seen.iter().enumerate().find_map(|(w, &bits)| {
+            // The last word's bits past the map's photons count as seen.
+            let past = if (w + 1) * 64 > self.n { !0u64 << (self.n - w * 64) } else { 0 };
+            let unseen = !(bits | past);
+            (unseen != 0).then(|| w * 64 + unseen.trailing_zeros() as usize)
+        });
+        if let Some(i) = missing {
             return Err(DetectError::Parameter(format!("photon {i} is in no tile")));
         }
-        self.d.summary = summarise(&self.factors, &self.outcomes);
+        self.d.summary = self.sums.summary();
         Ok(self.d)
     }
 }

@@ -133,12 +133,25 @@ impl PhotonMap {
     }
 }
 
-/// A column's bytes: borrowed from a stage's input, or computed and owned (in u64 words, so
-/// every column can be viewed as any element type).
+/// A column's bytes: borrowed from a stage's input, computed and owned (in u64 words, so
+/// every column can be viewed as any element type), or a stage's own vector of its element
+/// type, moved in without a copy ([`PhotonTable::set_vec`]).
 #[derive(Clone, Debug)]
 enum Bytes<'a> {
     Borrowed(&'a [u8]),
     Owned { words: Vec<u64>, len: usize },
+    Moved(std::sync::Arc<dyn ColumnVec>),
+}
+
+/// A vector of a column's elements, seen as bytes.
+trait ColumnVec: std::fmt::Debug + Send + Sync {
+    fn bytes(&self) -> &[u8];
+}
+
+impl<T: bytemuck::Pod + std::fmt::Debug + Send + Sync> ColumnVec for Vec<T> {
+    fn bytes(&self) -> &[u8] {
+        bytemuck::cast_slice(self)
+    }
 }
 
 impl Bytes<'_> {
@@ -153,6 +166,7 @@ impl Bytes<'_> {
         match self {
             Bytes::Borrowed(b) => b,
             Bytes::Owned { words, len } => &bytemuck::cast_slice(words)[..*len],
+            Bytes::Moved(v) => v.bytes(),
         }
     }
 }
@@ -275,6 +289,16 @@ impl<'a> PhotonTable<'a> {
         self.set_bytes(ColumnSpec::of::<T>(column), Bytes::of(values))
     }
 
+    /// [`Self::set`] taking the values' vector, which the table keeps as the column (no copy:
+    /// a stage that hands over its results does not hold them twice while the map is written).
+    pub fn set_vec<T: Element + std::fmt::Debug + Send + Sync>(
+        &mut self,
+        column: &str,
+        values: Vec<T>,
+    ) -> Result<()> {
+        self.set_bytes(ColumnSpec::of::<T>(column), Bytes::Moved(std::sync::Arc::new(values)))
+    }
+
     /// [`Self::set`] for a column of `components` elements per photon given flat.
     pub fn set_flat<T: Element>(&mut self, column: &str, components: u32, values: &[T]) -> Result<()> {
         if T::COMPONENTS != 1 {
@@ -339,6 +363,7 @@ impl<'a> PhotonTable<'a> {
                     let b = match b {
                         Bytes::Borrowed(b) => Bytes::of(b),
                         Bytes::Owned { words, len } => Bytes::Owned { words, len },
+                        Bytes::Moved(v) => Bytes::Moved(v),
                     };
                     (s, b)
                 })

@@ -520,7 +520,7 @@ fn a_grown_map_s_kernel_narrows_at_held_photons_only() {
     let dp = crate::detect::DetectParams::default();
     let d = crate::detect::detect_map(&traced.view(), &dp, &|_| {}).unwrap();
     let path = dir.path().join("detected.phm");
-    crate::detect::detected_map(&traced.view(), &d, &dp, 0.0)
+    crate::detect::detected_map(&traced.view(), d, &dp, 0.0)
         .unwrap()
         .write(Output::Path(path.clone()))
         .unwrap();

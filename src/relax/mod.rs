@@ -17,9 +17,10 @@ pub mod tiled;
 
 use serde::Serialize;
 
+pub use crate::tiles::ExactSum;
 pub use force::{clamp_step, project_on_basis, project_on_tangent, repulsion};
 pub use iteration::{
-    Constraint, ExactSum, IndexSearch, IterationMeasure, MapWide, MeasureSums, NeighbourSearch, PerPhoton,
+    Constraint, IndexSearch, IterationMeasure, MapWide, MeasureSums, NeighbourSearch, PerPhoton,
     REBUILD_EVERY, Scratch, coefficient_of_variation, diffuse_flux, index_positions, iterate, iterate_in,
     map_spacing,
 };

@@ -358,7 +358,7 @@ fn detect_to(map: &crate::format::PhotonMap, dir: &std::path::Path, file: &str) 
     let p = crate::detect::DetectParams::default();
     let d = crate::detect::detect_map(&map.view(), &p, &|_| {}).unwrap();
     let path = dir.join(file);
-    let table = crate::detect::detected_map(&map.view(), &d, &p, 0.0).unwrap();
+    let table = crate::detect::detected_map(&map.view(), d, &p, 0.0).unwrap();
     table.write(crate::format::Output::Path(path.clone())).unwrap();
     crate::format::PhotonMap::open_path(&path).unwrap()
 }

@@ -61,7 +61,7 @@ fn pipeline(scene: &Scene, photons: u64, dir: &Path, mode: Mode) -> Run {
     let d = detect::detect_map(&map.view(), &dp, &|_| {}).expect("detect");
     assert!(d.lambda2.iter().all(|x| x.is_finite()));
     assert!(all_finite(&d.basis_u) && all_finite(&d.basis_v));
-    detect::detected_map(&map.view(), &d, &dp, 0.0)
+    detect::detected_map(&map.view(), d, &dp, 0.0)
         .unwrap()
         .write(Output::Path(file("detected.phm")))
         .unwrap();
@@ -360,7 +360,10 @@ fn kc_3_and_kc_1000_through_detect_and_relax() {
         assert!(d.lambda2.iter().all(|x| x.is_finite()) && all_finite(&d.basis_u) && all_finite(&d.basis_v));
         assert_eq!(d.summary.measured, m.len(), "Kc {kc}: {:?}", d.summary);
         let out = dir.path().join(format!("d{kc}.phm"));
-        detect::detected_map(&map.view(), &d, &dp, 0.0).unwrap().write(Output::Path(out.clone())).unwrap();
+        detect::detected_map(&map.view(), d.clone(), &dp, 0.0)
+            .unwrap()
+            .write(Output::Path(out.clone()))
+            .unwrap();
         let dm = PhotonMap::open_path(&out).unwrap();
         let r = relax::relax_map(&dm.view(), &RelaxParams::default(), |_| {}).unwrap();
         assert!(all_finite(&r.positions) && r.positions.iter().all(|p| p[2] == 0.0), "Kc {kc}");

@@ -439,10 +439,9 @@ pub fn summarise(factors: &[f32], outcomes: &[Outcome]) -> Summary {
     sums.summary()
 }
 
-/// The sums a [`Summary`] is formed from, added in any order and merged across tiles: the
-/// summary does not depend on either (its mean factor comes from an exact sum), so a map
-/// detected tile by tile reports what the whole map does without keeping every photon's
-/// factor.
+/// The sums a [`Summary`] is formed from, added tile by tile in any order: the summary does
+/// not depend on it (its mean factor comes from an exact sum), so a map detected tile by tile
+/// reports what the whole map does without keeping every photon's factor.
 #[derive(Clone, Debug, Default)]
 pub struct SummarySums {
     counts: Summary,
@@ -466,17 +465,6 @@ impl SummarySums {
                 s.constrained += 1;
             }
         }
-    }
-
-    /// Adds another set of photons' sums.
-    pub fn merge(&mut self, other: &SummarySums) {
-        let (s, o) = (&mut self.counts, &other.counts);
-        s.photons += o.photons;
-        s.measured += o.measured;
-        s.too_few += o.too_few;
-        s.coincident += o.coincident;
-        s.constrained += o.constrained;
-        self.factor.merge(&other.factor);
     }
 
     /// The summary of every photon added.

@@ -465,3 +465,38 @@ fn bad_parameters_and_missing_parameters_are_refused() {
     let e = detect(&input(&bad, &dims, stride), &DetectParams::default(), &|_| {}).unwrap_err();
     assert!(matches!(e, DetectError::Spatial(SpatialError::NonFinite { index: 5, .. })), "{e}");
 }
+
+/// The report's sums do not depend on how the photons are split or in which order the parts
+/// come: factors spread over sixteen orders of magnitude (whose f64 sum in one order rounds
+/// differently from another's) summed in three parts, in two orders, give the whole map's
+/// summary bit for bit, and its mean agrees with both orders' f64 sums to their rounding.
+#[test]
+fn summary_sums_do_not_depend_on_the_split_or_its_order() {
+    let mut r = rng(41);
+    let factors: Vec<f32> = (0..30_000).map(|_| 10f32.powf(r.random_range(-16.0..0.0))).collect();
+    let outcomes: Vec<Outcome> = (0..factors.len())
+        .map(|i| [Outcome::Measured, Outcome::TooFew, Outcome::Coincident, Outcome::Unconstrained][i % 4])
+        .collect();
+    let whole = summarise(&factors, &outcomes);
+    let cuts = [0, 7_001, 19_999, factors.len()];
+    let parts: Vec<std::ops::Range<usize>> = cuts.windows(2).map(|w| w[0]..w[1]).collect();
+    for order in [[0, 1, 2], [2, 0, 1]] {
+        let mut sums = SummarySums::default();
+        for k in order {
+            sums.add(&factors[parts[k].clone()], &outcomes[parts[k].clone()]);
+        }
+        assert_eq!(sums.summary(), whole);
+    }
+    // The naive f64 sum in two orders differs; the exact mean lies within both's rounding.
+    let forward: f64 = factors.iter().map(|&f| f as f64).sum();
+    let backward: f64 = factors.iter().rev().map(|&f| f as f64).sum();
+    assert_ne!(forward, backward, "the naive sums should differ for this test to show anything");
+    let n = factors.len() as f64;
+    assert!((whole.mean_factor - forward / n).abs() <= 1e-12 * whole.mean_factor);
+    assert!((whole.mean_factor - backward / n).abs() <= 1e-12 * whole.mean_factor);
+    assert_eq!(
+        (whole.photons, whole.measured, whole.too_few, whole.coincident),
+        (30_000, 7_500, 7_500, 7_500)
+    );
+    assert_eq!(whole.constrained, factors.iter().filter(|&&f| f < 0.5).count());
+}

@@ -426,6 +426,29 @@ mod tests {
         assert_eq!(owned.view().column::<f32>(name::LAMBDA2).unwrap().unwrap(), [0.5, 0.5]);
     }
 
+    /// A vector handed to the table becomes the column itself (no copy): the table views the
+    /// vector's own buffer, writes it like any column, refuses a wrong length, and keeps it
+    /// when made owned.
+    #[test]
+    fn a_moved_column_is_the_vector_itself() {
+        let mut t = table();
+        let basis = vec![[1.0f32, 0.0, 0.0], [0.0, 1.0, 0.0]];
+        let at = basis.as_ptr() as *const u8;
+        t.set_vec(name::BASIS_U, basis).unwrap();
+        assert_eq!(t.view().column_bytes(name::BASIS_U).unwrap().as_ptr(), at);
+        assert!(t.set_vec(name::LAMBDA2, vec![0.5f32; 3]).is_err());
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("t.phm");
+        t.write(Output::Path(path.clone())).unwrap();
+        let map = PhotonMap::open_path(&path).unwrap();
+        assert_eq!(
+            map.view().column::<[f32; 3]>(name::BASIS_U).unwrap().unwrap(),
+            [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]
+        );
+        let owned = t.into_owned();
+        assert_eq!(owned.view().column_bytes(name::BASIS_U).unwrap().as_ptr(), at);
+    }
+
     #[test]
     fn a_table_from_columns_needs_positions_and_flux_of_one_length() {
         let info = || MapInfo::new(vec![], State::Traced);

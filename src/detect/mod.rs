@@ -216,19 +216,16 @@ impl Permuted {
     /// `input`'s photons `order[0], order[1], …`.
     fn of(input: &DetectInput, order: &[u32], method: Method) -> Permuted {
         use crate::spatial::order::permuted;
-        // A tile's photons are scattered over every page of the file: each column's pages are
-        // released once it is copied, so at most one column's stay resident.
+        // Each column's pages are released once it is copied ([`crate::format::Pages::released`]).
         let pages = input.pages;
         Permuted {
-            positions: released(pages, permuted(input.positions, order, 1)),
-            normals: released(pages, input.normals.map(|v| permuted(v, order, 1))),
+            positions: pages.released(permuted(input.positions, order, 1)),
+            normals: pages.released(input.normals.map(|v| permuted(v, order, 1))),
             // Only the gradient method weighs neighbours by their flux.
-            flux: released(
-                pages,
-                input.flux.filter(|_| method == Method::Gradient).map(|v| permuted(v, order, 1)),
-            ),
-            emitters: released(pages, input.emitters.map(|v| permuted(v, order, 1))),
-            values: released(pages, input.params.map(|c| permuted(c.values, order, c.stride))),
+            flux: pages
+                .released(input.flux.filter(|_| method == Method::Gradient).map(|v| permuted(v, order, 1))),
+            emitters: pages.released(input.emitters.map(|v| permuted(v, order, 1))),
+            values: pages.released(input.params.map(|c| permuted(c.values, order, c.stride))),
         }
     }
 
@@ -243,12 +240,6 @@ impl Permuted {
             pages: Default::default(),
         }
     }
-}
-
-/// `v`, once the pages of the file it was copied from are released ([`DetectInput::pages`]).
-pub(crate) fn released<T>(pages: crate::format::Pages, v: T) -> T {
-    pages.release();
-    v
 }
 
 impl<'a> DetectInput<'a> {

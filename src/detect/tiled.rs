@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use super::{
     CHUNK, DetectError, DetectInput, DetectParams, Detection, Measured, Method, Outcome, Permuted,
-    check_params, measure, radius_of, released, unit_normal, world_index,
+    check_params, measure, radius_of, unit_normal, world_index,
 };
 use crate::spatial::order::{locality_order_in, permuted};
 use crate::spatial::{MAX_PARAM_DIMS, Neighbours, ParamColumn, PointSet, Space, SpatialIndex};
@@ -311,9 +311,9 @@ impl<'a> ParamNear<'a> {
             })
             .collect();
         let pages = input.pages;
-        let positions = released(pages, permuted(input.positions, &ids, 1));
-        let values = released(pages, permuted(column.values, &ids, column.stride));
-        let emitter_ids = released(pages, input.emitters.map(|e| permuted(e, &ids, 1)));
+        let positions = pages.released(permuted(input.positions, &ids, 1));
+        let values = pages.released(permuted(column.values, &ids, column.stride));
+        let emitter_ids = pages.released(input.emitters.map(|e| permuted(e, &ids, 1)));
         let index = {
             let sub = PointSet {
                 positions: &positions,
@@ -478,9 +478,9 @@ fn tile_radius(
         let pages = input.pages;
         // The scan read every photon's parameters; the gathers read one column at a time.
         pages.release();
-        let positions = released(pages, permuted(input.positions, &members, 1));
-        let values = released(pages, permuted(column.values, &members, column.stride));
-        let emitters = released(pages, input.emitters.map(|e| permuted(e, &members, 1)));
+        let positions = pages.released(permuted(input.positions, &members, 1));
+        let values = pages.released(permuted(column.values, &members, column.stride));
+        let emitters = pages.released(input.emitters.map(|e| permuted(e, &members, 1)));
         let sub = PointSet {
             positions: &positions,
             params: Some(ParamColumn { values: &values, ..column }),

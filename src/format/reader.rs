@@ -259,6 +259,14 @@ impl Pages<'_> {
         }
     }
 
+    /// `v`, once the pages are released ([`Self::release`]): for a copy just made from the
+    /// file, as a tile copies its photons' rows, which are scattered over every page of a
+    /// column, so that one column's pages at a time stay resident.
+    pub fn released<T>(&self, v: T) -> T {
+        self.release();
+        v
+    }
+
     /// Drops the pages of `bytes`, a part of the file, as [`Self::release`] does for all of it
     /// (nothing when `bytes` is not in the file).
     pub fn release_range(&self, bytes: &[u8]) {

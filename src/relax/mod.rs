@@ -242,13 +242,9 @@ impl Columns {
         use crate::spatial::order::permuted;
         let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
         let meta = map.info();
-        // Each column is copied, then its pages in the map released: a tile reads only its
-        // photons' rows, but those are scattered over every page of the file.
-        fn copied<T>(map: &crate::format::MapView, v: T) -> T {
-            map.release_pages();
-            v
-        }
-        let sorted = |column: Option<&[[f32; 3]]>| copied(map, column.map(|c| permuted(c, work, 1)));
+        // Each column is copied, then its pages in the map released ([`crate::format::Pages::released`]).
+        let pages = map.pages();
+        let sorted = |column: Option<&[[f32; 3]]>| pages.released(column.map(|c| permuted(c, work, 1)));
         let basis_u = sorted(map.column::<[f32; 3]>(name::BASIS_U)?);
         let basis_v = sorted(map.column::<[f32; 3]>(name::BASIS_V)?);
         let normal = sorted(map.column::<[f32; 3]>(name::NORMAL)?);
@@ -259,7 +255,7 @@ impl Columns {
                     .into(),
             ));
         }
-        let r_param = copied(map, map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, work, 1)));
+        let r_param = pages.released(map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, work, 1)));
         let params = match map.spec(name::PARAMS) {
             Some(c) => {
                 let values =
@@ -273,12 +269,12 @@ impl Columns {
                         stride * map.len()
                     )));
                 }
-                Some(copied(map, (permuted(values, work, stride), stride)))
+                Some(pages.released((permuted(values, work, stride), stride)))
             }
             None => None,
         };
         let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
-        let emitters = copied(map, map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, work, 1)));
+        let emitters = pages.released(map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, work, 1)));
         // A wavelength component enters distances with the scale detect gave it (the one its
         // r_param was measured in; docs/spectral.md).
         let params = match params {
@@ -289,12 +285,12 @@ impl Columns {
             }
             p => p,
         };
-        let mut positions = copied(map, permuted(map.positions(), work, 1));
+        let mut positions = pages.released(permuted(map.positions(), work, 1));
         if setup.scale != 1.0 {
             positions.iter_mut().flatten().for_each(|x| *x *= setup.scale);
         }
-        let surfaces = copied(map, map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, work, 1)));
-        let flux = copied(map, (setup.p.flux_diffusion > 0.0).then(|| permuted(map.flux(), work, 1)));
+        let surfaces = pages.released(map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, work, 1)));
+        let flux = pages.released((setup.p.flux_diffusion > 0.0).then(|| permuted(map.flux(), work, 1)));
         Ok(Columns {
             positions,
             basis_u,

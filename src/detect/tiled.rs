@@ -590,7 +590,6 @@ pub struct Assembly {
     sums: super::SummarySums,
     /// One bit per photon: given by a tile.
     seen: Vec<u64>,
-    n: usize,
 }
 
 impl Assembly {
@@ -606,14 +605,14 @@ impl Assembly {
             },
             sums: Default::default(),
             seen: vec![0; n.div_ceil(64)],
-            n,
         }
     }
 
     /// Adds one tile's photons.
     pub fn add(&mut self, t: &TileDetection) -> Result<(), DetectError> {
         let bad = |m: String| Err(DetectError::Parameter(m));
-        let (d, n) = (&mut self.d, self.n);
+        let n = self.d.basis_u.len();
+        let d = &mut self.d;
         if t.r_param.is_some() != d.r_param.is_some() {
             return bad("the tiles disagree on having r_param".into());
         }
@@ -648,9 +647,10 @@ impl Assembly {
 
     /// The detection, once every photon was added.
     pub fn finish(mut self) -> Result<Detection, DetectError> {
+        let n = self.d.basis_u.len();
         let missing = self.seen.iter().enumerate().find_map(|(w, &bits)| {
             // The last word's bits past the map's photons count as seen.
-            let past = if (w + 1) * 64 > self.n { !0u64 << (self.n - w * 64) } else { 0 };
+            let past = if (w + 1) * 64 > n { !0u64 << (n - w * 64) } else { 0 };
             let unseen = !(bits | past);
             (unseen != 0).then(|| w * 64 + unseen.trailing_zeros() as usize)
         });

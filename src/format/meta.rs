@@ -423,6 +423,16 @@ pub struct MapInfo {
 }
 
 impl MapInfo {
+    /// Per emitter, the factors on its parameter components that detection measured distances
+    /// with ([`Emitter::param_scales`]); `None` when no emitter has a wavelength, where every
+    /// factor is 1 and the parameters are used as they are.
+    pub fn param_scales(&self) -> Option<Vec<Vec<f32>>> {
+        self.emitters
+            .iter()
+            .any(|e| e.is_spectral())
+            .then(|| self.emitters.iter().map(|e| e.param_scales()).collect())
+    }
+
     /// A header in metres and watts with no history yet.
     pub fn new(emitters: Vec<Emitter>, state: State) -> Self {
         MapInfo { emitters, units: Units::default(), state, history: Vec::new(), extra: Map::new() }

@@ -243,13 +243,16 @@ pub fn border_scores(map: &MapView) -> Result<Option<Vec<f32>>, RefineError> {
     let Some(params) = columns.params else { return Ok(None) };
     // The parameter space detection searched: each emitter's dimensions, a wavelength scaled
     // as detect recorded it.
-    let emitters = &map.info().emitters;
-    let dims: Vec<u32> = emitters.iter().map(|e| e.param_dims).collect();
-    let factors: Vec<Vec<f32>> = emitters.iter().map(|e| e.param_scales()).collect();
-    let scaled = ParamColumn { dims: &dims, ..params }.scaled(columns.emitters, &factors);
+    let dims: Vec<u32> = map.info().emitters.iter().map(|e| e.param_dims).collect();
+    let scaled =
+        map.info().param_scales().map(|f| ParamColumn { dims: &dims, ..params }.scaled(columns.emitters, &f));
     let points = PointSet {
         positions: columns.positions,
-        params: Some(ParamColumn { values: &scaled, dims: &dims, ..params }),
+        params: Some(ParamColumn {
+            values: scaled.as_deref().unwrap_or(params.values),
+            dims: &dims,
+            ..params
+        }),
         emitters: columns.emitters,
     };
     let index = SpatialIndex::build(&points, Space::Params).map_err(crate::detect::DetectError::from)?;

@@ -277,13 +277,12 @@ impl Columns {
         let emitters = pages.released(map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, work, 1)));
         // A wavelength component enters distances with the scale detect gave it (the one its
         // r_param was measured in; docs/spectral.md).
-        let params = match params {
-            Some((values, stride)) if meta.emitters.iter().any(|e| e.is_spectral()) => {
-                let factors: Vec<Vec<f32>> = meta.emitters.iter().map(|e| e.param_scales()).collect();
+        let params = match (params, meta.param_scales()) {
+            (Some((values, stride)), Some(factors)) => {
                 let column = ParamColumn { values: &values, stride, dims: &dims };
                 Some((column.scaled(emitters.as_deref(), &factors), stride))
             }
-            p => p,
+            (p, _) => p,
         };
         let mut positions = pages.released(permuted(map.positions(), work, 1));
         if setup.scale != 1.0 {

@@ -153,10 +153,13 @@ def relax(
     step_limit: float = 0.5,
     scene: Optional[PathLike] = None,
     flux_diffusion: float = 0.0,
+    spectral_window: float = 35.0,
     memory: Optional[Union[int, str]] = None,
 ) -> PhotonMap:
     """Relaxation (Eq. 8–9): ``iterations`` of repulsion from the ``kf`` nearest photons along
-    each constraint basis (``photonkit relax``). Photons return to their surfaces in ``scene``,
+    each constraint basis (``photonkit relax``). After the collapse, photons that carry their
+    wavelength take as neighbours only those within ``spectral_window`` nm of their own
+    (``--spectral-window``; 0: every wavelength). Photons return to their surfaces in ``scene``,
     or in the scene the map's trace record names when it is found. ``memory`` ("8G"): relax
     in spatial tiles when the whole map would not fit, with the same result (``--memory``)."""
 
@@ -177,6 +180,7 @@ def pipeline(
     k_density: Optional[int] = None,
     iterations: int = 7,
     kf: int = 16,
+    spectral_window: float = 35.0,
 ) -> PhotonMap:
     """Detect → relax (parameter space) → collapse → relax (world space) on a traced map, in
     memory, with ``photonkit pipeline``'s settings; returns the relaxed map. With ``out_dir``
@@ -247,6 +251,7 @@ def compare(
     k_density: Optional[int] = None,
     iterations: int = 7,
     kf: int = 16,
+    spectral_window: float = 35.0,
     iterations_2009: int = 14,
     diffusion_k: int = 500,
     diffusion_q: float = 0.02,

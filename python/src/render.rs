@@ -265,7 +265,7 @@ pub fn render<'py>(
     beta=CompareOptions::default().beta, growths=CompareOptions::default().growths,
     spectral_scale=CompareOptions::default().spectral_scale, k_density=None,
     iterations=CompareOptions::default().iterations, kf=CompareOptions::default().kf,
-    iterations_2009=14, diffusion_k=500, diffusion_q=0.02, ppm_passes=None, ppm_photons=None,
+    spectral_window=CompareOptions::default().spectral_window, iterations_2009=14, diffusion_k=500, diffusion_q=0.02, ppm_passes=None, ppm_photons=None,
     ppm_k=30, spp=16, feature_spp=256, seeds=4, cells=128, reference_passes=64, fast_truth=false, threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn compare<'py>(
@@ -285,6 +285,7 @@ pub fn compare<'py>(
     k_density: Option<usize>,
     iterations: usize,
     kf: usize,
+    spectral_window: f32,
     iterations_2009: usize,
     diffusion_k: usize,
     diffusion_q: f32,
@@ -328,6 +329,7 @@ pub fn compare<'py>(
         growths,
         spectral_scale: options::finite("spectral_scale", spectral_scale)?,
         kf,
+        spectral_window: options::finite("spectral_window", spectral_window)?,
         iterations,
         iterations_2009,
         diffusion_k,

@@ -339,16 +339,20 @@ fn relax_params(
     epsilon: f32,
     step_limit: f32,
     flux_diffusion: f32,
+    spectral_window: f32,
 ) -> Result<RelaxParams, Failure> {
-    let p = RelaxParams { iterations, kf, epsilon, step_limit, flux_diffusion };
+    let p = RelaxParams { iterations, kf, epsilon, step_limit, flux_diffusion, spectral_window };
     let ok = p.epsilon.is_finite()
         && p.epsilon >= 0.0
         && p.step_limit.is_finite()
         && p.step_limit > 0.0
-        && (0.0..=1.0).contains(&p.flux_diffusion);
+        && (0.0..=1.0).contains(&p.flux_diffusion)
+        && p.spectral_window.is_finite()
+        && p.spectral_window >= 0.0;
     if !ok {
         return Err(Failure::value(
-            "--epsilon must be ≥ 0, --step-limit > 0 and --flux-diffusion in [0, 1]".into(),
+            "--epsilon must be ≥ 0, --step-limit > 0, --flux-diffusion in [0, 1] and --spectral-window ≥ 0"
+                .into(),
         ));
     }
     Ok(p)
@@ -360,7 +364,8 @@ fn relax_params(
 #[pyo3(signature = (map, output=None, *, iterations=RelaxParams::default().iterations,
     kf=RelaxParams::default().kf, epsilon=RelaxParams::default().epsilon,
     step_limit=RelaxParams::default().step_limit, scene=None,
-    flux_diffusion=RelaxParams::default().flux_diffusion, memory=None))]
+    flux_diffusion=RelaxParams::default().flux_diffusion,
+    spectral_window=RelaxParams::default().spectral_window, memory=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn relax(
     py: Python<'_>,
@@ -372,9 +377,10 @@ pub fn relax(
     step_limit: f32,
     scene: Option<&Bound<'_, PyAny>>,
     flux_diffusion: f32,
+    spectral_window: f32,
     memory: Option<&Bound<'_, PyAny>>,
 ) -> PyResult<PhotonMap> {
-    let p = relax_params(iterations, kf, epsilon, step_limit, flux_diffusion)?;
+    let p = relax_params(iterations, kf, epsilon, step_limit, flux_diffusion, spectral_window)?;
     let memory = memory.map(options::memory).transpose()?;
     let map = input(map)?;
     let map = map.get();
@@ -464,7 +470,8 @@ pub fn collapse(
 #[pyo3(signature = (map, out_dir=None, *, scene=None, method=None, kc=DetectParams::default().kc,
     beta=DetectParams::default().beta, growths=DetectParams::default().growths,
     spectral_scale=DetectParams::default().spectral_scale, k_density=None,
-    iterations=RelaxParams::default().iterations, kf=RelaxParams::default().kf))]
+    iterations=RelaxParams::default().iterations, kf=RelaxParams::default().kf,
+    spectral_window=RelaxParams::default().spectral_window))]
 #[allow(clippy::too_many_arguments)]
 pub fn pipeline(
     py: Python<'_>,
@@ -479,6 +486,7 @@ pub fn pipeline(
     k_density: Option<usize>,
     iterations: usize,
     kf: usize,
+    spectral_window: f32,
 ) -> PyResult<PhotonMap> {
     let (requested, dp) = detect_params(
         method,
@@ -490,7 +498,8 @@ pub fn pipeline(
         photonkit::detect::DEFAULT_GAIN,
         "simulated",
     )?;
-    let rp = RelaxParams { iterations, kf, ..RelaxParams::default() };
+    let d = RelaxParams::default();
+    let rp = relax_params(iterations, kf, d.epsilon, d.step_limit, d.flux_diffusion, spectral_window)?;
     let map = input(map)?;
     let map = map.get();
     let out_dir = options::opt_path(out_dir)?;

@@ -135,7 +135,7 @@ pub struct Args {
     /// Integrate the closed-form truth quickly (for tests) instead of to convergence.
     #[arg(long, hide = true)]
     fast_truth: bool,
-    /// Vary one setting over runs: photons=…, k=…, kc=…, beta=…, k-density=…, growths=…, spectral-scale=… or iterations=…
+    /// Vary one setting over runs: photons=…, k=…, kc=…, beta=…, k-density=…, growths=…, spectral-scale=…, spectral-window=… or iterations=…
     /// (comma-separated values), e.g. photons=1e5,3e5,1e6. Progressive photon mapping runs
     /// again only when its photons per pass change (they follow --photons unless
     /// --ppm-photons is given).
@@ -161,13 +161,16 @@ fn sweep_runs(base: &CompareOptions, spec: Option<&str>) -> anyhow::Result<Vec<(
             "spectral-scale" => {
                 o.spectral_scale = super::finite_f32(v).map_err(anyhow::Error::msg).with_context(bad)?
             }
+            "spectral-window" => {
+                o.spectral_window = super::finite_f32(v).map_err(anyhow::Error::msg).with_context(bad)?
+            }
             "iterations" => {
                 o.iterations = v.parse().with_context(bad)?;
                 o.iterations_2009 = 2 * o.iterations;
             }
             k => {
                 bail!(
-                    "--sweep: unknown setting '{k}' (photons, k, kc, beta, k-density, growths, spectral-scale, iterations)"
+                    "--sweep: unknown setting '{k}' (photons, k, kc, beta, k-density, growths, spectral-scale, spectral-window, iterations)"
                 )
             }
         }
@@ -208,6 +211,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         growths: a.detect.growths,
         spectral_scale: a.detect.spectral_scale,
         kf: a.relax.kf,
+        spectral_window: a.relax.spectral_window,
         iterations: a.relax.iterations,
         iterations_2009: a.iterations_2009,
         diffusion_k: a.diffusion_k,

@@ -71,16 +71,30 @@ pub struct RelaxArgs {
     /// Kf: neighbours in the repulsion force of Eq. 8.
     #[arg(long, default_value_t = RelaxParams::default().kf)]
     pub kf: usize,
+    /// For maps whose photons carry their wavelength (a dispersive scene), relaxing after the
+    /// collapse: a photon's Kf neighbours are only those within NM nanometres of its own
+    /// wavelength, so each colour spreads evenly among itself and every kernel holds an even
+    /// sample of the spectrum (docs/spectral.md); 0 takes every wavelength.
+    #[arg(value_parser = super::finite_f32, long, value_name = "NM",
+          default_value_t = RelaxParams::default().spectral_window)]
+    pub spectral_window: f32,
 }
 
 impl RelaxArgs {
     /// `p` with these settings.
     pub fn apply(&self, p: RelaxParams) -> RelaxParams {
-        RelaxParams { iterations: self.iterations, kf: self.kf, ..p }
+        RelaxParams { iterations: self.iterations, kf: self.kf, spectral_window: self.spectral_window, ..p }
     }
 
     /// These settings as command-line arguments (for a stage run as its subcommand).
     pub fn to_argv(&self) -> Vec<String> {
-        vec!["--iterations".into(), self.iterations.to_string(), "--kf".into(), self.kf.to_string()]
+        vec![
+            "--iterations".into(),
+            self.iterations.to_string(),
+            "--kf".into(),
+            self.kf.to_string(),
+            "--spectral-window".into(),
+            self.spectral_window.to_string(),
+        ]
     }
 }

@@ -180,8 +180,13 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
             map.file_name()
         );
     }
+    let window;
     let space = match relaxed.space {
         RelaxSpace::WorldParams => "world space within parameter-space radius",
+        RelaxSpace::WorldSpectral => {
+            window = format!("world space within {} nm of each photon's wavelength", p.spectral_window);
+            &window
+        }
         RelaxSpace::World if map.meta().state == State::Collapsed => "world space (collapsed)",
         RelaxSpace::World => "world space",
     };

@@ -45,11 +45,28 @@ pub struct RelaxParams {
     /// of the way toward the mean of its Kf neighbours' ([`diffuse_flux`]); 0 (the default)
     /// leaves every photon's flux untouched.
     pub flux_diffusion: f32,
+    /// For photons that carry their wavelength (a dispersive scene), outside the parameter-space
+    /// phase: a photon's Kf neighbours are those within this many nanometres of its own
+    /// wavelength ([`RelaxSpace::WorldSpectral`]), so the photons of each colour spread evenly
+    /// among themselves and every kernel holds an even sample of the spectrum (docs/spectral.md);
+    /// 0 takes every wavelength (and is what a record written before the window reads as).
+    #[serde(default)]
+    pub spectral_window: f32,
 }
+
+/// The default [`RelaxParams::spectral_window`], nm (docs/spectral.md has the measurements).
+pub const DEFAULT_SPECTRAL_WINDOW: f32 = 35.0;
 
 impl Default for RelaxParams {
     fn default() -> Self {
-        RelaxParams { iterations: 7, kf: 16, epsilon: 1e-3, step_limit: 0.5, flux_diffusion: 0.0 }
+        RelaxParams {
+            iterations: 7,
+            kf: 16,
+            epsilon: 1e-3,
+            step_limit: 0.5,
+            flux_diffusion: 0.0,
+            spectral_window: DEFAULT_SPECTRAL_WINDOW,
+        }
     }
 }
 
@@ -104,6 +121,9 @@ pub enum RelaxSpace {
     WorldParams,
     /// After collapse, or without trajectory parameters: plain world-space neighbours.
     World,
+    /// After collapse, for photons that all carry their wavelength: world-space neighbours
+    /// within [`RelaxParams::spectral_window`] of the photon's wavelength.
+    WorldSpectral,
 }
 
 /// The outcome of relaxing a map: new positions and what each iteration did.
@@ -189,6 +209,12 @@ impl Setup {
         if p.kf == 0 {
             return Err(input("Kf must be at least 1".into()));
         }
+        if !(p.spectral_window.is_finite() && p.spectral_window >= 0.0) {
+            return Err(input(format!(
+                "the spectral window must be a finite number of nanometres, at least 0 (got {})",
+                p.spectral_window
+            )));
+        }
         if p.iterations > MAX_ITERATIONS {
             return Err(input(format!(
                 "{} iterations requested; at most {MAX_ITERATIONS} are allowed (relaxation settles within tens)",
@@ -197,6 +223,13 @@ impl Setup {
         }
         let space = match (map.info().state, map.spec(name::R_PARAM), map.spec(name::PARAMS)) {
             (State::Detected, Some(_), Some(_)) => RelaxSpace::WorldParams,
+            (_, _, Some(_))
+                if p.spectral_window > 0.0
+                    && !map.info().emitters.is_empty()
+                    && map.info().emitters.iter().all(|e| e.is_spectral()) =>
+            {
+                RelaxSpace::WorldSpectral
+            }
             _ => RelaxSpace::World,
         };
         let positions = map.positions();
@@ -277,12 +310,31 @@ impl Columns {
         let emitters = pages.released(map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, work, 1)));
         // A wavelength component enters distances with the scale detect gave it (the one its
         // r_param was measured in; docs/spectral.md).
-        let params = match (params, meta.param_scales()) {
+        let (params, r_param, dims) = match (params, meta.param_scales()) {
+            // After collapse, the wavelength alone, in units of the spectral window, so that the
+            // window is a parameter-space radius of 1 for every photon.
+            (Some((values, stride)), _) if setup.space == RelaxSpace::WorldSpectral => {
+                let at: Vec<Option<usize>> =
+                    meta.emitters.iter().map(|e| e.parameterisation.spectral_component()).collect();
+                let w = setup.p.spectral_window;
+                let lambda = values
+                    .chunks_exact(stride)
+                    .enumerate()
+                    .map(|(i, q)| {
+                        let e = emitters.as_ref().map_or(0, |e| e[i] as usize);
+                        match at.get(e) {
+                            Some(Some(k)) if *k < stride => Ok(q[*k] / w),
+                            _ => Err(input(format!("photon {}: emitter {e} has no wavelength", work[i]))),
+                        }
+                    })
+                    .collect::<Result<Vec<f32>, _>>()?;
+                (Some((lambda, 1)), Some(vec![1.0; work.len()]), vec![1])
+            }
             (Some((values, stride)), Some(factors)) => {
                 let column = ParamColumn { values: &values, stride, dims: &dims };
-                Some((column.scaled(emitters.as_deref(), &factors), stride))
+                (Some((column.scaled(emitters.as_deref(), &factors), stride)), r_param, dims)
             }
-            (p, _) => p,
+            (p, _) => (p, r_param, dims),
         };
         let mut positions = pages.released(permuted(map.positions(), work, 1));
         if setup.scale != 1.0 {
@@ -373,14 +425,15 @@ pub(crate) fn run(
         let points = PointSet {
             positions,
             params: match space {
-                RelaxSpace::WorldParams => {
+                RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
                     params.map(|(values, stride)| ParamColumn { values, stride, dims })
                 }
                 RelaxSpace::World => None,
             },
+            // Parameters compare within an emitter; wavelengths across emitters.
             emitters: if space == RelaxSpace::WorldParams { emitters } else { None },
         };
-        let sp = if space == RelaxSpace::WorldParams { Space::WorldParams } else { Space::World };
+        let sp = if space == RelaxSpace::World { Space::World } else { Space::WorldParams };
         let separated = measures.last().is_some_and(|m: &IterationMeasure| m.separated > 0);
         index_positions(&mut index, &points, sp, it, separated).map_err(|e| RelaxError::Photons {
             file: map.file_name().to_string(),
@@ -389,7 +442,7 @@ pub(crate) fn run(
         let search = IndexSearch {
             index: index.as_ref().expect("built above"),
             points: &points,
-            radius: if space == RelaxSpace::WorldParams { r_param } else { None },
+            radius: if space == RelaxSpace::World { None } else { r_param },
         };
         // The index borrows `positions`; `iterate` moves a copy, then the two swap.
         next.copy_from_slice(positions);

@@ -669,4 +669,5 @@ fn return_to_surface_holds_at_micrometre_scale() {
     }
 }
 
+mod spectral;
 mod tiles;

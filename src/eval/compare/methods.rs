@@ -189,7 +189,12 @@ impl Seed<'_> {
                 ..DetectParams::default()
             },
             method,
-            relax: RelaxParams { kf: o.kf, ..RelaxParams::default() },
+            // The 2009 relaxation relaxes every wavelength together, as it was published.
+            relax: RelaxParams {
+                kf: o.kf,
+                spectral_window: if method == Some(Method::Gradient) { 0.0 } else { o.spectral_window },
+                ..RelaxParams::default()
+            },
             iterations,
         };
         let (mut detect_secs, mut relax_secs) = (0.0, 0.0);

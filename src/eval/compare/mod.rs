@@ -158,6 +158,9 @@ pub struct CompareOptions {
     pub spectral_scale: f32,
     /// Kf of the repulsion force.
     pub kf: usize,
+    /// The wavelength window of our method's relaxation after the collapse
+    /// ([`RelaxParams::spectral_window`]).
+    pub spectral_window: f32,
     /// R: iterations before the collapse and again after it (this method).
     pub iterations: usize,
     /// World-space iterations of the 2009 relaxation.
@@ -221,6 +224,9 @@ impl CompareOptions {
         {
             return bad("-k, --kf, --diffusion-k, --spp and --seeds need at least 1, --kc at least 3");
         }
+        if !(self.spectral_window.is_finite() && self.spectral_window >= 0.0) {
+            return bad("--spectral-window takes a finite number of nanometres, at least 0");
+        }
         if self.k_density.is_some_and(|k| k < 2) {
             return bad("--k-density needs at least 2");
         }
@@ -251,6 +257,7 @@ impl Default for CompareOptions {
             growths: d.growths,
             spectral_scale: d.spectral_scale,
             kf: r.kf,
+            spectral_window: r.spectral_window,
             iterations: r.iterations,
             iterations_2009: 2 * r.iterations,
             diffusion_k: 500,

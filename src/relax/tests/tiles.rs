@@ -1,6 +1,6 @@
 //! Relaxation tile by tile against the whole map (the oracle): bit for bit on collimated and
-//! point emitters and two emitters, before collapse (parameter-restricted neighbours) and after
-//! (world space), for 2×1, 2×2 and 3×3 tilings, with empty tiles and photons exactly on the
+//! point emitters, two emitters and a dispersed beam, before collapse (parameter-restricted
+//! neighbours) and after (world space; within the spectral window for the beam), for 2×1, 2×2 and 3×3 tilings, with empty tiles and photons exactly on the
 //! cuts (docs/tiles.md); a halo too small and not certified differs.
 
 use super::*;
@@ -80,11 +80,14 @@ fn tiles_equal_the_whole_map_in_both_phases() {
         ("collimated", crate::synthetic::collimated_cusp(2500, 41)),
         ("point", crate::synthetic::point_ring(2500, 42)),
         ("two", crate::synthetic::two_emitters(2500, 43)),
+        ("spectral", crate::synthetic::dispersed_beam(2500, 44)),
     ] {
         let [detected, collapsed] = phases(dir.path(), name, &m);
         assert_eq!(relax_map(&detected.view(), &p, |_| {}).unwrap().space, RelaxSpace::WorldParams);
         check_tilings(&detected.view(), &p, &format!("{name}, before collapse"));
-        assert_eq!(relax_map(&collapsed.view(), &p, |_| {}).unwrap().space, RelaxSpace::World);
+        // After the collapse, photons with a wavelength keep to their spectral window.
+        let after = if name == "spectral" { RelaxSpace::WorldSpectral } else { RelaxSpace::World };
+        assert_eq!(relax_map(&collapsed.view(), &p, |_| {}).unwrap().space, after);
         check_tilings(&collapsed.view(), &p, &format!("{name}, after collapse"));
     }
 }

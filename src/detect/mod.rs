@@ -293,7 +293,7 @@ pub struct Summary {
     pub too_few: usize,
     /// Photons whose neighbours all lie on top of them, or only along the normal: left free.
     pub coincident: usize,
-    /// Photons with a factor on v_b below 1/2.
+    /// Photons with a factor on v_b below [`HELD_FACTOR`].
     pub constrained: usize,
     /// The mean factor on v_b (Eq. 7) over every photon.
     pub mean_factor: f64,
@@ -305,6 +305,11 @@ impl Summary {
         if self.photons == 0 { 0.0 } else { self.constrained as f64 / self.photons as f64 }
     }
 }
+
+/// The factor on v_b (Eq. 7) below which a photon counts as held along its line (the
+/// report's constrained fraction; relax's spectral window leaves such a photon every
+/// wavelength, [`crate::relax::RelaxSpace::WorldSpectral`]).
+pub const HELD_FACTOR: f32 = 0.5;
 
 /// Photons per parallel work item (and per progress tick).
 const CHUNK: usize = 2048;
@@ -452,7 +457,7 @@ impl SummarySums {
                 Outcome::Coincident => s.coincident += 1,
                 Outcome::Unconstrained => {}
             }
-            if f < 0.5 {
+            if f < HELD_FACTOR {
                 s.constrained += 1;
             }
         }

@@ -500,18 +500,22 @@ pub const REBUILD_EVERY: usize = 7;
 /// rebuilt every [`REBUILD_EVERY`] iterations and after an iteration that moved photons
 /// apart from a shared point (`separated`, [`IterationMeasure::separated`]: a tree built over
 /// a crowd on one point has leaves that all overlap once it spreads, and a query would scan
-/// the crowd), refitted otherwise (photons only move, by a fraction of their spacing).
+/// the crowd), refitted otherwise (photons only move, by a fraction of their spacing). A new
+/// index chooses its split axes with `split_scale` ([`crate::spatial::SpatialIndex::build_split`]).
 pub fn index_positions(
     index: &mut Option<crate::spatial::SpatialIndex>,
     points: &crate::spatial::PointSet,
     space: crate::spatial::Space,
+    split_scale: Option<f32>,
     it: usize,
     separated: bool,
 ) -> Result<(), crate::spatial::SpatialError> {
     match index {
         Some(ix) if !separated && !it.is_multiple_of(REBUILD_EVERY) => ix.refit(points),
         Some(ix) => ix.rebuild(points),
-        None => crate::spatial::SpatialIndex::build(points, space).map(|ix| *index = Some(ix)),
+        None => {
+            crate::spatial::SpatialIndex::build_split(points, space, split_scale).map(|ix| *index = Some(ix))
+        }
     }
 }
 

@@ -122,7 +122,10 @@ pub enum RelaxSpace {
     /// After collapse, or without trajectory parameters: plain world-space neighbours.
     World,
     /// After collapse, for photons that all carry their wavelength: world-space neighbours
-    /// within [`RelaxParams::spectral_window`] of the photon's wavelength.
+    /// within [`RelaxParams::spectral_window`] of the photon's wavelength; a photon that
+    /// detection held along an edge or filament (its factor on v_b below
+    /// [`crate::detect::HELD_FACTOR`]) keeps the neighbours of every wavelength, which spread it
+    /// evenly along its edge (docs/spectral.md).
     WorldSpectral,
 }
 
@@ -312,7 +315,7 @@ impl Columns {
         // r_param was measured in; docs/spectral.md).
         let (params, r_param, dims) = match (params, meta.param_scales()) {
             // After collapse, the wavelength alone, in units of the spectral window, so that the
-            // window is a parameter-space radius of 1 for every photon.
+            // window is a parameter-space radius of 1; a held photon's radius is unbounded.
             (Some((values, stride)), _) if setup.space == RelaxSpace::WorldSpectral => {
                 let at: Vec<Option<usize>> =
                     meta.emitters.iter().map(|e| e.parameterisation.spectral_component()).collect();
@@ -328,7 +331,13 @@ impl Columns {
                         }
                     })
                     .collect::<Result<Vec<f32>, _>>()?;
-                (Some((lambda, 1)), Some(vec![1.0; work.len()]), vec![1])
+                let held = |i: usize| {
+                    basis_v
+                        .as_ref()
+                        .is_some_and(|v| glam::Vec3::from(v[i]).length() < crate::detect::HELD_FACTOR)
+                };
+                let radius = (0..work.len()).map(|i| if held(i) { f32::INFINITY } else { 1.0 }).collect();
+                (Some((lambda, 1)), Some(radius), vec![1])
             }
             (Some((values, stride)), Some(factors)) => {
                 let column = ParamColumn { values: &values, stride, dims: &dims };
@@ -421,6 +430,10 @@ pub(crate) fn run(
     let mut scratch = Scratch::default();
     let mut measures = Vec::with_capacity(p.iterations);
     let mut index: Option<SpatialIndex> = None;
+    // The spectral window (radius 1) is far wider than the neighbourhoods it restricts: its
+    // trees weigh it as the world radius that holds Kf photons (a speed setting only).
+    let split_scale = (space == RelaxSpace::WorldSpectral)
+        .then(|| setup.spacing * (p.kf as f32 / std::f32::consts::PI).sqrt());
     for it in 0..p.iterations {
         let points = PointSet {
             positions,
@@ -435,9 +448,8 @@ pub(crate) fn run(
         };
         let sp = if space == RelaxSpace::World { Space::World } else { Space::WorldParams };
         let separated = measures.last().is_some_and(|m: &IterationMeasure| m.separated > 0);
-        index_positions(&mut index, &points, sp, it, separated).map_err(|e| RelaxError::Photons {
-            file: map.file_name().to_string(),
-            source: e.in_file_order(order),
+        index_positions(&mut index, &points, sp, split_scale, it, separated).map_err(|e| {
+            RelaxError::Photons { file: map.file_name().to_string(), source: e.in_file_order(order) }
         })?;
         let search = IndexSearch {
             index: index.as_ref().expect("built above"),

@@ -484,13 +484,36 @@ pub struct SpatialIndex {
     trees: Vec<Tree>,
     /// Scratch for grouping photons by emitter, kept for rebuilds.
     members: Vec<u32>,
+    /// The world length one unit of the parameter ball weighs as when a tree chooses its split
+    /// axes ([`SpatialIndex::build_split`]); `None`: each group's extent normalised.
+    split_scale: Option<f32>,
 }
 
 impl SpatialIndex {
     /// Builds the index over `points` in `space`.
     pub fn build(points: &PointSet, space: Space) -> Result<Self, SpatialError> {
-        let mut index =
-            SpatialIndex { space, len: 0, tree_of: Vec::new(), trees: Vec::new(), members: Vec::new() };
+        Self::build_split(points, space, None)
+    }
+
+    /// [`SpatialIndex::build`], with the trees choosing their split axes as if one unit of
+    /// the parameter ball were `split_scale` in world space: for a ball much wider than the
+    /// neighbourhoods it restricts (relaxation's spectral window), the trees then cut the
+    /// parameters into slabs about a ball wide and the world into cells about a neighbourhood
+    /// wide, so a query visits few cells. Only the speed depends on it; every search's result
+    /// is the same.
+    pub fn build_split(
+        points: &PointSet,
+        space: Space,
+        split_scale: Option<f32>,
+    ) -> Result<Self, SpatialError> {
+        let mut index = SpatialIndex {
+            space,
+            len: 0,
+            tree_of: Vec::new(),
+            trees: Vec::new(),
+            members: Vec::new(),
+            split_scale,
+        };
         index.rebuild(points)?;
         Ok(index)
     }
@@ -534,7 +557,8 @@ impl SpatialIndex {
             }
             let emitter = g as u16;
             let dims = points.params.map_or(0, |p| p.dims_of(emitter));
-            let tree = build_tree(self.space, dims, points, members, old.pop());
+            let weights = self.split_scale.map(|p| kdtree::Weights { w: 1.0, p });
+            let tree = build_tree(self.space, dims, points, members, old.pop(), weights);
             self.tree_of[g] = self.trees.len();
             self.trees.push(tree);
         }
@@ -633,7 +657,14 @@ impl SpatialIndex {
     }
 }
 
-fn build_tree(space: Space, dims: usize, points: &PointSet, members: &[u32], old: Option<Tree>) -> Tree {
+fn build_tree(
+    space: Space,
+    dims: usize,
+    points: &PointSet,
+    members: &[u32],
+    old: Option<Tree>,
+    weights: Option<kdtree::Weights>,
+) -> Tree {
     let pos = points.positions;
     let par = |i: u32| points.params_of(i as usize);
     fn take<const W: usize, const P: usize>(
@@ -653,7 +684,7 @@ fn build_tree(space: Space, dims: usize, points: &PointSet, members: &[u32], old
                         idx: $i,
                     }))
                 },
-                None,
+                weights,
             );
             Tree::$variant(t)
         }};

@@ -12,16 +12,22 @@ fn with_wavelengths(mut m: SyntheticMap, lambda: impl Fn(usize) -> f32) -> Synth
 }
 
 /// For each photon: its nearest distance and its distance to the `kf`-th nearest among the
-/// other photons whose wavelength is within `window` of its own (all of them for 0), by brute
-/// force in f64.
-fn brute_force(pos: &[[f32; 3]], lambda: &[f32], kf: usize, window: f32) -> (Vec<f32>, Vec<f32>) {
+/// other photons whose wavelength is within `window` of its own (all of them for 0, or for a
+/// photon `held`), by brute force in f64.
+fn brute_force(
+    pos: &[[f32; 3]],
+    lambda: &[f32],
+    held: &[bool],
+    kf: usize,
+    window: f32,
+) -> (Vec<f32>, Vec<f32>) {
     let d = |i: usize, j: usize| {
         (0..3).map(|a| (pos[i][a] as f64 - pos[j][a] as f64).powi(2)).sum::<f64>().sqrt()
     };
     (0..pos.len())
         .map(|i| {
             let mut ds: Vec<f64> = (0..pos.len())
-                .filter(|&j| j != i && (window == 0.0 || (lambda[j] - lambda[i]).abs() <= window))
+                .filter(|&j| j != i && (window == 0.0 || held[i] || (lambda[j] - lambda[i]).abs() <= window))
                 .map(|j| d(i, j))
                 .collect();
             ds.sort_by(f64::total_cmp);
@@ -33,41 +39,64 @@ fn brute_force(pos: &[[f32; 3]], lambda: &[f32], kf: usize, window: f32) -> (Vec
 /// On a dispersed beam whose wavelengths lie on a 10 nm grid (so no pair sits on the window's
 /// edge), the nearest-neighbour spreads relax reports for its first iteration (computed from
 /// the neighbours it found, before any move) equal brute force's over the photons within the
-/// window, and differ from those over every photon: the window restricts, and only it.
+/// window, and differ from those over every photon: the window restricts, and only it. Once
+/// detected and collapsed, the photons held at the band's ends take every wavelength.
 #[test]
 fn the_spectral_window_keeps_the_neighbours_brute_force_keeps() {
     let dir = tempfile::tempdir().unwrap();
-    let m = with_wavelengths(crate::synthetic::dispersed_beam(3000, 61), |i| {
+    let mut m = with_wavelengths(crate::synthetic::dispersed_beam(3000, 61), |i| {
         380.0 + 10.0 * ((i * 7) % 35) as f32
     });
+    // Landing where `dispersed_beam` lands that wavelength.
+    for (x, q) in m.position.iter_mut().zip(m.params.chunks_exact(3)) {
+        *x = [0.1 * q[0] + 0.4 * (q[2] - 380.0) / 340.0, 0.02 * q[1], 0.0];
+    }
     let lambda: Vec<f32> = m.params.chunks_exact(3).map(|q| q[2]).collect();
-    let map = m.written_to(&dir.path().join("beam.phm"));
+    let traced = m.written_to(&dir.path().join("beam.phm"));
+    let detected = detect_to(&traced, dir.path(), "beam-d.phm");
+    let path = dir.path().join("beam-c.phm");
+    collapse(&detected.view()).unwrap().write(crate::format::Output::Path(path.clone())).unwrap();
+    let collapsed = crate::format::PhotonMap::open_path(&path).unwrap();
+    let held: Vec<bool> = collapsed
+        .column::<[f32; 3]>(crate::format::name::BASIS_V)
+        .unwrap()
+        .unwrap()
+        .iter()
+        .map(|v| Vec3::from(*v).length() < crate::detect::HELD_FACTOR)
+        .collect();
+    let count = held.iter().filter(|&&h| h).count();
+    assert!(count > 30 && count + 30 < held.len(), "{count} held");
     let kf = RelaxParams::default().kf;
     let mut spreads = Vec::new();
-    for (window, space) in [(25.0, RelaxSpace::WorldSpectral), (0.0, RelaxSpace::World)] {
-        let p = RelaxParams { iterations: 1, spectral_window: window, ..Default::default() };
-        let r = relax_map(&map.view(), &p, |_| {}).unwrap();
-        assert_eq!(r.space, space, "window {window}");
-        let (nn, rk) = brute_force(map.positions(), &lambda, kf, window);
-        let ratio: Vec<f32> = nn.iter().zip(&rk).map(|(a, b)| a / b).collect();
-        let (want_nn, want_local) = (coefficient_of_variation(&nn), coefficient_of_variation(&ratio));
-        let got = &r.measures[0];
-        assert!(
-            (got.nn_cv - want_nn).abs() <= 1e-5 * want_nn,
-            "window {window}: nn cv {} vs {want_nn}",
-            got.nn_cv
-        );
-        assert!(
-            (got.local_nn_cv - want_local).abs() <= 1e-5 * want_local,
-            "window {window}: local cv {} vs {want_local}",
-            got.local_nn_cv
-        );
-        spreads.push((want_nn, want_local));
+    for (map, held) in [(&traced, vec![false; held.len()]), (&collapsed, held)] {
+        for (window, space) in [(25.0, RelaxSpace::WorldSpectral), (0.0, RelaxSpace::World)] {
+            let p = RelaxParams { iterations: 1, spectral_window: window, ..Default::default() };
+            let r = relax_map(&map.view(), &p, |_| {}).unwrap();
+            assert_eq!(r.space, space, "window {window}");
+            let (nn, rk) = brute_force(map.positions(), &lambda, &held, kf, window);
+            let ratio: Vec<f32> = nn.iter().zip(&rk).map(|(a, b)| a / b).collect();
+            let (want_nn, want_local) = (coefficient_of_variation(&nn), coefficient_of_variation(&ratio));
+            let got = &r.measures[0];
+            let what = format!("{}, window {window}", map.file_name());
+            assert!(
+                (got.nn_cv - want_nn).abs() <= 1e-5 * want_nn,
+                "{what}: nn cv {} vs {want_nn}",
+                got.nn_cv
+            );
+            assert!(
+                (got.local_nn_cv - want_local).abs() <= 1e-5 * want_local,
+                "{what}: local cv {} vs {want_local}",
+                got.local_nn_cv
+            );
+            spreads.push((want_nn, want_local));
+        }
     }
-    // The two neighbour sets' spreads differ by far more than the checks' tolerance, so the
-    // checks above tell them apart.
-    let [(a, b), (c, d)] = spreads[..] else { unreachable!() };
-    assert!((a - c).abs() > 1e-3 * c && (b - d).abs() > 1e-3 * d, "{spreads:?}");
+    // Each map's two neighbour sets' spreads differ by far more than the checks' tolerance, so
+    // the checks above tell them apart.
+    for pair in spreads.chunks(2) {
+        let [(a, b), (c, d)] = pair[..] else { unreachable!() };
+        assert!((a - c).abs() > 1e-3 * c && (b - d).abs() > 1e-3 * d, "{spreads:?}");
+    }
 }
 
 /// Two colours, 450 and 650 nm, each on its own square lattice, the second shifted by a

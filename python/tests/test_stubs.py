@@ -53,5 +53,5 @@ def test_the_library_defaults_are_the_stubs():
     relaxed = photonkit.relax(detected)
     recorded = relaxed.history[-1]["parameters"]
     stub = {n: d for n, _, d in stub_parameters(FUNCTIONS["relax"])}
-    for key in ["iterations", "kf", "epsilon", "step_limit", "flux_diffusion"]:
+    for key in ["iterations", "kf", "epsilon", "step_limit", "flux_diffusion", "spectral_window"]:
         assert recorded[key] == pytest.approx(stub[key]), key

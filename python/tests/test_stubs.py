@@ -53,5 +53,9 @@ def test_the_library_defaults_are_the_stubs():
     relaxed = photonkit.relax(detected)
     recorded = relaxed.history[-1]["parameters"]
     stub = {n: d for n, _, d in stub_parameters(FUNCTIONS["relax"])}
-    for key in ["iterations", "kf", "epsilon", "step_limit", "flux_diffusion", "spectral_window"]:
+    for key in ["iterations", "kf", "epsilon", "step_limit", "flux_diffusion"]:
         assert recorded[key] == pytest.approx(stub[key]), key
+    # The spectral window is recorded where it applied: photons that carry their wavelength.
+    assert "spectral_window" not in recorded
+    spectral = photonkit.relax(SAMPLES / "dispersed-beam.phm", iterations=1)
+    assert spectral.history[-1]["parameters"]["spectral_window"] == pytest.approx(stub["spectral_window"])

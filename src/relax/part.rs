@@ -39,7 +39,7 @@ pub fn tile_part(
     let setup = Setup::of(map, p, false)?;
     let (space, constrained) = super::tiled::space_of(map, &setup);
     let mut info = map.info().clone();
-    let mut rec = StageRecord::now("relax", serde_json::to_value(setup.p).unwrap_or_default());
+    let mut rec = StageRecord::now("relax", setup.p.record(space));
     rec.report = part_report(
         map,
         tile,

@@ -133,15 +133,25 @@ fn two_colours_each_even_stay_put_in_the_window_and_move_without_it() {
     assert!(all >= 1e-2 * s, "moved only {all} with every wavelength");
 }
 
-/// A map without a wavelength relaxes in plain world space whatever the window, and a
-/// negative or non-finite window is refused.
+/// A map without a wavelength relaxes in plain world space whatever the window, and its record
+/// does not name the window (so its file is what it was before the window); a map with one
+/// records it. A negative or non-finite window is refused.
 #[test]
 fn the_window_applies_only_to_wavelengths_and_must_be_a_length() {
     let dir = tempfile::tempdir().unwrap();
+    let p = RelaxParams { iterations: 1, ..Default::default() };
     let plain = crate::synthetic::collimated_cusp(500, 63).written_to(&dir.path().join("cusp.phm"));
-    let r = relax_map(&plain.view(), &RelaxParams { iterations: 1, ..Default::default() }, |_| {}).unwrap();
-    assert_eq!(r.space, RelaxSpace::World);
     let beam = crate::synthetic::dispersed_beam(500, 64).written_to(&dir.path().join("beam.phm"));
+    for (map, space, window) in
+        [(&plain, RelaxSpace::World, None), (&beam, RelaxSpace::WorldSpectral, Some(35.0))]
+    {
+        let r = relax_map(&map.view(), &p, |_| {}).unwrap();
+        assert_eq!(r.space, space);
+        let table = relaxed_map(&map.view(), &r, &p, 0.0).unwrap();
+        let recorded = &table.view().info().history.last().unwrap().parameters;
+        assert_eq!(recorded.get("spectral_window").and_then(|w| w.as_f64()), window, "{space:?}");
+        assert_eq!(recorded["kf"], 16);
+    }
     for bad in [-1.0, f32::NAN, f32::INFINITY] {
         let p = RelaxParams { spectral_window: bad, ..Default::default() };
         let e = relax_map(&beam.view(), &p, |_| {}).err().expect("refused").to_string();

@@ -141,7 +141,7 @@ fn main() {
                     emitters: None,
                 };
                 let ((), bc, bw) =
-                    measure(|| relax::index_positions(&mut index, &pts, space, it, false).unwrap());
+                    measure(|| relax::index_positions(&mut index, &pts, space, None, it, false).unwrap());
                 build_c += bc;
                 build_w += bw;
                 let search = relax::IndexSearch {

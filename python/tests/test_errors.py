@@ -47,6 +47,11 @@ CASES = [
         lambda: photonkit.relax("no-params.phm", epsilon=-1),
         ValueError,
     ),
+    (
+        ["relax", "no-params.phm", "-o", "out.phm", "--spectral-window=-1"],
+        lambda: photonkit.relax("no-params.phm", spectral_window=-1),
+        photonkit.PhotonkitError,
+    ),
     (["trace", "bad-scene.toml", "-o", "out.phm"], lambda: photonkit.trace("bad-scene.toml", "out.phm"), photonkit.PhotonkitError),
     (["trace", "no-scene.toml", "-o", "out.phm"], lambda: photonkit.trace("no-scene.toml"), FileNotFoundError),
     (

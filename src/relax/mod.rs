@@ -443,13 +443,21 @@ pub(crate) fn run(
     let mut scratch = Scratch::default();
     let mut measures = Vec::with_capacity(p.iterations);
     let mut index: Option<SpatialIndex> = None;
-    // The spectral window (radius 1) is far wider than the neighbourhoods it restricts: its
-    // trees weigh it as the world radius that holds Kf photons at the local spacing (a speed
-    // setting only: the map's mean spacing, which counts its box's empty parts, made the
-    // point-lit prism's search 1.3 times slower).
-    let split_scale = (space == RelaxSpace::WorldSpectral).then(|| {
-        local_spacing(positions).unwrap_or(setup.spacing) * (p.kf as f32 / std::f32::consts::PI).sqrt()
-    });
+    // A parameter ball (r_param, or the spectral window's radius 1) is often far wider, in its
+    // units, than the world neighbourhood it restricts: the trees weigh its typical radius as
+    // the world radius that holds Kf photons at the local spacing (a speed setting only; the
+    // map's mean spacing, which counts its box's empty parts, made the point-lit prism's window
+    // search 1.3 times slower).
+    let split_scale = match space {
+        RelaxSpace::World => None,
+        RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
+            r_param.and_then(|r| sample_median(r)).map(|m| {
+                local_spacing(positions).unwrap_or(setup.spacing)
+                    * (p.kf as f32 / std::f32::consts::PI).sqrt()
+                    / m
+            })
+        }
+    };
     for it in 0..p.iterations {
         let points = PointSet {
             positions,
@@ -499,22 +507,29 @@ pub(crate) fn run(
 
 /// The typical distance between neighbouring photons: the median distance between photons
 /// next to each other in `positions`' order (the working order, which follows a Z-order
-/// curve, so these are mostly neighbours), over at most 4096 evenly spread pairs of photons
+/// curve, so these are mostly neighbours), over about 4096 evenly spread pairs of photons
 /// apart. Unlike the map's mean spacing it does not count the empty parts of the map's box.
 /// `None` when no two such photons are apart.
 fn local_spacing(positions: &[[f32; 3]]) -> Option<f32> {
-    let pairs = positions.len().saturating_sub(1);
-    let step = pairs.div_ceil(4096).max(1);
-    let mut d: Vec<f32> = (0..pairs)
-        .step_by(step)
-        .map(|i| glam::Vec3::from(positions[i]).distance(glam::Vec3::from(positions[i + 1])))
-        .filter(|&d| d > 0.0 && d.is_finite())
+    let pairs: Vec<f32> = positions
+        .windows(2)
+        .step_by(positions.len().div_ceil(4096).max(1))
+        .map(|w| glam::Vec3::from(w[0]).distance(glam::Vec3::from(w[1])))
         .collect();
-    if d.is_empty() {
-        return None;
-    }
-    let mid = d.len() / 2;
-    Some(*d.select_nth_unstable_by(mid, f32::total_cmp).1)
+    sample_median(&pairs)
+}
+
+/// The median of the positive, finite values among at most 4096 evenly spread ones of
+/// `values`; `None` when there are none.
+fn sample_median(values: &[f32]) -> Option<f32> {
+    let mut v: Vec<f32> = values
+        .iter()
+        .step_by(values.len().div_ceil(4096).max(1))
+        .copied()
+        .filter(|&x| x > 0.0 && x.is_finite())
+        .collect();
+    let mid = v.len() / 2;
+    (!v.is_empty()).then(|| *v.select_nth_unstable_by(mid, f32::total_cmp).1)
 }
 
 /// The power of two relax scales `positions` by so that their largest coordinate lies within

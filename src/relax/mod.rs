@@ -450,13 +450,10 @@ pub(crate) fn run(
     // search 1.3 times slower).
     let split_scale = match space {
         RelaxSpace::World => None,
-        RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
-            r_param.and_then(|r| sample_median(r)).map(|m| {
-                local_spacing(positions).unwrap_or(setup.spacing)
-                    * (p.kf as f32 / std::f32::consts::PI).sqrt()
-                    / m
-            })
-        }
+        RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => r_param.and_then(sample_median).map(|m| {
+            local_spacing(positions).unwrap_or(setup.spacing) * (p.kf as f32 / std::f32::consts::PI).sqrt()
+                / m
+        }),
     };
     for it in 0..p.iterations {
         let points = PointSet {

@@ -444,16 +444,13 @@ pub(crate) fn run(
     let mut measures = Vec::with_capacity(p.iterations);
     let mut index: Option<SpatialIndex> = None;
     // A parameter ball (r_param, or the spectral window's radius 1) is often far wider, in its
-    // units, than the world neighbourhood it restricts: the trees weigh its typical radius as
-    // the world radius that holds Kf photons at the local spacing (a speed setting only; the
-    // map's mean spacing, which counts its box's empty parts, made the point-lit prism's window
-    // search 1.3 times slower).
+    // units, than the world neighbourhood it restricts: the trees split as if it were not (a
+    // speed setting only).
     let split_scale = match space {
         RelaxSpace::World => None,
-        RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => r_param.and_then(sample_median).map(|m| {
-            local_spacing(positions).unwrap_or(setup.spacing) * (p.kf as f32 / std::f32::consts::PI).sqrt()
-                / m
-        }),
+        RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
+            r_param.and_then(|r| crate::spatial::ball_split_scale(positions, None, r, p.kf))
+        }
     };
     for it in 0..p.iterations {
         let points = PointSet {
@@ -500,33 +497,6 @@ pub(crate) fn run(
         }
     }
     Ok(Run { measures, refused_moves })
-}
-
-/// The typical distance between neighbouring photons: the median distance between photons
-/// next to each other in `positions`' order (the working order, which follows a Z-order
-/// curve, so these are mostly neighbours), over about 4096 evenly spread pairs of photons
-/// apart. Unlike the map's mean spacing it does not count the empty parts of the map's box.
-/// `None` when no two such photons are apart.
-fn local_spacing(positions: &[[f32; 3]]) -> Option<f32> {
-    let pairs: Vec<f32> = positions
-        .windows(2)
-        .step_by(positions.len().div_ceil(4096).max(1))
-        .map(|w| glam::Vec3::from(w[0]).distance(glam::Vec3::from(w[1])))
-        .collect();
-    sample_median(&pairs)
-}
-
-/// The median of the positive, finite values among at most 4096 evenly spread ones of
-/// `values`; `None` when there are none.
-fn sample_median(values: &[f32]) -> Option<f32> {
-    let mut v: Vec<f32> = values
-        .iter()
-        .step_by(values.len().div_ceil(4096).max(1))
-        .copied()
-        .filter(|&x| x > 0.0 && x.is_finite())
-        .collect();
-    let mid = v.len() / 2;
-    (!v.is_empty()).then(|| *v.select_nth_unstable_by(mid, f32::total_cmp).1)
 }
 
 /// The power of two relax scales `positions` by so that their largest coordinate lies within

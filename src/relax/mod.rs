@@ -304,7 +304,13 @@ impl Columns {
                     .into(),
             ));
         }
-        let r_param = pages.released(map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, work, 1)));
+        // r_param restricts only the parameter-space phase.
+        let r_param = match setup.space {
+            RelaxSpace::WorldParams => {
+                pages.released(map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, work, 1)))
+            }
+            RelaxSpace::World | RelaxSpace::WorldSpectral => None,
+        };
         let params = match map.spec(name::PARAMS) {
             Some(c) => {
                 let values =
@@ -449,7 +455,7 @@ pub(crate) fn run(
     let split_scale = match space {
         RelaxSpace::World => None,
         RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
-            r_param.and_then(|r| crate::spatial::ball_split_scale(positions, None, r, p.kf))
+            r_param.and_then(|r| crate::spatial::ball_split_scale(positions, r, p.kf))
         }
     };
     for it in 0..p.iterations {

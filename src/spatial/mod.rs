@@ -120,22 +120,16 @@ impl ParamColumn<'_> {
 /// within parameter balls of radii `radii`: the world radius that holds k photons at the local
 /// spacing, per unit of the balls' median radius. A ball much wider in its units than the
 /// world neighbourhood it restricts then counts as wide as that neighbourhood when a tree
-/// chooses its split axes. The local spacing is the median distance between photons next to
-/// each other in `order` (or in `positions`' own order): a locality order (Z-order, or an
-/// index's leaf order), so these are mostly neighbours, and unlike a mean spacing over the
-/// map's box it does not count the box's empty parts (the point-lit prism's window search was
-/// 1.3 times slower with the mean). Both medians are over about 4096 evenly spread samples;
-/// `None` when either has no positive finite sample.
-pub fn ball_split_scale(
-    positions: &[[f32; 3]],
-    order: Option<&[u32]>,
-    radii: &[f32],
-    k: usize,
-) -> Option<f32> {
-    let n = order.map_or(positions.len(), <[u32]>::len);
-    let at = |i: usize| glam::Vec3::from(positions[order.map_or(i, |o| o[i] as usize)]);
-    let step = n.div_ceil(4096).max(1);
-    let spacing: Vec<f32> = (1..n).step_by(step).map(|i| at(i - 1).distance(at(i))).collect();
+/// chooses its split axes. `positions` are in a locality order (Z-order), and the local spacing
+/// is the median distance between photons next to each other in it, mostly neighbours: unlike
+/// a mean spacing over the map's box it does not count the box's empty parts. Both medians are
+/// over about 4096 evenly spread samples; `None` when either has no positive finite sample.
+pub fn ball_split_scale(positions: &[[f32; 3]], radii: &[f32], k: usize) -> Option<f32> {
+    let spacing: Vec<f32> = positions
+        .windows(2)
+        .step_by(positions.len().div_ceil(4096).max(1))
+        .map(|w| glam::Vec3::from(w[0]).distance(glam::Vec3::from(w[1])))
+        .collect();
     let radius: Vec<f32> = radii.iter().step_by(radii.len().div_ceil(4096).max(1)).copied().collect();
     Some(median_positive(spacing)? * (k as f32 / std::f32::consts::PI).sqrt() / median_positive(radius)?)
 }

@@ -627,20 +627,17 @@ fn a_split_scale_changes_the_cost_and_not_the_neighbours() {
     assert!(by_split < 0.8 * by_default, "{by_split:.0} records per query against {by_default:.0}");
 }
 
-/// `ball_split_scale` against its closed form: photons every h along a line (in their own order,
-/// or in an order given) with balls of radius r, some infinite or zero (left out of the
-/// median), give h·√(k/π)/r; no finite ball, or no two photons apart, give none.
+/// `ball_split_scale` against its closed form: photons every h along a line with balls of
+/// radius r, some infinite or zero (left out of the median), give h·√(k/π)/r; no finite ball,
+/// or no two photons apart, give none.
 #[test]
 fn the_ball_split_scale_is_the_k_radius_per_ball_radius() {
     let (n, h, r, k) = (10_000usize, 0.01f32, 0.25f32, 16usize);
     let pos: Vec<[f32; 3]> = (0..n).map(|i| [i as f32 * h, 0.0, 0.0]).collect();
     let radii: Vec<f32> = (0..n).map(|i| [r, r, f32::INFINITY, 0.0, r][i % 5]).collect();
     let want = h * (k as f32 / std::f32::consts::PI).sqrt() / r;
-    let reversed: Vec<u32> = (0..n as u32).rev().collect();
-    for got in [ball_split_scale(&pos, None, &radii, k), ball_split_scale(&pos, Some(&reversed), &radii, k)] {
-        let got = got.expect("a scale");
-        assert!((got - want).abs() <= 1e-3 * want, "{got} against {want}");
-    }
-    assert_eq!(ball_split_scale(&pos, None, &[f32::INFINITY; 8], k), None);
-    assert_eq!(ball_split_scale(&[[1.0, 2.0, 3.0]; 8], None, &radii, k), None);
+    let got = ball_split_scale(&pos, &radii, k).expect("a scale");
+    assert!((got - want).abs() <= 1e-3 * want, "{got} against {want}");
+    assert_eq!(ball_split_scale(&pos, &[f32::INFINITY; 8], k), None);
+    assert_eq!(ball_split_scale(&[[1.0, 2.0, 3.0]; 8], &radii, k), None);
 }

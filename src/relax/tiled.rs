@@ -191,12 +191,14 @@ pub struct TiledRun<'r, 'm> {
     /// The whole map's working order: a photon's label is its rank in it.
     order: Vec<u32>,
     label: Vec<u32>,
-    /// Per tile, its photons' labels, ascending.
+    /// Per tile, its photons' indices in the map, ascending (so a scan of a tile reads the
+    /// map's columns in file order).
     by_tile: Vec<Vec<u32>>,
     /// Per tile, the box of its photons' finite positions in the two tiled axes (metres; empty:
     /// lo > hi) and the most any of them moves in one iteration (working units).
     extents: Vec<([f64; 2], [f64; 2], f64)>,
-    /// Per label, the most the photon moves in one iteration ([`move_bounds`]), working units.
+    /// Per photon (by index in the map), the most it moves in one iteration ([`move_bounds`]),
+    /// working units.
     moves: Vec<f32>,
     slack: f64,
 }
@@ -225,22 +227,31 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         let n = pos.len();
         let order = locality_order(pos);
         let mut label = vec![0u32; n];
-        let mut by_tile = vec![Vec::new(); tiling.len()];
-        let mut extents = vec![([f64::INFINITY; 2], [f64::NEG_INFINITY; 2], 0.0); tiling.len()];
-        let tile_of: Vec<u32> = order.par_iter().map(|&i| tiling.tile_of(pos[i as usize]) as u32).collect();
         for (l, &i) in order.iter().enumerate() {
-            let x = pos[i as usize];
             label[i as usize] = l as u32;
-            let t = tile_of[l] as usize;
-            by_tile[t].push(l as u32);
-            for k in 0..2 {
-                let v = x[tiling.axes[k]] as f64;
-                if v.is_finite() {
-                    extents[t].0[k] = extents[t].0[k].min(v);
-                    extents[t].1[k] = extents[t].1[k].max(v);
-                }
-            }
         }
+        let tile_of: Vec<u32> = pos.par_iter().map(|&x| tiling.tile_of(x) as u32).collect();
+        let mut by_tile = vec![Vec::new(); tiling.len()];
+        for (i, &t) in tile_of.iter().enumerate() {
+            by_tile[t as usize].push(i as u32);
+        }
+        let extents = by_tile
+            .par_iter()
+            .map(|photons| {
+                let mut e = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2], 0.0);
+                for &i in photons {
+                    let x = pos[i as usize];
+                    for k in 0..2 {
+                        let v = x[tiling.axes[k]] as f64;
+                        if v.is_finite() {
+                            e.0[k] = e.0[k].min(v);
+                            e.1[k] = e.1[k].max(v);
+                        }
+                    }
+                }
+                e
+            })
+            .collect();
         map.release_pages();
         let mut run = TiledRun {
             map,
@@ -260,8 +271,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             Columns::of(map, &[], &run.setup)?;
         } else if run.setup.p.iterations > 0 {
             let (moves, slack) = move_bounds(&run)?;
-            for (t, labels) in run.by_tile.iter().enumerate() {
-                run.extents[t].2 = labels.iter().fold(0f64, |m, &l| m.max(moves[l as usize] as f64));
+            for (t, photons) in run.by_tile.iter().enumerate() {
+                run.extents[t].2 = photons.iter().fold(0f64, |m, &i| m.max(moves[i as usize] as f64));
             }
             (run.moves, run.slack) = (moves, slack);
         }
@@ -282,8 +293,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             .flat_map_iter(|&t| {
                 self.by_tile[t]
                     .iter()
-                    .copied()
-                    .filter(|&l| halo.contains(pos[self.order[l as usize] as usize]))
+                    .filter(|&&i| halo.contains(pos[i as usize]))
+                    .map(|&i| self.label[i as usize])
             })
             .collect();
         labels.par_sort_unstable();
@@ -307,25 +318,26 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             .collect::<Vec<usize>>()
             .into_par_iter()
             .flat_map_iter(|t| self.by_tile[t].iter().copied())
-            .filter_map(|l| {
-                let x = pos[self.order[l as usize] as usize];
+            .filter_map(|i| {
+                let x = pos[i as usize];
                 if halo.contains(x) {
                     return None;
                 }
-                let (x, m) = (scaled(x, self.setup.scale), self.moves_of(l));
+                let (x, m) = (scaled(x, self.setup.scale), self.moves_of(i));
                 (-depth_in(halo, x, scale) < m.after(r) + reach).then_some((x, m))
             })
             .collect()
     }
 
-    /// Per label, the most the photon moves in one iteration (working units).
+    /// Per photon (by index in the map), the most it moves in one iteration (working units).
     #[cfg(test)]
     pub(crate) fn moves(&self) -> &[f32] {
         &self.moves
     }
 
-    fn moves_of(&self, l: u32) -> Moves {
-        let b = self.moves[l as usize] as f64;
+    /// How far photon `i` of the map may move.
+    fn moves_of(&self, i: u32) -> Moves {
+        let b = self.moves[i as usize] as f64;
         Moves { first: b, later: b }
     }
 
@@ -337,8 +349,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         let iterations = setup.p.iterations;
         let pos = map.positions();
         let n = pos.len();
-        let mut interior: Vec<u32> = self.by_tile[tile].iter().map(|&l| self.order[l as usize]).collect();
-        interior.sort_unstable();
+        let interior: Vec<u32> = self.by_tile[tile].clone();
         let mut out = TileRelaxed { iterations, scale: setup.scale, ..Default::default() };
         if interior.is_empty() {
             return Ok(out);
@@ -407,7 +418,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                     .map_init(
                         || crate::spatial::Neighbours::with_capacity(1),
                         |found, (&i, _)| {
-                            let m = self.moves_of(label[i as usize]);
+                            let m = self.moves_of(i);
                             let far = 2.0 * h + m.after(r) / scale;
                             tree.knn(pos[i as usize], 1, (far * far * (1.0 + 1e-4)) as f32, found);
                             (!found.is_empty()).then(|| (scaled(pos[i as usize], setup.scale), m))
@@ -427,11 +438,11 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             outside.append(&mut left_out);
             let outside = Uncertain::of(outside.into_iter(), depth, r);
             let slot: Vec<Option<usize>> =
-                members.iter().map(|&i| interior.binary_search(&i).ok().filter(|&q| pending[q])).collect();
+                places_in(&members, &interior).into_iter().map(|q| q.filter(|&q| pending[q])).collect();
             let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
             let mut columns = Columns::of(map, &members, setup)?;
             let start: Vec<[f32; 3]> = columns.positions.clone();
-            let mut member_moves: Vec<Moves> = labels.iter().map(|&l| self.moves_of(l)).collect();
+            let mut member_moves: Vec<Moves> = members.iter().map(|&i| self.moves_of(i)).collect();
             let mut certified = vec![true; members.len()];
             let wide =
                 MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: setup.coincident };
@@ -598,6 +609,24 @@ impl Uncertain {
     }
 }
 
+/// Where each of `photons` (indices in the map) is in `sorted` (ascending indices), if there:
+/// one sort and one merge, where a search per photon would read `sorted` at random.
+fn places_in(photons: &[u32], sorted: &[u32]) -> Vec<Option<usize>> {
+    let mut by_index: Vec<(u32, u32)> = photons.iter().enumerate().map(|(k, &i)| (i, k as u32)).collect();
+    by_index.par_sort_unstable();
+    let mut place = vec![None; photons.len()];
+    let mut q = 0;
+    for (i, k) in by_index {
+        while q < sorted.len() && sorted[q] < i {
+            q += 1;
+        }
+        if sorted.get(q) == Some(&i) {
+            place[k as usize] = Some(q);
+        }
+    }
+    place
+}
+
 /// `x` scaled by `s` (the working units).
 fn scaled(x: [f32; 3], s: f32) -> [f32; 3] {
     if s == 1.0 { x } else { x.map(|v| v * s) }
@@ -651,7 +680,7 @@ fn bound(step_limit: f32, first: f32, scene: bool, slack: f64) -> f64 {
     widen(s, scene, slack)
 }
 
-/// Per photon of the map (by label): the most it moves in one iteration of the whole map's
+/// Per photon of the map (by index in the map): the most it moves in one iteration of the whole map's
 /// relaxation, in working units: `step_limit` times its first spacing (Eq. 8's clamp), which
 /// the first iteration sets from its Kf nearest (parameter-restricted before collapse) and
 /// which caps every later step ([`super::Scratch`]); ∞ for a photon whose Kf nearest all sit
@@ -702,7 +731,7 @@ pub(crate) fn move_bounds(shared: &TiledRun) -> Result<(Vec<f32>, f64), RelaxErr
                 false
             })?;
             for (k, &i) in members.iter().enumerate() {
-                let b = &mut bounds[labels[k] as usize];
+                let b = &mut bounds[i as usize];
                 if b.is_nan() && tiling.tile_of(pos[i as usize]) == c && (read[k].is_finite() || whole) {
                     *b = rounded_up(bound(setup.p.step_limit, first[k], on_surface, slack));
                     left -= 1;
@@ -734,4 +763,19 @@ fn rounded_up(x: f64) -> f32 {
 pub(crate) fn space_of(map: &MapView, setup: &Setup) -> (RelaxSpace, bool) {
     use crate::format::name;
     (setup.space, map.spec(name::BASIS_U).is_some() && map.spec(name::BASIS_V).is_some())
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn places_are_where_a_search_finds_them() {
+        let sorted: Vec<u32> = (0..500).map(|k| 3 * k + (k % 2)).collect();
+        let photons: Vec<u32> = (0..1600).rev().step_by(7).chain([0, 1, 1499, 1500, 1501]).collect();
+        let places = super::places_in(&photons, &sorted);
+        for (k, &i) in photons.iter().enumerate() {
+            assert_eq!(places[k], sorted.binary_search(&i).ok(), "photon {i}");
+        }
+        assert!(places.iter().filter(|q| q.is_some()).count() > 50);
+        assert!(super::places_in(&photons, &[]).iter().all(Option::is_none));
+    }
 }

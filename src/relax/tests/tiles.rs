@@ -247,8 +247,11 @@ fn move_bounds_hold_every_move_of_the_whole_map() {
         })
         .unwrap();
         starts.push(columns.positions.clone());
-        let bounds_of =
-            |tiling: &Tiling| TiledRun::new(&map, &p, None, tiling, None).unwrap().moves().to_vec();
+        // By label, as the whole map's moves are.
+        let bounds_of = |tiling: &Tiling| {
+            let run = TiledRun::new(&map, &p, None, tiling, None).unwrap();
+            order.iter().map(|&i| run.moves()[i as usize]).collect::<Vec<f32>>()
+        };
         let untiled = bounds_of(&Tiling::new(map.positions(), [1, 1]));
         for grid in [[1, 1], [2, 2], [3, 3]] {
             let tiling = Tiling::new(map.positions(), grid);

@@ -505,6 +505,71 @@ pub(crate) fn run(
     Ok(Run { measures, refused_moves })
 }
 
+/// What the first iteration of [`run`] sets of each photon of `columns` (in their order),
+/// without computing any step: its first spacing, r_K·sqrt(π/Kf) from its Kf nearest in the
+/// iteration's space (Eq. 8's step limit; ∞ when they all sit on it), and how far its search
+/// read (r_K; ∞ when it found fewer than Kf). The one search a photon makes is for its Kf + 1
+/// nearest counting itself, which sits at distance 0, so r_K is the farthest found.
+pub(crate) fn first_spacings(
+    map: &crate::format::MapView,
+    columns: &Columns,
+    setup: &Setup,
+    order: &[u32],
+) -> Result<(Vec<f32>, Vec<f32>), RelaxError> {
+    use crate::spatial::{Neighbours, ParamColumn, PointSet, Space};
+    use rayon::prelude::*;
+    let (p, space) = (&setup.p, setup.space);
+    let restricted = space != RelaxSpace::World;
+    let positions = &columns.positions;
+    let r_param = columns.r_param.as_deref();
+    let points = PointSet {
+        positions,
+        params: columns.params.as_ref().filter(|_| restricted).map(|(values, stride)| ParamColumn {
+            values,
+            stride: *stride,
+            dims: &columns.dims,
+        }),
+        emitters: if space == RelaxSpace::WorldParams { columns.emitters.as_deref() } else { None },
+    };
+    let split_scale =
+        r_param.filter(|_| restricted).and_then(|r| crate::spatial::ball_split_scale(positions, r, p.kf));
+    let mut index = None;
+    let sp = if restricted { Space::WorldParams } else { Space::World };
+    index_positions(&mut index, &points, sp, split_scale, 0, false).map_err(|e| RelaxError::Photons {
+        file: map.file_name().to_string(),
+        source: e.in_file_order(order),
+    })?;
+    let index = index.expect("built above");
+    let n = positions.len();
+    let k = p.capped(n).kf;
+    let radius = if restricted { r_param } else { None };
+    // In the index's order, as the iterations search.
+    let slots = index.order();
+    let found: Vec<Vec<(f32, f32)>> = slots
+        .par_chunks(iteration::CHUNK)
+        .map(|chunk| {
+            let mut found = Neighbours::farthest_only(k + 1);
+            chunk
+                .iter()
+                .map(|&i| {
+                    let i = i as usize;
+                    index.knn(&points.query(i, radius.map(|r| r[i])), k + 1, &mut found);
+                    let kept = found.len().saturating_sub(1);
+                    let r_k = if kept == 0 { 0.0 } else { found.max_dist2().unwrap_or(0.0).sqrt() };
+                    let spacing = r_k * (std::f32::consts::PI / kept.max(1) as f32).sqrt();
+                    let first = if spacing > 0.0 { spacing } else { f32::INFINITY };
+                    (first, if kept < p.kf { f32::INFINITY } else { r_k })
+                })
+                .collect()
+        })
+        .collect();
+    let (mut first, mut read) = (vec![0f32; n], vec![0f32; n]);
+    for (&i, (f, r)) in slots.iter().zip(found.into_iter().flatten()) {
+        (first[i as usize], read[i as usize]) = (f, r);
+    }
+    Ok((first, read))
+}
+
 /// The power of two relax scales `positions` by so that their largest coordinate lies within
 /// 2^±40 of 1, where squared distances between them neither overflow nor underflow in f32
 /// (1 when it already does, or when every coordinate is 0 or non-finite).

@@ -693,8 +693,7 @@ fn bound(step_limit: f32, first: f32, scene: bool, slack: f64) -> f64 {
 /// (docs/tiles.md). A photon that finds fewer than Kf in the box is searched again with the
 /// halo doubled.
 pub(crate) fn move_bounds(shared: &TiledRun) -> Result<(Vec<f32>, f64), RelaxError> {
-    let (map, setup, scene, tiling, label) =
-        (shared.map, &shared.setup, shared.scene, shared.tiling, &shared.label);
+    let (map, setup, scene, tiling) = (shared.map, &shared.setup, shared.scene, shared.tiling);
     let pos = map.positions();
     let n = pos.len();
     let on_surface = scene.is_some();
@@ -719,17 +718,10 @@ pub(crate) fn move_bounds(shared: &TiledRun) -> Result<(Vec<f32>, f64), RelaxErr
             let halo = tiling.halo_box(c, if round >= MAX_ROUNDS { f64::INFINITY } else { h });
             let whole = halo.is_whole();
             let members = shared.members(&halo);
-            let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
-            let mut columns = Columns::of(map, &members, setup)?;
-            let wide = MapWide { labels: Some(&labels), spacing: setup.spacing, coincident: false };
-            let (mut first, mut read) = (Vec::new(), Vec::new());
-            // The first step and spacing do not depend on the return to the surface, which runs
-            // after them (its widening is in `bound`).
-            run(map, &mut columns, setup, None, &wide, &members, |scratch, _, _| {
-                first = scratch.first_spacing().to_vec();
-                read = scratch.per_photon().read.clone();
-                false
-            })?;
+            let columns = Columns::of(map, &members, setup)?;
+            // The first spacing does not depend on the return to the surface, which runs after
+            // the step (its widening is in `bound`).
+            let (first, read) = super::first_spacings(map, &columns, setup, &members)?;
             for (k, &i) in members.iter().enumerate() {
                 let b = &mut bounds[i as usize];
                 if b.is_nan() && tiling.tile_of(pos[i as usize]) == c && (read[k].is_finite() || whole) {

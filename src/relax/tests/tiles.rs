@@ -227,6 +227,50 @@ fn a_sparse_surround_does_not_hold_back_a_dense_tile() {
 /// tilings; the bounds are finite, and a tiling's bounds are the untiled ones for most photons
 /// (a photon's halo box holds its Kf nearest).
 #[test]
+fn first_spacings_are_what_the_first_iteration_sets() {
+    use crate::spatial::order::locality_order;
+    let dir = tempfile::tempdir().unwrap();
+    let p = RelaxParams::default();
+    let mut crowd = crate::synthetic::collimated_cusp(600, 48);
+    // Photons stacked on one point: their Kf nearest sit on them, so they have no first spacing.
+    let x = crowd.position[0];
+    crowd.position[..40].fill(x);
+    for (name, m) in [
+        ("collimated", crate::synthetic::collimated_cusp(1500, 45)),
+        ("two", crate::synthetic::two_emitters(1500, 46)),
+        ("spectral", crate::synthetic::dispersed_beam(1500, 47)),
+        ("crowd", crowd),
+    ] {
+        for map in &phases(dir.path(), name, &m) {
+            let map = map.view();
+            let setup = Setup::of(&map, &p, false).unwrap();
+            let order = locality_order(map.positions());
+            let mut columns = Columns::of(&map, &order, &setup).unwrap();
+            let (first, read) = crate::relax::first_spacings(&map, &columns, &setup, &order).unwrap();
+            let wide = MapWide { labels: None, spacing: setup.spacing, coincident: setup.coincident };
+            let mut want = (Vec::new(), Vec::new());
+            run(&map, &mut columns, &setup, None, &wide, &order, |scratch, _, _| {
+                want = (scratch.first_spacing().to_vec(), scratch.per_photon().read.clone());
+                false
+            })
+            .unwrap();
+            let what = format!("{name}, {:?}", setup.space);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+            assert_eq!(bits(&first), bits(&want.0), "{what}: first spacings");
+            // A crowd's photon reads beyond its Kf to be nudged; its first spacing is ∞ either way.
+            for (k, (&a, &b)) in read.iter().zip(&want.1).enumerate() {
+                assert!(
+                    a.to_bits() == b.to_bits() || first[k] == f32::INFINITY,
+                    "{what}: photon {k} read {a} against {b}"
+                );
+            }
+            let crowded = first.iter().filter(|f| f.is_infinite()).count();
+            assert_eq!(crowded > 0, name == "crowd", "{what}: {crowded} without a first spacing");
+        }
+    }
+}
+
+#[test]
 fn move_bounds_hold_every_move_of_the_whole_map() {
     use crate::relax::tiled::TiledRun;
     use crate::spatial::order::locality_order;

@@ -38,11 +38,17 @@ pub(super) fn back_to_surfaces(
         .sum()
 }
 
+/// How far along its normal a moved photon's surface is searched, in steps: a tangent step of
+/// length s leaves a surface of radius R by s²/2R, a quarter of the step where s = R/2. A
+/// surface farther than that from the step is curved on the scale of the photon's spacing, and
+/// the move is refused. It also bounds how far one iteration moves a photon, (1 + this)·step,
+/// which sizes the halo of a tile (docs/tiles.md).
+pub const RETURN_REACH: f32 = 0.25;
+
 /// The point of surface `surface` nearest along the normal to a photon moved by `step` in its
 /// tangent plane, and the surface's normal there (oriented like `normal`): the photon's
-/// surface is searched along ±normal within 2·step plus a rounding margin (a tangent step of
-/// length s leaves a surface of radius R by s²/2R, far less for any step the step limit
-/// allows). `None` if another surface or none lies there, or if `step` is not positive.
+/// surface is searched along ±normal within [`RETURN_REACH`]·step plus a rounding margin.
+/// `None` if another surface or none lies there, or if `step` is not positive.
 pub fn return_to_surface(
     scene: &crate::scene::Scene,
     surface: u32,
@@ -53,7 +59,7 @@ pub fn return_to_surface(
     let n = normal.try_normalize()?;
     // The margin covers the rounding of `moved` (relative to its size) and, at the origin, a
     // fraction of the step: no absolute length, so it holds at any scene scale.
-    let reach = 2.0 * step + 1e-5 * moved.abs().max_element().max(step);
+    let reach = RETURN_REACH * step + 1e-5 * moved.abs().max_element().max(step);
     for dir in [-n, n] {
         let ray = crate::scene::Ray::new(moved - dir * reach, dir);
         if let Some(hit) = scene.intersect(&ray, 0.0, 2.0 * reach)

@@ -634,7 +634,7 @@ fn results_do_not_depend_on_the_order_photons_are_stored_in() {
 /// Issue 7: returning a photon to its surface uses no absolute length. A floor at z = 0
 /// between two parallel shelves 2 µm above and below it, at scales 1e-6 (the shelves 2 µm
 /// away) and 1 (2 m away), and a photon moved 10 nm (10 mm) in the floor's plane: the
-/// search reaches 2·step beyond it, so it finds the floor and not a shelf. (With the former
+/// search reaches a quarter step beyond it, so it finds the floor and not a shelf. (With the former
 /// margin of 1e-5 m, the search at 1e-6 met a shelf first in both directions and refused.)
 #[test]
 fn return_to_surface_holds_at_micrometre_scale() {
@@ -666,6 +666,51 @@ fn return_to_surface_holds_at_micrometre_scale() {
         let moved = Vec3::new(0.01, 0.0, 0.0) * s;
         let (at, n) = return_to_surface(&scene, 0, moved, Vec3::Z, 0.01 * s).expect("floor found");
         assert!(at.z.abs() <= 1e-6 * s && (at.x - moved.x).abs() <= 1e-6 * s && n == Vec3::Z, "{s}: {at}");
+    }
+}
+
+/// A photon on a sphere of radius 1 stepped along its tangent plane returns to the sphere
+/// when the step is small against the radius (it leaves the sphere by about s²/2), and its
+/// move is refused when the sphere lies farther than [`surface::RETURN_REACH`] steps from where
+/// the step ends: so no move, returned, takes a photon farther than (1 + that) steps, which a
+/// tile's move bounds rely on (docs/tiles.md).
+#[test]
+fn a_return_to_a_surface_stays_within_its_reach() {
+    use crate::scene::{Material, Scene, Shape, Surface, SurfaceGeometry};
+    let sphere = Surface {
+        name: "ball".into(),
+        material: 0,
+        geometry: SurfaceGeometry::Analytic(Shape::Sphere { center: Vec3::ZERO, radius: 1.0 }),
+    };
+    let emitter = crate::scene::Emitter {
+        kind: crate::scene::EmitterShape::Point { position: Vec3::new(0.0, 0.0, 3.0) },
+        power_w: 1.0,
+        colour: Vec3::ONE,
+    };
+    let scene = Scene::new(
+        vec![("ball".into(), Material::Diffuse { albedo: Vec3::ONE })],
+        vec![emitter],
+        vec![sphere],
+    );
+    let reach = surface::RETURN_REACH;
+    for s in [0.01f32, 0.1, 0.3, 0.45, 0.55, 1.0] {
+        let moved = Vec3::new(s, 0.0, 1.0);
+        let off = moved.length() - 1.0;
+        match return_to_surface(&scene, 0, moved, Vec3::Z, s) {
+            Some((at, n)) => {
+                assert!((at.length() - 1.0).abs() < 1e-5 && n.dot(at) > 0.99, "step {s}: {at}");
+                assert!(
+                    at.distance(moved) <= reach * s * 1.0001,
+                    "step {s}: returned {} away",
+                    at.distance(moved)
+                );
+            }
+            None => assert!(off > reach * s, "step {s}: refused, the sphere {off} away"),
+        }
+        // Accepted exactly when the sphere along the normal is within the reach.
+        let along = 1.0 - (1.0 - s * s).max(0.0).sqrt();
+        let found = return_to_surface(&scene, 0, moved, Vec3::Z, s).is_some();
+        assert_eq!(found, s < 1.0 && along <= reach * s, "step {s}: the sphere {along} along the normal");
     }
 }
 

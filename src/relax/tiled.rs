@@ -61,10 +61,13 @@ const MAX_ROUNDS: u32 = 48;
 /// exact choice of `certify`).
 #[derive(Clone, Copy, Debug)]
 pub(crate) struct Options {
-    /// The first halo's width in units of 2·(R + 1) mean neighbour spacings (the default
-    /// 2.5 measured: on the 10⁶ water in 12 tiles, 1 left 8–20 % of each tile to later rounds
-    /// that relaxed a working set as large as the tile again, 24.6 s; 2 took 14.8 s, 2.5
-    /// certified every tile in one round, 9.2 s; 3 took 10.1 s and 4 12.2 s).
+    /// The first halo's width in units of 2·(R + 1) mean neighbour spacings. The default 1.5
+    /// was measured on the water, whose photons return to its floor (a move bounded by 1.25
+    /// steps, [`super::surface::RETURN_REACH`]): one round for every tile tried of 12 at 10⁶
+    /// and of 20 at 10⁷, with working sets 1.3–2.0 and 1.16–1.29 times the tile (2.5 took
+    /// 1.6–2.8 and 1.28–1.54); 1.2 and 1.0 left 0.03–0.5 % of a tile at 10⁷ to a second round.
+    /// (Before moves were bounded by 1.25 steps, 3, 2.5 was needed: at 1.5, 1.2 % of a tile
+    /// was left to a second round as large as half the tile.)
     pub halo_scale: f64,
     /// Whether steps are certified; without, the first halo's results are kept.
     pub certify: bool,
@@ -72,7 +75,7 @@ pub(crate) struct Options {
 
 impl Default for Options {
     fn default() -> Self {
-        Options { halo_scale: 2.5, certify: true }
+        Options { halo_scale: 1.5, certify: true }
     }
 }
 
@@ -665,13 +668,15 @@ impl Moves {
 /// A step of length `s` (working units) as far as it moves the photon: widened for the
 /// rounding of the move, and with a scene, for the return to the surface (as [`bound`]).
 fn widen(s: f64, scene: bool, slack: f64) -> f64 {
-    (if scene { 3.0 * s } else { s }) * (1.0 + 1e-4) + slack
+    let returned = 1.0 + super::surface::RETURN_REACH as f64;
+    (if scene { returned * s } else { s }) * (1.0 + 1e-4) + slack
 }
 
 /// The most a photon whose first spacing is `first` (working units; ∞ while it has none) moves
 /// in one iteration: `step_limit`·first (Eq. 8's clamp, [`super::Scratch`]), widened for the
-/// rounding of the move, and with a scene, the return to the surface (which searches 2 steps
-/// along the normal, plus 10⁻⁵ of the coordinates: [`super::return_to_surface`]).
+/// rounding of the move, and with a scene, the return to the surface (which searches
+/// [`super::surface::RETURN_REACH`] steps along the normal, plus 10⁻⁵ of the coordinates:
+/// [`super::return_to_surface`]).
 fn bound(step_limit: f32, first: f32, scene: bool, slack: f64) -> f64 {
     let s = step_limit as f64 * first as f64;
     if !s.is_finite() {

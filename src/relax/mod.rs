@@ -418,7 +418,7 @@ pub(crate) fn run(
     order: &[u32],
     mut after: impl FnMut(&Scratch, &IterationMeasure, &[[f32; 3]]) -> bool,
 ) -> Result<Run, RelaxError> {
-    use crate::spatial::{ParamColumn, PointSet, Space, SpatialIndex};
+    use crate::spatial::SpatialIndex;
     let p = &setup.p;
     let space = setup.space;
     let Columns {
@@ -449,28 +449,9 @@ pub(crate) fn run(
     let mut scratch = Scratch::default();
     let mut measures = Vec::with_capacity(p.iterations);
     let mut index: Option<SpatialIndex> = None;
-    // A parameter ball (r_param, or the spectral window's radius 1) is often far wider, in its
-    // units, than the world neighbourhood it restricts: the trees split as if it were not (a
-    // speed setting only).
-    let split_scale = match space {
-        RelaxSpace::World => None,
-        RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
-            r_param.and_then(|r| crate::spatial::ball_split_scale(positions, r, p.kf))
-        }
-    };
+    let (sp, split_scale) = search_space(space, positions, r_param, p.kf);
     for it in 0..p.iterations {
-        let points = PointSet {
-            positions,
-            params: match space {
-                RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
-                    params.map(|(values, stride)| ParamColumn { values, stride, dims })
-                }
-                RelaxSpace::World => None,
-            },
-            // Parameters compare within an emitter; wavelengths across emitters.
-            emitters: if space == RelaxSpace::WorldParams { emitters } else { None },
-        };
-        let sp = if space == RelaxSpace::World { Space::World } else { Space::WorldParams };
+        let points = search_points(space, positions, params, dims, emitters);
         let separated = measures.last().is_some_and(|m: &IterationMeasure| m.separated > 0);
         index_positions(&mut index, &points, sp, split_scale, it, separated).map_err(|e| {
             RelaxError::Photons { file: map.file_name().to_string(), source: e.in_file_order(order) }
@@ -505,6 +486,47 @@ pub(crate) fn run(
     Ok(Run { measures, refused_moves })
 }
 
+/// The photons as relaxation's searches in `space` see them: their positions, and where the
+/// search is restricted (the parameter ball before the collapse, the spectral window after it)
+/// their parameters; parameters compare within an emitter, wavelengths across emitters.
+fn search_points<'a>(
+    space: RelaxSpace,
+    positions: &'a [[f32; 3]],
+    params: Option<(&'a [f32], usize)>,
+    dims: &'a [u32],
+    emitters: Option<&'a [u16]>,
+) -> crate::spatial::PointSet<'a> {
+    use crate::spatial::ParamColumn;
+    crate::spatial::PointSet {
+        positions,
+        params: match space {
+            RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
+                params.map(|(values, stride)| ParamColumn { values, stride, dims })
+            }
+            RelaxSpace::World => None,
+        },
+        emitters: if space == RelaxSpace::WorldParams { emitters } else { None },
+    }
+}
+
+/// The index's space for relaxation in `space`, and its split scale: a parameter ball (r_param,
+/// or the spectral window's radius 1) is often far wider, in its units, than the world
+/// neighbourhood it restricts, so the trees split as if it were not (a speed setting only).
+fn search_space(
+    space: RelaxSpace,
+    positions: &[[f32; 3]],
+    r_param: Option<&[f32]>,
+    kf: usize,
+) -> (crate::spatial::Space, Option<f32>) {
+    use crate::spatial::Space;
+    match space {
+        RelaxSpace::World => (Space::World, None),
+        RelaxSpace::WorldParams | RelaxSpace::WorldSpectral => {
+            (Space::WorldParams, r_param.and_then(|r| crate::spatial::ball_split_scale(positions, r, kf)))
+        }
+    }
+}
+
 /// What the first iteration of [`run`] sets of each photon of `columns` (in their order),
 /// without computing any step: its first spacing, r_K·sqrt(π/Kf) from its Kf nearest in the
 /// iteration's space (Eq. 8's step limit; ∞ when they all sit on it), and how far its search
@@ -516,25 +538,15 @@ pub(crate) fn first_spacings(
     setup: &Setup,
     order: &[u32],
 ) -> Result<(Vec<f32>, Vec<f32>), RelaxError> {
-    use crate::spatial::{Neighbours, ParamColumn, PointSet, Space};
+    use crate::spatial::Neighbours;
     use rayon::prelude::*;
     let (p, space) = (&setup.p, setup.space);
-    let restricted = space != RelaxSpace::World;
     let positions = &columns.positions;
     let r_param = columns.r_param.as_deref();
-    let points = PointSet {
-        positions,
-        params: columns.params.as_ref().filter(|_| restricted).map(|(values, stride)| ParamColumn {
-            values,
-            stride: *stride,
-            dims: &columns.dims,
-        }),
-        emitters: if space == RelaxSpace::WorldParams { columns.emitters.as_deref() } else { None },
-    };
-    let split_scale =
-        r_param.filter(|_| restricted).and_then(|r| crate::spatial::ball_split_scale(positions, r, p.kf));
+    let params = columns.params.as_ref().map(|(v, s)| (v.as_slice(), *s));
+    let points = search_points(space, positions, params, &columns.dims, columns.emitters.as_deref());
+    let (sp, split_scale) = search_space(space, positions, r_param, p.kf);
     let mut index = None;
-    let sp = if restricted { Space::WorldParams } else { Space::World };
     index_positions(&mut index, &points, sp, split_scale, 0, false).map_err(|e| RelaxError::Photons {
         file: map.file_name().to_string(),
         source: e.in_file_order(order),
@@ -542,7 +554,7 @@ pub(crate) fn first_spacings(
     let index = index.expect("built above");
     let n = positions.len();
     let k = p.capped(n).kf;
-    let radius = if restricted { r_param } else { None };
+    let radius = if space == RelaxSpace::World { None } else { r_param };
     // In the index's order, as the iterations search.
     let slots = index.order();
     let found: Vec<Vec<(f32, f32)>> = slots

@@ -66,8 +66,6 @@ pub(crate) struct Options {
     /// steps, [`super::surface::RETURN_REACH`]): one round for every tile tried of 12 at 10⁶
     /// and of 20 at 10⁷, with working sets 1.3–2.0 and 1.16–1.29 times the tile (2.5 took
     /// 1.6–2.8 and 1.28–1.54); 1.2 and 1.0 left 0.03–0.5 % of a tile at 10⁷ to a second round.
-    /// (Before moves were bounded by 1.25 steps, 3, 2.5 was needed: at 1.5, 1.2 % of a tile
-    /// was left to a second round as large as half the tile.)
     pub halo_scale: f64,
     /// Whether steps are certified; without, the first halo's results are kept.
     pub certify: bool,

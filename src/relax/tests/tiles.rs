@@ -222,10 +222,9 @@ fn a_sparse_surround_does_not_hold_back_a_dense_tile() {
     );
 }
 
-/// The move bounds a tile job computes tile by tile, against the whole map's relaxation (the
-/// oracle): no photon moves farther in any iteration than its bound, for 1×1, 2×2 and 3×3
-/// tilings; the bounds are finite, and a tiling's bounds are the untiled ones for most photons
-/// (a photon's halo box holds its Kf nearest).
+/// The move bounds' one search per photon (`first_spacings`) against the first iteration of the
+/// whole map's relaxation (the oracle): the same first spacings bit for bit, and the same reads
+/// except where a crowd's photon reads farther to be nudged, in both phases.
 #[test]
 fn first_spacings_are_what_the_first_iteration_sets() {
     use crate::spatial::order::locality_order;
@@ -270,6 +269,10 @@ fn first_spacings_are_what_the_first_iteration_sets() {
     }
 }
 
+/// The move bounds a tile job computes tile by tile, against the whole map's relaxation (the
+/// oracle): no photon moves farther in any iteration than its bound, for 1×1, 2×2 and 3×3
+/// tilings; the bounds are finite, and a tiling's bounds are the untiled ones for most photons
+/// (a photon's halo box holds its Kf nearest).
 #[test]
 fn move_bounds_hold_every_move_of_the_whole_map() {
     use crate::relax::tiled::TiledRun;

@@ -286,6 +286,25 @@ pub(crate) struct Columns {
 impl Columns {
     /// The columns of photons `work` (file indices) of `map`.
     pub fn of(map: &crate::format::MapView, work: &[u32], setup: &Setup) -> Result<Columns, RelaxError> {
+        Self::gathered(map, work, setup, false)
+    }
+
+    /// The columns [`first_spacings`] reads (positions, and what restricts the search), of
+    /// photons `work` of `map`: the constraint's columns are not copied.
+    pub fn for_search(
+        map: &crate::format::MapView,
+        work: &[u32],
+        setup: &Setup,
+    ) -> Result<Columns, RelaxError> {
+        Self::gathered(map, work, setup, true)
+    }
+
+    fn gathered(
+        map: &crate::format::MapView,
+        work: &[u32],
+        setup: &Setup,
+        search_only: bool,
+    ) -> Result<Columns, RelaxError> {
         use crate::format::name;
         use crate::spatial::ParamColumn;
         use crate::spatial::order::permuted;
@@ -294,10 +313,17 @@ impl Columns {
         // Each column is copied, then its pages in the map released ([`crate::format::Pages::released`]).
         let pages = map.pages();
         let sorted = |column: Option<&[[f32; 3]]>| pages.released(column.map(|c| permuted(c, work, 1)));
-        let basis_u = sorted(map.column::<[f32; 3]>(name::BASIS_U)?);
-        let basis_v = sorted(map.column::<[f32; 3]>(name::BASIS_V)?);
-        let normal = sorted(map.column::<[f32; 3]>(name::NORMAL)?);
-        if !(basis_u.is_some() && basis_v.is_some() || normal.is_some()) {
+        // A search reads the basis only where it marks the photons held in the spectral window.
+        let wanted = |column: &str| {
+            !search_only || column == name::BASIS_V && setup.space == RelaxSpace::WorldSpectral
+        };
+        let column = |name: &str| -> Result<Option<Vec<[f32; 3]>>, RelaxError> {
+            Ok(if wanted(name) { sorted(map.column::<[f32; 3]>(name)?) } else { None })
+        };
+        let basis_u = column(name::BASIS_U)?;
+        let basis_v = column(name::BASIS_V)?;
+        let normal = column(name::NORMAL)?;
+        if !(search_only || normal.is_some() || basis_u.is_some() && basis_v.is_some()) {
             return Err(input(
                 "relax needs a constraint basis (run `photonkit detect`) or a 'normal' column to keep \
                  photons on their surfaces"
@@ -368,8 +394,12 @@ impl Columns {
         if setup.scale != 1.0 {
             positions.iter_mut().flatten().for_each(|x| *x *= setup.scale);
         }
-        let surfaces = pages.released(map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, work, 1)));
-        let flux = pages.released((setup.p.flux_diffusion > 0.0).then(|| permuted(map.flux(), work, 1)));
+        let surfaces = match search_only {
+            true => None,
+            false => pages.released(map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, work, 1))),
+        };
+        let flux = pages
+            .released((!search_only && setup.p.flux_diffusion > 0.0).then(|| permuted(map.flux(), work, 1)));
         Ok(Columns {
             positions,
             basis_u,

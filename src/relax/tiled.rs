@@ -11,6 +11,8 @@
 //! could reach. Interior photons not certified through every iteration are relaxed again with
 //! the halo doubled, until the halo holds the whole map.
 
+use std::cmp::Ordering;
+
 use rayon::prelude::*;
 
 use super::{Columns, MapWide, RelaxError, RelaxParams, RelaxSpace, Setup, run};
@@ -192,12 +194,8 @@ pub struct TiledRun<'r, 'm> {
     /// The whole map's working order: a photon's label is its rank in it.
     order: Vec<u32>,
     label: Vec<u32>,
-    /// Per tile, its photons' indices in the map, ascending (so a scan of a tile reads the
-    /// map's columns in file order).
-    by_tile: Vec<Vec<u32>>,
-    /// Per tile, the box of its photons' finite positions in the two tiled axes (metres; empty:
-    /// lo > hi) and the most any of them moves in one iteration (working units).
-    extents: Vec<([f64; 2], [f64; 2], f64)>,
+    /// Per tile, its photons in the cells of a grid over them.
+    by_tile: Vec<TilePhotons>,
     /// Per photon (by index in the map), the most it moves in one iteration ([`move_bounds`]),
     /// working units.
     moves: Vec<f32>,
@@ -232,70 +230,40 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             label[i as usize] = l as u32;
         }
         let tile_of: Vec<u32> = pos.par_iter().map(|&x| tiling.tile_of(x) as u32).collect();
-        let mut by_tile = vec![Vec::new(); tiling.len()];
+        let mut ascending = vec![Vec::new(); tiling.len()];
         for (i, &t) in tile_of.iter().enumerate() {
-            by_tile[t as usize].push(i as u32);
+            ascending[t as usize].push(i as u32);
         }
-        let extents = by_tile
-            .par_iter()
-            .map(|photons| {
-                let mut e = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2], 0.0);
-                for &i in photons {
-                    let x = pos[i as usize];
-                    for k in 0..2 {
-                        let v = x[tiling.axes[k]] as f64;
-                        if v.is_finite() {
-                            e.0[k] = e.0[k].min(v);
-                            e.1[k] = e.1[k].max(v);
-                        }
-                    }
-                }
-                e
-            })
-            .collect();
+        drop(tile_of);
+        let by_tile =
+            ascending.into_par_iter().map(|photons| TilePhotons::of(photons, pos, tiling.axes)).collect();
         map.release_pages();
-        let mut run = TiledRun {
-            map,
-            setup,
-            scene,
-            tiling,
-            order,
-            label,
-            by_tile,
-            extents,
-            moves: Vec::new(),
-            slack: 0.0,
-        };
-        let wanted = only.map_or(n, |t| run.by_tile.get(t).map_or(0, Vec::len));
+        let mut run =
+            TiledRun { map, setup, scene, tiling, order, label, by_tile, moves: Vec::new(), slack: 0.0 };
+        let wanted = only.map_or(n, |t| run.by_tile.get(t).map_or(0, |c| c.photons.len()));
         if wanted == 0 {
             // Checked as the whole map is, so a tile fails where the whole map fails.
             Columns::of(map, &[], &run.setup)?;
         } else if run.setup.p.iterations > 0 {
             let (moves, slack) = move_bounds(&run)?;
-            for (t, photons) in run.by_tile.iter().enumerate() {
-                run.extents[t].2 = photons.iter().fold(0f64, |m, &i| m.max(moves[i as usize] as f64));
-            }
+            run.by_tile.par_iter_mut().for_each(|c| c.bound_moves(&moves));
             (run.moves, run.slack) = (moves, slack);
         }
         Ok(run)
     }
 
     /// The file indices of the photons in `halo`, in label order.
-    fn members(&self, halo: &HaloBox) -> Vec<u32> {
+    pub(crate) fn members(&self, halo: &HaloBox) -> Vec<u32> {
         let pos = self.map.positions();
-        let meeting: Vec<usize> = (0..self.tiling.len())
-            .filter(|&t| {
-                let (lo, hi, _) = self.extents[t];
-                (0..2).all(|k| lo[k] <= halo.hi[k] && hi[k] >= halo.lo[k])
-            })
-            .collect();
-        let mut labels: Vec<u32> = meeting
-            .par_iter()
-            .flat_map_iter(|&t| {
-                self.by_tile[t]
-                    .iter()
-                    .filter(|&&i| halo.contains(pos[i as usize]))
-                    .map(|&i| self.label[i as usize])
+        let meets = |c: &Cell| (0..2).all(|k| c.lo[k] <= halo.hi[k] && c.hi[k] >= halo.lo[k]);
+        let mut labels: Vec<u32> = self
+            .by_tile
+            .iter()
+            .flat_map(|t| t.cells.iter().filter(|c| meets(c)).map(|c| &t.photons[c.range.clone()]))
+            .collect::<Vec<&[u32]>>()
+            .into_par_iter()
+            .flat_map_iter(|photons| {
+                photons.iter().filter(|&&i| halo.contains(pos[i as usize])).map(|&i| self.label[i as usize])
             })
             .collect();
         labels.par_sort_unstable();
@@ -304,21 +272,23 @@ impl<'r, 'm> TiledRun<'r, 'm> {
 
     /// The photons outside `halo` that could come within `reach` (working units) of it in `r`
     /// iterations, with where they start (working units) and their move bounds.
-    fn outside(&self, halo: &HaloBox, r: usize, reach: f64) -> Vec<([f32; 3], Moves)> {
+    pub(crate) fn outside(&self, halo: &HaloBox, r: usize, reach: f64) -> Vec<([f32; 3], Moves)> {
         let pos = self.map.positions();
         let scale = self.setup.scale as f64;
-        (0..self.tiling.len())
-            .filter(|&t| {
-                // How far outside the box, in working units, the tile's nearest photon lies.
-                let (lo, hi, most) = self.extents[t];
-                let gap =
-                    (0..2).map(|k| (halo.lo[k] - hi[k]).max(lo[k] - halo.hi[k]).max(0.0)).fold(0.0, f64::max)
-                        * scale;
-                !self.by_tile[t].is_empty() && gap < r as f64 * most + reach
-            })
-            .collect::<Vec<usize>>()
+        // A cell whose nearest photon lies farther outside the box (working units) than the most
+        // any of its photons moves in the run plus the reach holds none that can come within it.
+        let near = |c: &Cell| {
+            let gap =
+                (0..2).map(|k| (halo.lo[k] - c.hi[k]).max(c.lo[k] - halo.hi[k]).max(0.0)).fold(0.0, f64::max)
+                    * scale;
+            gap < r as f64 * c.most + reach
+        };
+        self.by_tile
+            .iter()
+            .flat_map(|t| t.cells.iter().filter(|c| near(c)).map(|c| &t.photons[c.range.clone()]))
+            .collect::<Vec<&[u32]>>()
             .into_par_iter()
-            .flat_map_iter(|t| self.by_tile[t].iter().copied())
+            .flat_map_iter(|photons| photons.iter().copied())
             .filter_map(|i| {
                 let x = pos[i as usize];
                 if halo.contains(x) {
@@ -350,7 +320,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         let iterations = setup.p.iterations;
         let pos = map.positions();
         let n = pos.len();
-        let interior: Vec<u32> = self.by_tile[tile].clone();
+        let mut interior: Vec<u32> = self.by_tile[tile].photons.clone();
+        interior.par_sort_unstable();
         let mut out = TileRelaxed { iterations, scale: setup.scale, ..Default::default() };
         if interior.is_empty() {
             return Ok(out);
@@ -440,6 +411,13 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             let outside = Uncertain::of(outside.into_iter(), depth, r);
             let slot: Vec<Option<usize>> =
                 places_in(&members, &interior).into_iter().map(|q| q.filter(|&q| pending[q])).collect();
+            // The member each pending interior photon is, if any.
+            let mut member_of: Vec<Option<u32>> = vec![None; interior.len()];
+            for (k, q) in slot.iter().enumerate() {
+                if let &Some(q) = q {
+                    member_of[q] = Some(k as u32);
+                }
+            }
             let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
             let mut columns = Columns::of(map, &members, setup)?;
             let start: Vec<[f32; 3]> = columns.positions.clone();
@@ -463,17 +441,26 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                 }
                 if !whole {
                     // Where the members whose position may differ from the whole map's started.
+                    let per_read = &per.read;
+                    // An uncertain member that can not come within the read of any member
+                    // still certified is left out.
+                    let lowest = (0..members.len())
+                        .into_par_iter()
+                        .filter(|&k| certified[k])
+                        .map(|k| depth(before[k]) - per_read[k] as f64 * (1.0 + 1e-5))
+                        .reduce(|| f64::INFINITY, f64::min);
                     let unsure = Uncertain::of(
                         certified
                             .iter()
                             .zip(&start)
                             .zip(&member_moves)
-                            .filter(|((c, _), _)| !**c)
+                            .filter(|((c, x), m)| {
+                                !**c && (depth(**x) + m.after(t)).partial_cmp(&lowest) != Some(Ordering::Less)
+                            })
                             .map(|((_, &x), &m)| (x, m)),
                         depth,
                         r,
                     );
-                    let per_read = &per.read;
                     let keep: Vec<bool> = (0..members.len())
                         .into_par_iter()
                         .map(|k| {
@@ -489,13 +476,18 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                         .collect();
                     certified = keep;
                 }
-                for (k, q) in slot.iter().enumerate() {
-                    if let &Some(q) = q {
-                        out.nn[q * r + t] = per.nn[k];
-                        out.ratio[q * r + t] = per.ratio[k];
-                        out.step[q * r + t] = per.step[k];
-                    }
-                }
+                // Interior photon by interior photon, so that the writes run along the columns
+                // (reading the members' values at random jumps less far).
+                out.nn
+                    .par_chunks_mut(r)
+                    .zip(out.ratio.par_chunks_mut(r))
+                    .zip(out.step.par_chunks_mut(r))
+                    .zip(&member_of)
+                    .for_each(|(((nn, ratio), step), k)| {
+                        if let Some(k) = k.map(|k| k as usize) {
+                            (nn[t], ratio[t], step[t]) = (per.nn[k], per.ratio[k], per.step[k]);
+                        }
+                    });
                 t += 1;
                 // Nothing more to learn once no pending interior photon is certified.
                 slot.iter().zip(&certified).any(|(s, &c)| s.is_some() && c)
@@ -529,6 +521,100 @@ impl<'r, 'm> TiledRun<'r, 'm> {
     }
 }
 
+/// One tile's photons, in the cells of a grid over their box (about 4096 photons a cell, at
+/// most 32 × 32 cells), so that a scan for the photons near a halo reads only the cells near
+/// it.
+struct TilePhotons {
+    /// The photons' indices in the map, cell by cell, ascending within each cell (a cell's scan
+    /// reads the map's columns in file order).
+    photons: Vec<u32>,
+    cells: Vec<Cell>,
+}
+
+/// A cell of a [`TilePhotons`]: the box of its photons' positions in the two tiled axes
+/// (metres; empty, lo > hi, for photons not at a finite position), the most any of them moves
+/// in one iteration (working units), and where its photons are.
+struct Cell {
+    lo: [f64; 2],
+    hi: [f64; 2],
+    most: f64,
+    range: std::ops::Range<usize>,
+}
+
+impl TilePhotons {
+    /// `photons` (ascending indices of the map, positions `pos`) put in cells over the tiled
+    /// `axes`.
+    fn of(photons: Vec<u32>, pos: &[[f32; 3]], axes: [usize; 2]) -> TilePhotons {
+        let finite = |x: [f32; 3]| axes.iter().all(|&a| x[a].is_finite());
+        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        for &i in &photons {
+            let x = pos[i as usize];
+            if finite(x) {
+                for k in 0..2 {
+                    lo[k] = lo[k].min(x[axes[k]] as f64);
+                    hi[k] = hi[k].max(x[axes[k]] as f64);
+                }
+            }
+        }
+        let g = ((photons.len() as f64 / 4096.0).sqrt().ceil() as usize).clamp(1, 32);
+        // Cell g·g holds the photons at no finite position.
+        let cell_of = |x: [f32; 3]| {
+            if !finite(x) {
+                return g * g;
+            }
+            let at = |k: usize| {
+                let w = hi[k] - lo[k];
+                if w > 0.0 { (((x[axes[k]] as f64 - lo[k]) / w * g as f64) as usize).min(g - 1) } else { 0 }
+            };
+            at(1) * g + at(0)
+        };
+        // Each photon's cell, and each cell's count and box.
+        let mut boxes = vec![(0usize, [f64::INFINITY; 2], [f64::NEG_INFINITY; 2]); g * g + 1];
+        let cell: Vec<u32> = photons
+            .iter()
+            .map(|&i| {
+                let x = pos[i as usize];
+                let c = cell_of(x);
+                let b = &mut boxes[c];
+                b.0 += 1;
+                if finite(x) {
+                    for k in 0..2 {
+                        b.1[k] = b.1[k].min(x[axes[k]] as f64);
+                        b.2[k] = b.2[k].max(x[axes[k]] as f64);
+                    }
+                }
+                c as u32
+            })
+            .collect();
+        // Where each cell's photons start; a stable placement keeps them ascending.
+        let mut start = Vec::with_capacity(boxes.len() + 1);
+        start.push(0);
+        for b in &boxes {
+            start.push(start.last().copied().unwrap_or(0) + b.0);
+        }
+        let mut next = start.clone();
+        let mut placed = vec![0u32; photons.len()];
+        for (&i, &c) in photons.iter().zip(&cell) {
+            placed[next[c as usize]] = i;
+            next[c as usize] += 1;
+        }
+        let cells = boxes
+            .iter()
+            .enumerate()
+            .filter(|(_, b)| b.0 > 0)
+            .map(|(c, &(_, lo, hi))| Cell { lo, hi, most: 0.0, range: start[c]..start[c + 1] })
+            .collect();
+        TilePhotons { photons: placed, cells }
+    }
+
+    /// Each cell's most moved, from every photon's move bound (by index in the map).
+    fn bound_moves(&mut self, moves: &[f32]) {
+        for c in &mut self.cells {
+            c.most = self.photons[c.range.clone()].iter().fold(0f64, |m, &i| m.max(moves[i as usize] as f64));
+        }
+    }
+}
+
 /// Photons whose position at an iteration may differ from the whole map's: where each started
 /// (working units) and the most it moves per iteration, grouped by that bound (powers of two)
 /// so a query visits, per group, only those that could have come within its reach.
@@ -543,6 +629,8 @@ struct Group {
     start: Vec<[f32; 3]>,
     moves: Vec<Moves>,
     most: Moves,
+    /// Per iteration t, the deepest into the halo box any of the group may be.
+    front: Vec<f64>,
 }
 
 impl Uncertain {
@@ -553,13 +641,11 @@ impl Uncertain {
         depth: impl Fn([f32; 3]) -> f64,
         iterations: usize,
     ) -> Uncertain {
-        let mut by_bound: std::collections::BTreeMap<i32, (Vec<[f32; 3]>, Vec<Moves>)> = Default::default();
+        type Members = (Vec<[f32; 3]>, Vec<Moves>, Vec<f64>);
+        let mut by_bound: std::collections::BTreeMap<i32, Members> = Default::default();
         let mut front = vec![f64::NEG_INFINITY; iterations + 1];
         for (x, m) in photons {
             let d = depth(x);
-            for (t, f) in front.iter_mut().enumerate() {
-                *f = f.max(d + m.after(t));
-            }
             let b = m.first.max(m.later);
             let key = if b.is_finite() && b > 0.0 {
                 b.log2().floor() as i32
@@ -568,13 +654,24 @@ impl Uncertain {
             } else {
                 i32::MIN
             };
-            let g = by_bound.entry(key).or_default();
+            let g = by_bound
+                .entry(key)
+                .or_insert_with(|| (Vec::new(), Vec::new(), vec![f64::NEG_INFINITY; iterations + 1]));
             g.0.push(x);
             g.1.push(m);
+            for (t, f) in g.2.iter_mut().enumerate() {
+                *f = f.max(d + m.after(t));
+            }
+        }
+        for g in by_bound.values() {
+            for (f, &g) in front.iter_mut().zip(&g.2) {
+                *f = f.max(g);
+            }
         }
         let groups = by_bound
             .into_values()
-            .map(|(start, moves)| Group {
+            .map(|(start, moves, front)| Group {
+                front,
                 tree: BoxTree::build(&start),
                 most: moves.iter().fold(Moves { first: 0.0, later: 0.0 }, |a, m| Moves {
                     first: a.first.max(m.first),
@@ -596,6 +693,9 @@ impl Uncertain {
             return true;
         }
         self.groups.iter().all(|g| {
+            if read < depth - g.front[t] {
+                return true;
+            }
             let reach = read + g.most.after(t);
             if !reach.is_finite() {
                 return false;
@@ -635,7 +735,7 @@ fn scaled(x: [f32; 3], s: f32) -> [f32; 3] {
 
 /// The depth of `x` (working units, positions scaled by `scale`) in `halo` (metres): its
 /// distance to the outside, negative outside, +∞ in a whole box.
-fn depth_in(halo: &HaloBox, x: [f32; 3], scale: f64) -> f64 {
+pub(crate) fn depth_in(halo: &HaloBox, x: [f32; 3], scale: f64) -> f64 {
     (0..2)
         .map(|k| {
             let v = x[halo.axes[k]] as f64;
@@ -647,14 +747,14 @@ fn depth_in(halo: &HaloBox, x: [f32; 3], scale: f64) -> f64 {
 /// How far a photon may move (working units): `first` in the first iteration, `later` in each
 /// one after it.
 #[derive(Clone, Copy, Debug)]
-struct Moves {
+pub(crate) struct Moves {
     first: f64,
     later: f64,
 }
 
 impl Moves {
     /// The farthest from where it started that the photon may be after `t` iterations.
-    fn after(&self, t: usize) -> f64 {
+    pub(crate) fn after(&self, t: usize) -> f64 {
         match t {
             0 => 0.0,
             1 => self.first,
@@ -713,7 +813,9 @@ pub(crate) fn move_bounds(shared: &TiledRun) -> Result<(Vec<f32>, f64), RelaxErr
     let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
     let h0 = 4.0 * extent * (setup.p.kf as f64 / (std::f64::consts::PI * n.max(1) as f64)).sqrt();
     for c in 0..tiling.len() {
-        let mut left = shared.by_tile[c].len();
+        let mut interior = shared.by_tile[c].photons.clone();
+        interior.par_sort_unstable();
+        let mut left = interior.len();
         let mut h = h0;
         let mut round = 0;
         while left > 0 {
@@ -721,14 +823,24 @@ pub(crate) fn move_bounds(shared: &TiledRun) -> Result<(Vec<f32>, f64), RelaxErr
             let halo = tiling.halo_box(c, if round >= MAX_ROUNDS { f64::INFINITY } else { h });
             let whole = halo.is_whole();
             let members = shared.members(&halo);
-            let columns = Columns::of(map, &members, setup)?;
+            let columns = Columns::for_search(map, &members, setup)?;
             // The first spacing does not depend on the return to the surface, which runs after
             // the step (its widening is in `bound`).
             let (first, read) = super::first_spacings(map, &columns, setup, &members)?;
-            for (k, &i) in members.iter().enumerate() {
+            // Each interior photon's bound found this round (NaN: none), written to the map's
+            // bounds in file order.
+            let mut found = vec![f32::NAN; interior.len()];
+            for (k, q) in places_in(&members, &interior).into_iter().enumerate() {
+                if let Some(q) = q
+                    && (read[k].is_finite() || whole)
+                {
+                    found[q] = rounded_up(bound(setup.p.step_limit, first[k], on_surface, slack));
+                }
+            }
+            for (&i, f) in interior.iter().zip(found) {
                 let b = &mut bounds[i as usize];
-                if b.is_nan() && tiling.tile_of(pos[i as usize]) == c && (read[k].is_finite() || whole) {
-                    *b = rounded_up(bound(setup.p.step_limit, first[k], on_surface, slack));
+                if b.is_nan() && !f.is_nan() {
+                    *b = f;
                     left -= 1;
                 }
             }

@@ -269,6 +269,55 @@ fn first_spacings_are_what_the_first_iteration_sets() {
     }
 }
 
+/// A tile run finds the photons of a halo box through the cells of each tile's grid as a scan
+/// of the map finds them: those in the box (in label order), and those outside it that can
+/// come within a reach of it in the run (by their move bounds), for 1×1, 2×2 and 3×3 tilings
+/// (tiles of one to nine cells) and halos from none to most of the map.
+#[test]
+fn halo_photons_found_through_cells_are_a_scans() {
+    use crate::relax::tiled::{TiledRun, depth_in};
+    use crate::spatial::order::locality_order;
+    let dir = tempfile::tempdir().unwrap();
+    let [detected, _] = phases(dir.path(), "cells", &crate::synthetic::collimated_cusp(20000, 48));
+    let map = detected.view();
+    let p = RelaxParams::default();
+    let pos = map.positions();
+    let order = locality_order(pos);
+    let setup = Setup::of(&map, &p, false).unwrap();
+    let scale = setup.scale as f64;
+    for grid in [[1, 1], [2, 2], [3, 3]] {
+        let tiling = Tiling::new(pos, grid);
+        let extent = tiling.axes.iter().map(|&a| (tiling.hi[a] - tiling.lo[a]) as f64).fold(0.0, f64::max);
+        let run = TiledRun::new(&map, &p, None, &tiling, None).unwrap();
+        let mut found = (0, 0);
+        for tile in 0..tiling.len() {
+            for h in [0.0, 0.02, 0.1, 0.5] {
+                let halo = tiling.halo_box(tile, h * extent);
+                let want: Vec<u32> =
+                    order.iter().copied().filter(|&i| halo.contains(pos[i as usize])).collect();
+                assert_eq!(run.members(&halo), want, "{grid:?}, tile {tile}, halo {h}");
+                for reach in [0.0, 0.01 * extent * scale] {
+                    let r = p.iterations;
+                    let key = |x: [f32; 3]| x.map(f32::to_bits);
+                    let mut got: Vec<_> = run.outside(&halo, r, reach).iter().map(|(x, _)| key(*x)).collect();
+                    let mut want: Vec<_> = (0..pos.len())
+                        .filter(|&i| !halo.contains(pos[i]))
+                        .map(|i| (pos[i].map(|v| v * setup.scale), run.moves()[i] as f64))
+                        .filter(|(x, b)| -depth_in(&halo, *x, scale) < r as f64 * b + reach)
+                        .map(|(x, _)| key(x))
+                        .collect();
+                    got.sort_unstable();
+                    want.sort_unstable();
+                    assert_eq!(got, want, "{grid:?}, tile {tile}, halo {h}, reach {reach}");
+                    found = (found.0 + want.len(), found.1 + (!want.is_empty()) as usize);
+                }
+            }
+        }
+        // (One tile's box holds the whole map: nothing is outside it.)
+        assert!(tiling.len() == 1 || found.1 > tiling.len(), "{grid:?}: {found:?}");
+    }
+}
+
 /// The move bounds a tile job computes tile by tile, against the whole map's relaxation (the
 /// oracle): no photon moves farther in any iteration than its bound, for 1×1, 2×2 and 3×3
 /// tilings; the bounds are finite, and a tiling's bounds are the untiled ones for most photons

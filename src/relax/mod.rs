@@ -434,6 +434,8 @@ impl Columns {
 pub(crate) struct Run {
     pub measures: Vec<IterationMeasure>,
     pub refused_moves: u64,
+    /// Each photon's refused moves (empty without a scene).
+    pub refused: Vec<u32>,
 }
 
 /// Algorithm 1's relax stage over `columns`: the iterations, each followed by
@@ -476,6 +478,7 @@ pub(crate) fn run(
     let (r_param, emitters, surfaces) = (r_param.as_deref(), emitters.as_deref(), surfaces.as_deref());
     let mut next = positions.clone();
     let mut refused_moves = 0u64;
+    let mut refused = vec![0u32; if scene.is_some() && surfaces.is_some() { positions.len() } else { 0 }];
     let mut scratch = Scratch::default();
     let mut measures = Vec::with_capacity(p.iterations);
     let mut index: Option<SpatialIndex> = None;
@@ -498,7 +501,7 @@ pub(crate) fn run(
             diffuse_flux(f, &search, p.kf, p.flux_diffusion);
         }
         if let (Some(scene), Some(surf), Some(ns)) = (scene, surfaces, normals.as_mut()) {
-            refused_moves += back_to_surfaces(scene, surf, positions, &mut next, ns);
+            refused_moves += back_to_surfaces(scene, surf, positions, &mut next, ns, &mut refused);
         }
         std::mem::swap(positions, &mut next);
         let scale = setup.scale as f64;
@@ -513,7 +516,7 @@ pub(crate) fn run(
             break;
         }
     }
-    Ok(Run { measures, refused_moves })
+    Ok(Run { measures, refused_moves, refused })
 }
 
 /// The photons as relaxation's searches in `space` see them: their positions, and where the

@@ -5,19 +5,22 @@ use glam::Vec3;
 use rayon::prelude::*;
 
 /// Returns every moved photon of `moved` to its surface, or back to `before` when its surface
-/// is not found; updates `normals`. Returns the number of refused moves.
+/// is not found; updates `normals`, and counts each photon's refused moves in `refused`.
+/// Returns the number of refused moves.
 pub(super) fn back_to_surfaces(
     scene: &crate::scene::Scene,
     surfaces: &[u32],
     before: &[[f32; 3]],
     moved: &mut [[f32; 3]],
     normals: &mut [[f32; 3]],
+    refused: &mut [u32],
 ) -> u64 {
     moved
         .par_iter_mut()
         .zip(normals.par_iter_mut())
+        .zip(refused.par_iter_mut())
         .enumerate()
-        .map(|(i, (x, n))| {
+        .map(|(i, ((x, n), refused))| {
             let (old, new) = (Vec3::from(before[i]), Vec3::from(*x));
             let step = old.distance(new);
             if step == 0.0 {
@@ -31,6 +34,7 @@ pub(super) fn back_to_surfaces(
                 }
                 None => {
                     *x = before[i];
+                    *refused += 1;
                     1
                 }
             }

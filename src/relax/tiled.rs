@@ -493,7 +493,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                 slot.iter().zip(&certified).any(|(s, &c)| s.is_some() && c)
             })?;
             let ran_all = t == r;
-            out.refused_moves += result.refused_moves;
+
             let moved = columns.unscaled_positions(setup);
             with_normals = columns.normals.is_some();
             for k in 0..members.len() {
@@ -502,6 +502,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                     && ran_all
                 {
                     out.positions[q] = moved[k];
+                    // The whole map's refused moves of this photon, as its run is the whole map's.
+                    out.refused_moves += result.refused.get(k).copied().unwrap_or(0) as u64;
                     if let Some(ns) = &columns.normals {
                         normals[q] = ns[k];
                     }

@@ -450,3 +450,31 @@ fn the_pipeline_under_a_memory_budget_makes_the_maps_and_image_it_makes_in_memor
     ]);
     assert!(!o.status.success() && stderr(&o).contains("--memory"), "{}", stderr(&o));
 }
+
+/// A relax run under a budget tells of the moves refused on a curved receiver as the whole
+/// map's run does: the count is of the map's photons' moves, not of every tile's halo as
+/// well. The reflector's caustic lands on curved surfaces, where some moves are refused.
+#[test]
+fn a_budgeted_relax_counts_the_refused_moves_the_whole_map_refuses() {
+    let dir = tempfile::tempdir().unwrap();
+    let path = |name: &str| dir.path().join(name).display().to_string();
+    let (traced, detected) = (path("traced.phm"), path("detected.phm"));
+    let scene = sample_path("scenes/reflector.toml").display().to_string();
+    run(&["trace", &scene, "--photons", "50000", "-o", &traced]);
+    run(&["detect", &traced, "-o", &detected]);
+    let refused = |extra: &[&str]| {
+        let mut args = vec!["relax", detected.as_str(), "-o"];
+        let out = path("relaxed.phm");
+        args.push(&out);
+        args.extend(extra);
+        let o = photonkit(&args);
+        assert!(o.status.success(), "{}", stderr(&o));
+        let note = stderr(&o).lines().find(|l| l.contains("moves were refused")).map(str::to_string);
+        (note, stderr(&o).contains(" tiles ("))
+    };
+    let (whole, tiled) =
+        (refused(&[]), refused(&["--memory", &(held_bytes("relax", &detected) + 4_000_000).to_string()]));
+    assert!(whole.0.is_some() && !whole.1, "{whole:?}");
+    assert!(tiled.1, "{tiled:?}");
+    assert_eq!(whole.0, tiled.0);
+}

@@ -394,9 +394,10 @@ impl Columns {
         if setup.scale != 1.0 {
             positions.iter_mut().flatten().for_each(|x| *x *= setup.scale);
         }
-        let surfaces = match search_only {
-            true => None,
-            false => pages.released(map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, work, 1))),
+        let surfaces = if search_only {
+            None
+        } else {
+            pages.released(map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, work, 1)))
         };
         let flux = pages
             .released((!search_only && setup.p.flux_diffusion > 0.0).then(|| permuted(map.flux(), work, 1)));

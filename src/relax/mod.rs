@@ -198,7 +198,7 @@ pub fn relax_map_on(
         constrained: columns.constrained(),
         measures: run.measures,
         normals: columns.normals.map(|n| unpermuted(&n, &order)),
-        refused_moves: run.refused_moves,
+        refused_moves: run.refused.iter().map(|&k| k as u64).sum(),
         flux: columns.flux.map(|f| unpermuted(&f, &order)),
     })
 }
@@ -434,7 +434,6 @@ impl Columns {
 /// What [`run`] reports besides the moved columns.
 pub(crate) struct Run {
     pub measures: Vec<IterationMeasure>,
-    pub refused_moves: u64,
     /// Each photon's refused moves (empty without a scene).
     pub refused: Vec<u32>,
 }
@@ -478,7 +477,6 @@ pub(crate) fn run(
     let params = params.as_ref().map(|(v, s)| (v.as_slice(), *s));
     let (r_param, emitters, surfaces) = (r_param.as_deref(), emitters.as_deref(), surfaces.as_deref());
     let mut next = positions.clone();
-    let mut refused_moves = 0u64;
     let mut refused = vec![0u32; if scene.is_some() && surfaces.is_some() { positions.len() } else { 0 }];
     let mut scratch = Scratch::default();
     let mut measures = Vec::with_capacity(p.iterations);
@@ -502,7 +500,7 @@ pub(crate) fn run(
             diffuse_flux(f, &search, p.kf, p.flux_diffusion);
         }
         if let (Some(scene), Some(surf), Some(ns)) = (scene, surfaces, normals.as_mut()) {
-            refused_moves += back_to_surfaces(scene, surf, positions, &mut next, ns, &mut refused);
+            back_to_surfaces(scene, surf, positions, &mut next, ns, &mut refused);
         }
         std::mem::swap(positions, &mut next);
         let scale = setup.scale as f64;
@@ -517,7 +515,7 @@ pub(crate) fn run(
             break;
         }
     }
-    Ok(Run { measures, refused_moves, refused })
+    Ok(Run { measures, refused })
 }
 
 /// The photons as relaxation's searches in `space` see them: their positions, and where the

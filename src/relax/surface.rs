@@ -6,7 +6,6 @@ use rayon::prelude::*;
 
 /// Returns every moved photon of `moved` to its surface, or back to `before` when its surface
 /// is not found; updates `normals`, and counts each photon's refused moves in `refused`.
-/// Returns the number of refused moves.
 pub(super) fn back_to_surfaces(
     scene: &crate::scene::Scene,
     surfaces: &[u32],
@@ -14,32 +13,26 @@ pub(super) fn back_to_surfaces(
     moved: &mut [[f32; 3]],
     normals: &mut [[f32; 3]],
     refused: &mut [u32],
-) -> u64 {
-    moved
-        .par_iter_mut()
-        .zip(normals.par_iter_mut())
-        .zip(refused.par_iter_mut())
-        .enumerate()
-        .map(|(i, ((x, n), refused))| {
+) {
+    moved.par_iter_mut().zip(normals.par_iter_mut()).zip(refused.par_iter_mut()).enumerate().for_each(
+        |(i, ((x, n), refused))| {
             let (old, new) = (Vec3::from(before[i]), Vec3::from(*x));
             let step = old.distance(new);
             if step == 0.0 {
-                return 0;
+                return;
             }
             match return_to_surface(scene, surfaces[i], new, Vec3::from(*n), step) {
                 Some((at, normal)) => {
                     *x = at.into();
                     *n = normal.into();
-                    0
                 }
                 None => {
                     *x = before[i];
                     *refused += 1;
-                    1
                 }
             }
-        })
-        .sum()
+        },
+    );
 }
 
 /// How far along its normal a moved photon's surface is searched, in steps: a tangent step of

@@ -257,10 +257,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         let pos = self.map.positions();
         let meets = |c: &Cell| (0..2).all(|k| c.lo[k] <= halo.hi[k] && c.hi[k] >= halo.lo[k]);
         let mut labels: Vec<u32> = self
-            .by_tile
-            .iter()
-            .flat_map(|t| t.cells.iter().filter(|c| meets(c)).map(|c| &t.photons[c.range.clone()]))
-            .collect::<Vec<&[u32]>>()
+            .cells_where(meets)
             .into_par_iter()
             .flat_map_iter(|photons| {
                 photons.iter().filter(|&&i| halo.contains(pos[i as usize])).map(|&i| self.label[i as usize])
@@ -268,6 +265,14 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             .collect();
         labels.par_sort_unstable();
         labels.into_iter().map(|l| self.order[l as usize]).collect()
+    }
+
+    /// The photons of every cell, of every tile, that `keep` keeps.
+    fn cells_where(&self, keep: impl Fn(&Cell) -> bool) -> Vec<&[u32]> {
+        self.by_tile
+            .iter()
+            .flat_map(|t| t.cells.iter().filter(|c| keep(c)).map(|c| &t.photons[c.range.clone()]))
+            .collect()
     }
 
     /// The photons outside `halo` that could come within `reach` (working units) of it in `r`
@@ -283,10 +288,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                     * scale;
             gap < r as f64 * c.most + reach
         };
-        self.by_tile
-            .iter()
-            .flat_map(|t| t.cells.iter().filter(|c| near(c)).map(|c| &t.photons[c.range.clone()]))
-            .collect::<Vec<&[u32]>>()
+        self.cells_where(near)
             .into_par_iter()
             .flat_map_iter(|photons| photons.iter().copied())
             .filter_map(|i| {
@@ -320,8 +322,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         let iterations = setup.p.iterations;
         let pos = map.positions();
         let n = pos.len();
-        let mut interior: Vec<u32> = self.by_tile[tile].photons.clone();
-        interior.par_sort_unstable();
+        let interior = self.by_tile[tile].ascending();
         let mut out = TileRelaxed { iterations, scale: setup.scale, ..Default::default() };
         if interior.is_empty() {
             return Ok(out);
@@ -493,7 +494,6 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                 slot.iter().zip(&certified).any(|(s, &c)| s.is_some() && c)
             })?;
             let ran_all = t == r;
-
             let moved = columns.unscaled_positions(setup);
             with_normals = columns.normals.is_some();
             for k in 0..members.len() {
@@ -548,16 +548,18 @@ impl TilePhotons {
     /// `axes`.
     fn of(photons: Vec<u32>, pos: &[[f32; 3]], axes: [usize; 2]) -> TilePhotons {
         let finite = |x: [f32; 3]| axes.iter().all(|&a| x[a].is_finite());
-        let (mut lo, mut hi) = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        for &i in &photons {
-            let x = pos[i as usize];
+        // A box in the tiled axes grown to hold `x` (if at a finite position).
+        let grow = |(lo, hi): &mut ([f64; 2], [f64; 2]), x: [f32; 3]| {
             if finite(x) {
                 for k in 0..2 {
                     lo[k] = lo[k].min(x[axes[k]] as f64);
                     hi[k] = hi[k].max(x[axes[k]] as f64);
                 }
             }
-        }
+        };
+        let mut whole = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
+        photons.iter().for_each(|&i| grow(&mut whole, pos[i as usize]));
+        let (lo, hi) = whole;
         let g = ((photons.len() as f64 / 4096.0).sqrt().ceil() as usize).clamp(1, 32);
         // Cell g·g holds the photons at no finite position.
         let cell_of = |x: [f32; 3]| {
@@ -571,20 +573,14 @@ impl TilePhotons {
             at(1) * g + at(0)
         };
         // Each photon's cell, and each cell's count and box.
-        let mut boxes = vec![(0usize, [f64::INFINITY; 2], [f64::NEG_INFINITY; 2]); g * g + 1];
+        let mut boxes = vec![(0usize, ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2])); g * g + 1];
         let cell: Vec<u32> = photons
             .iter()
             .map(|&i| {
                 let x = pos[i as usize];
                 let c = cell_of(x);
-                let b = &mut boxes[c];
-                b.0 += 1;
-                if finite(x) {
-                    for k in 0..2 {
-                        b.1[k] = b.1[k].min(x[axes[k]] as f64);
-                        b.2[k] = b.2[k].max(x[axes[k]] as f64);
-                    }
-                }
+                boxes[c].0 += 1;
+                grow(&mut boxes[c].1, x);
                 c as u32
             })
             .collect();
@@ -604,9 +600,16 @@ impl TilePhotons {
             .iter()
             .enumerate()
             .filter(|(_, b)| b.0 > 0)
-            .map(|(c, &(_, lo, hi))| Cell { lo, hi, most: 0.0, range: start[c]..start[c + 1] })
+            .map(|(c, &(_, (lo, hi)))| Cell { lo, hi, most: 0.0, range: start[c]..start[c + 1] })
             .collect();
         TilePhotons { photons: placed, cells }
+    }
+
+    /// The photons' indices in the map, ascending.
+    fn ascending(&self) -> Vec<u32> {
+        let mut v = self.photons.clone();
+        v.par_sort_unstable();
+        v
     }
 
     /// Each cell's most moved, from every photon's move bound (by index in the map).
@@ -622,8 +625,6 @@ impl TilePhotons {
 /// so a query visits, per group, only those that could have come within its reach.
 struct Uncertain {
     groups: Vec<Group>,
-    /// Per iteration t, the deepest into the halo box any of them may be (−∞: none).
-    front: Vec<f64>,
 }
 
 struct Group {
@@ -645,7 +646,6 @@ impl Uncertain {
     ) -> Uncertain {
         type Members = (Vec<[f32; 3]>, Vec<Moves>, Vec<f64>);
         let mut by_bound: std::collections::BTreeMap<i32, Members> = Default::default();
-        let mut front = vec![f64::NEG_INFINITY; iterations + 1];
         for (x, m) in photons {
             let d = depth(x);
             let b = m.first.max(m.later);
@@ -665,11 +665,6 @@ impl Uncertain {
                 *f = f.max(d + m.after(t));
             }
         }
-        for g in by_bound.values() {
-            for (f, &g) in front.iter_mut().zip(&g.2) {
-                *f = f.max(g);
-            }
-        }
         let groups = by_bound
             .into_values()
             .map(|(start, moves, front)| Group {
@@ -683,17 +678,14 @@ impl Uncertain {
                 moves,
             })
             .collect();
-        Uncertain { groups, front }
+        Uncertain { groups }
     }
 
     /// Whether none of these photons can be within `read` of `x` after `t` iterations: each
     /// lies farther from `x` than `read` plus the most it moves in `t` iterations.
     /// `depth` is x's depth in the halo box: when `read` stays inside the part of the box none
-    /// of them can have reached, no search is needed.
+    /// of a group can have reached, that group needs no search.
     fn clear_of(&self, x: [f32; 3], depth: f64, read: f64, t: usize) -> bool {
-        if read < depth - self.front[t] {
-            return true;
-        }
         self.groups.iter().all(|g| {
             if read < depth - g.front[t] {
                 return true;
@@ -815,8 +807,7 @@ pub(crate) fn move_bounds(shared: &TiledRun) -> Result<(Vec<f32>, f64), RelaxErr
     let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
     let h0 = 4.0 * extent * (setup.p.kf as f64 / (std::f64::consts::PI * n.max(1) as f64)).sqrt();
     for c in 0..tiling.len() {
-        let mut interior = shared.by_tile[c].photons.clone();
-        interior.par_sort_unstable();
+        let interior = shared.by_tile[c].ascending();
         let mut left = interior.len();
         let mut h = h0;
         let mut round = 0;

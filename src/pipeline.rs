@@ -216,7 +216,7 @@ fn relax_stage<'a>(
         cv(r.measures.len().saturating_sub(1))
     );
     let done = StageDone { stage, seconds, photons: input.len(), summary };
-    Ok((relax::relaxed_map(input, &r, &rp, seconds)?, done))
+    Ok((relax::relaxed_map(input, r, &rp, seconds)?, done))
 }
 
 #[cfg(test)]
@@ -264,7 +264,7 @@ mod tests {
             let relax_file = |map: &PhotonMap, n: usize, name: &str| {
                 let rp = RelaxParams { iterations: n, ..p.relax };
                 let r = relax::relax_map(&map.view(), &rp, |_| {}).unwrap();
-                let t = relax::relaxed_map(&map.view(), &r, &rp, 0.0).unwrap();
+                let t = relax::relaxed_map(&map.view(), r, &rp, 0.0).unwrap();
                 reopen(t, name)
             };
             if iterations[0] > 0 {

@@ -427,7 +427,7 @@ pub fn relax(
                 view.file_name()
             ));
         }
-        let table = photonkit::relax::relaxed_map(&view, &relaxed, &capped, t.elapsed().as_secs_f64())?;
+        let table = photonkit::relax::relaxed_map(&view, relaxed, &capped, t.elapsed().as_secs_f64())?;
         Ok((finish(table, output, "writing the relaxed map")?, told))
     })?;
     notes(py, &told)?;

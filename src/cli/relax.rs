@@ -190,7 +190,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         RelaxSpace::World if map.meta().state == State::Collapsed => "world space (collapsed)",
         RelaxSpace::World => "world space",
     };
-    relax::relaxed_map(&map.view(), &relaxed, &p, seconds)?
+    relax::relaxed_map(&map.view(), relaxed, &p, seconds)?
         .write(Output::parse(&a.output))
         .context("writing the relaxed map")?;
     super::note!(

@@ -143,6 +143,7 @@ pub enum RelaxSpace {
 }
 
 /// The outcome of relaxing a map: new positions and what each iteration did.
+#[derive(Clone)]
 pub struct Relaxed {
     /// The relaxed positions, in the map's photon order, metres.
     pub positions: Vec<[f32; 3]>,
@@ -630,10 +631,11 @@ pub const MAX_ITERATION_RECORDS: usize = 1000;
 
 /// `map` with its positions replaced by `relaxed` (and its normals and flux, where relaxation
 /// changed them), every other column carried through (borrowed), and a stage record holding
-/// the parameters and the per-iteration measures.
+/// the parameters and the per-iteration measures. The relaxed vectors move into the table
+/// (a relaxed map is not held twice while it is written).
 pub fn relaxed_map<'a>(
     map: &crate::format::MapView<'a>,
-    relaxed: &Relaxed,
+    relaxed: Relaxed,
     p: &RelaxParams,
     seconds: f64,
 ) -> Result<crate::format::PhotonTable<'a>, RelaxError> {
@@ -659,14 +661,14 @@ pub fn relaxed_map<'a>(
     });
     info.history.push(rec);
     let mut table = PhotonTable::carrying(map, info);
-    table.set(name::POSITION, &relaxed.positions)?;
-    if let Some(n) = &relaxed.normals
+    table.set_vec(name::POSITION, relaxed.positions)?;
+    if let Some(n) = relaxed.normals
         && map.spec(name::NORMAL).is_some()
     {
-        table.set(name::NORMAL, n)?;
+        table.set_vec(name::NORMAL, n)?;
     }
-    if let Some(f) = &relaxed.flux {
-        table.set(name::FLUX, f)?;
+    if let Some(f) = relaxed.flux {
+        table.set_vec(name::FLUX, f)?;
     }
     Ok(table)
 }

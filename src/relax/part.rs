@@ -200,5 +200,5 @@ pub fn merge_parts<'a>(
         .collect();
     let relaxed = Relaxed { positions, space, constrained, measures, normals, refused_moves, flux: None };
     let seconds = infos.iter().map(|i| i.seconds).sum();
-    Ok((relaxed_map(map, &relaxed, &p, seconds)?, relaxed))
+    Ok((relaxed_map(map, relaxed.clone(), &p, seconds)?, relaxed))
 }

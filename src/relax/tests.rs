@@ -349,7 +349,7 @@ fn relax_to(
 ) -> crate::format::PhotonMap {
     let r = relax_map(&map.view(), p, |_| {}).unwrap();
     let path = dir.join(file);
-    relaxed_map(&map.view(), &r, p, 0.0).unwrap().write(crate::format::Output::Path(path.clone())).unwrap();
+    relaxed_map(&map.view(), r, p, 0.0).unwrap().write(crate::format::Output::Path(path.clone())).unwrap();
     crate::format::PhotonMap::open_path(&path).unwrap()
 }
 

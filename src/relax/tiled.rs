@@ -140,7 +140,10 @@ pub fn relax_tiled(
     let (space, constrained) = space_of(map, &shared.setup);
     let r = shared.setup.p.iterations;
     let scale = shared.setup.scale as f64;
+    // The copies' pages in the map are released as soon as they are read: resident, they would
+    // count twice against the memory budget.
     let mut positions = map.positions().to_vec();
+    map.release_pages();
     let mut normals: Option<Vec<[f32; 3]>> = None;
     let mut sums = vec![super::MeasureSums::default(); r];
     let mut refused_moves = 0;
@@ -149,10 +152,14 @@ pub fn relax_tiled(
         if let Some(ns) = &part.normals {
             let all = match &mut normals {
                 Some(all) => all,
-                None => normals.insert(match map.column::<[f32; 3]>(name::NORMAL)? {
-                    Some(c) => c.to_vec(),
-                    None => vec![[0.0; 3]; map.len()],
-                }),
+                None => {
+                    let copied = match map.column::<[f32; 3]>(name::NORMAL)? {
+                        Some(c) => c.to_vec(),
+                        None => vec![[0.0; 3]; map.len()],
+                    };
+                    map.release_pages();
+                    normals.insert(copied)
+                }
             };
             for (&i, &n) in part.indices.iter().zip(ns) {
                 all[i as usize] = n;

@@ -70,7 +70,10 @@ fn pipeline(scene: &Scene, photons: u64, dir: &Path, mode: Mode) -> Run {
     let relax_stage = |input: &str, output: &str| {
         let map = PhotonMap::open_path(&file(input)).unwrap();
         let r = relax::relax_map_on(&map.view(), &rp, Some(scene), |_| {}).expect("relax");
-        relax::relaxed_map(&map.view(), &r, &rp, 0.0).unwrap().write(Output::Path(file(output))).unwrap();
+        relax::relaxed_map(&map.view(), r.clone(), &rp, 0.0)
+            .unwrap()
+            .write(Output::Path(file(output)))
+            .unwrap();
         let out = PhotonMap::open_path(&file(output)).unwrap();
         assert!(all_finite(out.positions()), "{output}: a position is not finite");
         assert!(r.measures.iter().all(|m| m.local_nn_cv.is_finite() || out.len() < 2), "{output}");

@@ -147,7 +147,7 @@ fn the_window_applies_only_to_wavelengths_and_must_be_a_length() {
     {
         let r = relax_map(&map.view(), &p, |_| {}).unwrap();
         assert_eq!(r.space, space);
-        let table = relaxed_map(&map.view(), &r, &p, 0.0).unwrap();
+        let table = relaxed_map(&map.view(), r, &p, 0.0).unwrap();
         let recorded = &table.view().info().history.last().unwrap().parameters;
         assert_eq!(recorded.get("spectral_window").and_then(|w| w.as_f64()), window, "{space:?}");
         assert_eq!(recorded["kf"], 16);

@@ -213,19 +213,33 @@ struct Permuted {
 }
 
 impl Permuted {
-    /// `input`'s photons `order[0], order[1], …`.
-    fn of(input: &DetectInput, order: &[u32], method: Method) -> Permuted {
-        use crate::spatial::order::permuted;
-        // Each column's pages are released once it is copied ([`crate::format::Pages::released`]).
-        let pages = input.pages;
+    /// `input`'s photons `order[0], order[1], …`; with `within`, the photons
+    /// `rows[within[0]], rows[within[1]], …` of `rows` (ascending), copied from the file in
+    /// blocks whose pages are released as they are read ([`crate::format::Pages::gather_rows`]:
+    /// a tile's photons lie all over the file).
+    fn of(input: &DetectInput, rows: &[u32], within: Option<&[u32]>, method: Method) -> Permuted {
+        fn copy<T: bytemuck::Pod + Default + Send + Sync>(
+            input: &DetectInput,
+            v: &[T],
+            stride: usize,
+            rows: &[u32],
+            within: Option<&[u32]>,
+        ) -> Vec<T> {
+            use crate::spatial::order::permuted;
+            match within {
+                Some(order) => permuted(&input.pages.gather_rows(v, stride, rows), order, stride),
+                // Each column's pages are released once it is copied.
+                None => input.pages.released(permuted(v, rows, stride)),
+            }
+        }
+        let (r, w) = (rows, within);
         Permuted {
-            positions: pages.released(permuted(input.positions, order, 1)),
-            normals: pages.released(input.normals.map(|v| permuted(v, order, 1))),
+            positions: copy(input, input.positions, 1, r, w),
+            normals: input.normals.map(|v| copy(input, v, 1, r, w)),
             // Only the gradient method weighs neighbours by their flux.
-            flux: pages
-                .released(input.flux.filter(|_| method == Method::Gradient).map(|v| permuted(v, order, 1))),
-            emitters: pages.released(input.emitters.map(|v| permuted(v, order, 1))),
-            values: pages.released(input.params.map(|c| permuted(c.values, order, c.stride))),
+            flux: input.flux.filter(|_| method == Method::Gradient).map(|v| copy(input, v, 1, r, w)),
+            emitters: input.emitters.map(|v| copy(input, v, 1, r, w)),
+            values: input.params.map(|c| copy(input, c.values, c.stride, r, w)),
         }
     }
 
@@ -411,7 +425,7 @@ pub fn detect(
     check_params(p)?;
     let p = &p.capped(input.positions.len());
     let order = locality_order(input.positions);
-    let columns = Permuted::of(input, &order, p.method);
+    let columns = Permuted::of(input, &order, None, p.method);
     input.pages.release();
     let sorted = columns.input(input);
     let (d, factors, outcomes) = detect_in_order(&sorted, p, progress).map_err(|e| match e {

@@ -179,26 +179,29 @@ pub(super) fn detect_tile_with(
             _ => None,
         };
         let member =
-            |i: u32| halo.contains(pos[i as usize]) && near.as_ref().is_none_or(|f| f.admits(i as usize));
-        // The same photons either way, ascending: from the tiles the box meets, or the map.
+            |i: u32, x: [f32; 3]| halo.contains(x) && near.as_ref().is_none_or(|f| f.admits(i as usize));
+        // The same photons either way, ascending: from the tiles the box meets (their positions
+        // gathered in blocks released as read), or the map.
         let meeting = shared.map(|s| (s, tiling.tiles_meeting(&halo)));
         let members: Vec<u32> = match meeting {
             Some((s, tiles)) if tiles.len() < tiling.len() => {
-                let mut m: Vec<u32> = tiles
-                    .par_iter()
-                    .flat_map_iter(|&t| s.buckets.tile(t).iter().copied().filter(|&i| member(i)))
-                    .collect();
+                let mut m: Vec<u32> = Vec::new();
+                for &t in &tiles {
+                    let bucket = s.buckets.tile(t);
+                    let at = input.pages.gather(pos, bucket);
+                    m.par_extend(bucket.par_iter().zip(at).filter(|&(&i, x)| member(i, x)).map(|(&i, _)| i));
+                }
                 m.par_sort_unstable();
                 m
             }
-            _ => (0..n as u32).into_par_iter().filter(|&i| member(i)).collect(),
+            _ => (0..n as u32).into_par_iter().filter(|&i| member(i, pos[i as usize])).collect(),
         };
         // Choosing the members read their positions (and parameters) across the file.
         input.pages.release();
         out.working_set = out.working_set.max(members.len());
         out.per_round.push([pending.len(), members.len()]);
         // Labelled as the whole map labels them: Z-order on the map's box, ties by file index.
-        let local = locality_order_in(&permuted(pos, &members, 1), tiling.lo, tiling.hi);
+        let local = locality_order_in(&input.pages.gather(pos, &members), tiling.lo, tiling.hi);
         let work: Vec<u32> = local.iter().map(|&k| members[k as usize]).collect();
         let mut label_of_member = vec![0u32; members.len()];
         for (label, &k) in local.iter().enumerate() {
@@ -207,7 +210,7 @@ pub(super) fn detect_tile_with(
         let label = |g: u32| {
             members.binary_search(&g).map(|k| label_of_member[k]).expect("interior photons are members")
         };
-        let columns = Permuted::of(input, &work, p.method);
+        let columns = Permuted::of(input, &members, Some(&local), p.method);
         input.pages.release();
         let sorted = columns.input(input);
         let (points, index) = world_index(&sorted, p.method, normals_ok)?;
@@ -422,6 +425,9 @@ impl ParamBox {
     }
 }
 
+/// Photons per stretch of [`tile_radius`]'s scan of the whole map's parameters.
+const SCAN: usize = 1 << 20;
+
 /// Eq. 1's r_param of each photon of `interior` (file indices of `input`), exactly as
 /// [`super::param_radius`] over the whole map gives it: the k nearest in parameter space are
 /// searched among the photons of the emitter whose parameters lie in the interior's box grown
@@ -468,19 +474,26 @@ fn tile_radius(
             pending.iter().for_each(|&q| a[points.emitter(interior[q] as usize) as usize] = true);
             a
         };
-        let members: Vec<u32> = (0..points.len() as u32)
-            .into_par_iter()
-            .filter(|&j| {
+        let pages = input.pages;
+        // The scan reads every photon's parameters a stretch at a time, each stretch's pages
+        // released once read; the gathers copy the members' rows in blocks released as read.
+        let mut members: Vec<u32> = Vec::new();
+        for start in (0..points.len()).step_by(SCAN) {
+            let end = (start + SCAN).min(points.len());
+            members.par_extend((start as u32..end as u32).into_par_iter().filter(|&j| {
                 let e = points.emitter(j as usize) as usize;
                 active[e] && boxes[e].contains(points.params_of(j as usize))
-            })
-            .collect();
-        let pages = input.pages;
-        // The scan read every photon's parameters; the gathers read one column at a time.
-        pages.release();
-        let positions = pages.released(permuted(input.positions, &members, 1));
-        let values = pages.released(permuted(column.values, &members, column.stride));
-        let emitters = pages.released(input.emitters.map(|e| permuted(e, &members, 1)));
+            }));
+            pages.release_range(bytemuck::cast_slice(
+                &column.values[start * column.stride..end * column.stride],
+            ));
+            if let Some(e) = input.emitters {
+                pages.release_range(bytemuck::cast_slice(&e[start..end]));
+            }
+        }
+        let positions = pages.gather(input.positions, &members);
+        let values = pages.gather_rows(column.values, column.stride, &members);
+        let emitters = input.emitters.map(|e| pages.gather(e, &members));
         let sub = PointSet {
             positions: &positions,
             params: Some(ParamColumn { values: &values, ..column }),
@@ -529,6 +542,8 @@ fn tile_radius(
                 next.push(q);
             }
         }
+        // The certificates read the interior photons' parameters across the file.
+        pages.release();
         next.sort_unstable();
         pending = next;
         scale *= 2.0;

@@ -298,20 +298,42 @@ impl Pages<'_> {
     /// blocks' pages resident, where copying first and releasing after would hold every page
     /// it touched (for a scattered tile, nearly all of the column).
     pub fn gather<T: bytemuck::Pod + Default + Send + Sync>(&self, column: &[T], indices: &[u32]) -> Vec<T> {
+        self.gather_rows(column, 1, indices)
+    }
+
+    /// [`Self::gather`] of rows of `stride` elements: `column[i·stride..(i + 1)·stride]` for
+    /// each of `indices` (ascending), one after another.
+    pub fn gather_rows<T: bytemuck::Pod + Default + Send + Sync>(
+        &self,
+        column: &[T],
+        stride: usize,
+        indices: &[u32],
+    ) -> Vec<T> {
         use rayon::prelude::*;
-        let mut out = vec![T::default(); indices.len()];
-        out.par_chunks_mut(GATHER_BLOCK).zip(indices.par_chunks(GATHER_BLOCK)).for_each(|(out, ix)| {
-            for (o, &i) in out.iter_mut().zip(ix) {
-                *o = column[i as usize];
-            }
-            if let (Some(&a), Some(&b)) = (ix.first(), ix.last())
-                && a <= b
-            {
-                // A page fault maps its neighbours too (the kernel's fault-around, 64 KiB), so
-                // a block's faults map pages of the blocks beside it: release them with it.
-                self.release_around(bytemuck::cast_slice(&column[a as usize..=b as usize]), FAULT_AROUND);
-            }
-        });
+        let stride = stride.max(1);
+        let mut out = vec![T::default(); indices.len() * stride];
+        out.par_chunks_mut(GATHER_BLOCK * stride).zip(indices.par_chunks(GATHER_BLOCK)).for_each(
+            |(out, ix)| {
+                if stride == 1 {
+                    // One element a row: a plain copy (a slice copy of one element calls memmove).
+                    for (o, &i) in out.iter_mut().zip(ix) {
+                        *o = column[i as usize];
+                    }
+                } else {
+                    for (o, &i) in out.chunks_exact_mut(stride).zip(ix) {
+                        o.copy_from_slice(&column[i as usize * stride..][..stride]);
+                    }
+                }
+                if let (Some(&a), Some(&b)) = (ix.first(), ix.last())
+                    && a <= b
+                {
+                    // A page fault maps its neighbours too (the kernel's fault-around, 64 KiB), so
+                    // a block's faults map pages of the blocks beside it: release them with it.
+                    let span = &column[a as usize * stride..(b as usize + 1) * stride];
+                    self.release_around(bytemuck::cast_slice(span), FAULT_AROUND);
+                }
+            },
+        );
         out
     }
 }

@@ -392,6 +392,35 @@ mod tests {
         PhotonTable::new("t", info, &pos, &[[1.0; 3], [2.0; 3]]).unwrap()
     }
 
+    /// Rows gathered from a mapped file in blocks (each block's pages released once copied)
+    /// are the rows a plain indexing gives, for one element a row and for several, for no
+    /// index, a few, most and every one.
+    #[test]
+    fn gathered_rows_are_the_indexed_rows() {
+        let n = 30_000usize;
+        let info = MapInfo::new(vec![crate::synthetic::collimated_emitter(0, 1.0)], State::Traced);
+        let pos: Vec<[f32; 3]> = (0..n).map(|i| [i as f32, (i * 7 % 13) as f32, -(i as f32)]).collect();
+        let mut t = PhotonTable::new("t", info, &pos, &vec![[1.0; 3]; n]).unwrap();
+        let rows: Vec<f32> = (0..2 * n).map(|k| k as f32 * 0.5).collect();
+        t.set_flat("test_rows", 2, &rows).unwrap();
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("g.phm");
+        t.write(Output::Path(path.clone())).unwrap();
+        let map = PhotonMap::open_path(&path).unwrap();
+        let v = map.view();
+        let pages = v.pages();
+        let column: &[f32] = bytemuck::cast_slice(v.column_bytes("test_rows").unwrap());
+        for every in [usize::MAX, 997, 3, 1] {
+            let idx: Vec<u32> =
+                (0..n as u32).filter(|&i| every != usize::MAX && i as usize % every == 0).collect();
+            let want_pos: Vec<[f32; 3]> = idx.iter().map(|&i| pos[i as usize]).collect();
+            let want_rows: Vec<f32> =
+                idx.iter().flat_map(|&i| [rows[2 * i as usize], rows[2 * i as usize + 1]]).collect();
+            assert_eq!(pages.gather(v.positions(), &idx), want_pos, "every {every}");
+            assert_eq!(pages.gather_rows(column, 2, &idx), want_rows, "every {every}");
+        }
+    }
+
     /// A table written and read back is the same map, and a stage's table carried from the
     /// read map borrows its columns, replaces one in place and appends another.
     #[test]

@@ -241,7 +241,28 @@ impl Tiling {
     /// axis at the ny-quantiles of that column's photons (module docs). A pure function of the
     /// positions: every job that reads the same map computes the same tiling.
     pub fn new(positions: &[[f32; 3]], grid: [usize; 2]) -> Self {
-        let (lo, hi) = crate::spatial::order::finite_bounds(positions);
+        Self::new_releasing(positions, grid, crate::format::Pages::default())
+    }
+
+    /// [`Self::new`] over `positions`, a column of the mapped file of `pages`, read a stretch at a
+    /// time and each stretch's pages released once read: the same tiling, without the whole
+    /// column resident (a render under `--memory` cuts its map after recording its lookups).
+    pub fn new_releasing(positions: &[[f32; 3]], grid: [usize; 2], pages: crate::format::Pages) -> Self {
+        Self::cut(positions, grid, pages, 1 << 20)
+    }
+
+    /// [`Self::new_releasing`] reading `stretch` photons at a time.
+    fn cut(positions: &[[f32; 3]], grid: [usize; 2], pages: crate::format::Pages, stretch: usize) -> Self {
+        let stretches = || positions.chunks(stretch.max(1));
+        let release = |s: &[[f32; 3]]| pages.release_range(bytemuck::cast_slice(s));
+        let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+        for s in stretches() {
+            let (l, h) = crate::spatial::order::finite_bounds(s);
+            for a in 0..3 {
+                (lo[a], hi[a]) = (lo[a].min(l[a]), hi[a].max(h[a]));
+            }
+            release(s);
+        }
         let extent = |a: usize| {
             let e = hi[a] as f64 - lo[a] as f64;
             if e.is_finite() { e.max(0.0) } else { 0.0 }
@@ -252,13 +273,21 @@ impl Tiling {
         let axes = [axes[0], axes[1]];
         let counts = [grid[0].max(1), grid[1].max(1)];
         let (ax, ay) = (axes[0], axes[1]);
-        let mut xs: Vec<f32> = positions.iter().filter(|x| finite(x)).map(|x| x[ax]).collect();
+        // The quantiles do not depend on the order the coordinates are taken in.
+        let mut xs: Vec<f32> = Vec::new();
+        for s in stretches() {
+            xs.extend(s.iter().filter(|x| finite(x)).map(|x| x[ax]));
+            release(s);
+        }
         let columns = quantile_borders(&mut xs, counts[0], lo[ax], hi[ax]);
         drop(xs);
         let mut per_column: Vec<Vec<f32>> = vec![Vec::new(); counts[0]];
         if counts[1] > 1 {
-            for x in positions.iter().filter(|x| finite(x)) {
-                per_column[cell_in(&columns, x[ax])].push(x[ay]);
+            for s in stretches() {
+                for x in s.iter().filter(|x| finite(x)) {
+                    per_column[cell_in(&columns, x[ax])].push(x[ay]);
+                }
+                release(s);
             }
         }
         let rows = per_column.iter_mut().map(|ys| quantile_borders(ys, counts[1], lo[ay], hi[ay])).collect();
@@ -729,6 +758,29 @@ mod tests {
             }
             pos.reverse();
             assert_eq!(Tiling::new(&pos, grid), t);
+        }
+    }
+
+    /// A tiling cut from positions read a stretch at a time is the one cut from all of them at
+    /// once, whatever the stretch (bounds, quantiles and rows gathered across stretches), with
+    /// non-finite positions among them.
+    #[test]
+    fn a_tiling_read_in_stretches_is_the_whole_reads() {
+        let mut pos: Vec<[f32; 3]> = (0..5000)
+            .map(|i| [(i * 37 % 1009) as f32, (i * 101 % 499) as f32 * 0.5, (i % 7) as f32])
+            .collect();
+        pos[17] = [f32::NAN, 0.0, 0.0];
+        pos[4321] = [1.0, f32::INFINITY, 2.0];
+        for grid in [[1, 1], [2, 1], [3, 3], [4, 5]] {
+            let whole = Tiling::cut(&pos, grid, crate::format::Pages::default(), usize::MAX);
+            for stretch in [1, 7, 1000, 4999] {
+                assert_eq!(
+                    Tiling::cut(&pos, grid, crate::format::Pages::default(), stretch),
+                    whole,
+                    "{grid:?}, {stretch}"
+                );
+            }
+            assert_eq!(Tiling::new(&pos, grid), whole);
         }
     }
 

@@ -311,8 +311,7 @@ pub fn render_map_within(
     let plan =
         super::tiled::plan(&demand, budget).map_err(|needed| RenderError::Budget { budget, needed })?;
     let grid = crate::tiles::TileSpec { index: 0, count: plan.tiles }.grid();
-    let tiling = crate::tiles::Tiling::new(map.positions(), grid);
-    map.release_pages();
+    let tiling = crate::tiles::Tiling::new_releasing(map.positions(), grid, map.pages());
     let streamed = super::tiled::StreamedMap::new(map, file, tiling)?;
     let caustic = streamed.estimate(&lookups, knn, plan.chunks, &|p| progress(Progress::Estimate(p)))?;
     drop((lookups, streamed));

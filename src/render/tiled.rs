@@ -107,13 +107,16 @@ pub fn whole_fits(d: &Demand, budget: u64) -> bool {
 /// plan takes the fewest chunks whose tiling ([`crate::tiles::tiles_for_budget`]) has at most
 /// [`MAX_TILES_PER_PASS`] tiles, or failing that the one with the fewest tiles (measured on
 /// the 10⁷ water under 600M: one pass in 1 406 tiles took 28 s, two passes in 6 tiles 6 s).
-/// The peak is the largest of three phases: recording the lookups (64 bytes each while they
-/// are collected), the estimate (the lookups as recorded, up to 48 bytes each with their
+/// The peak is the largest of four phases: recording the lookups (64 bytes each while they
+/// are collected), cutting the map into tiles (8 bytes a photon besides the lookups), the estimate (the lookups as recorded, up to 48 bytes each with their
 /// vectors' slack, their estimates, a chunk's search state and copy, the photons' order and
 /// one tile), and the image (the estimates and the image).
 pub fn plan(d: &Demand, budget: u64) -> Result<Plan, u64> {
     let lookups = d.lookups as u64;
-    let image = (d.baseline + 12 * lookups + d.image_bytes).max(d.baseline + 64 * lookups);
+    // Recording the lookups, and cutting the map into tiles while they are held (each finite
+    // photon's two coordinates: [`Tiling::new_releasing`]), then the image.
+    let cutting = d.baseline + 60 * lookups + 8 * d.photons as u64;
+    let image = (d.baseline + 12 * lookups + d.image_bytes).max(d.baseline + 64 * lookups).max(cutting);
     let fixed = d.baseline + 60 * lookups;
     let per = lookup_bytes(d.k) + 24;
     let most = d.lookups.div_ceil(MIN_CHUNK_LOOKUPS).max(1);
@@ -229,27 +232,37 @@ impl<'m> StreamedMap<'m> {
         if positions.is_empty() {
             return Err(RenderError::EmptyMap { file: file.to_string() });
         }
-        if let Some(i) = positions.par_iter().position_first(|x| !x.iter().all(|c| c.is_finite())) {
-            return Err(RenderError::NonFinite {
-                file: file.to_string(),
-                column: "position".into(),
-                index: i as u64,
-            });
-        }
-        // A counting sort, stable: each tile's photons in file order.
+        // The positions are read a stretch at a time, each stretch's pages released once read
+        // (all resident at once, they would count against the memory budget).
+        const STRETCH: usize = SAMPLE_EVERY << 14;
+        let pages = map.pages();
         let tiles = tiling.len();
-        let tile: Vec<u32> = positions.par_iter().map(|x| tiling.tile_of(*x) as u32).collect();
+        let mut tile: Vec<u32> = Vec::with_capacity(positions.len());
         let mut start = vec![0usize; tiles + 1];
         let mut boxes = vec![([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]); tiles];
-        for (&t, x) in tile.iter().zip(positions) {
-            start[t as usize + 1] += 1;
-            let (lo, hi) = &mut boxes[t as usize];
-            for a in 0..3 {
-                lo[a] = lo[a].min(x[a]);
-                hi[a] = hi[a].max(x[a]);
+        // Every SAMPLE_EVERY-th photon (a stretch starts at a multiple of it).
+        let mut sample: Vec<[f32; 3]> = Vec::new();
+        for (k, s) in positions.chunks(STRETCH).enumerate() {
+            if let Some(i) = s.par_iter().position_first(|x| !x.iter().all(|c| c.is_finite())) {
+                return Err(RenderError::NonFinite {
+                    file: file.to_string(),
+                    column: "position".into(),
+                    index: (k * STRETCH + i) as u64,
+                });
             }
+            tile.par_extend(s.par_iter().map(|x| tiling.tile_of(*x) as u32));
+            for (&t, x) in tile[k * STRETCH..].iter().zip(s) {
+                start[t as usize + 1] += 1;
+                let (lo, hi) = &mut boxes[t as usize];
+                for a in 0..3 {
+                    lo[a] = lo[a].min(x[a]);
+                    hi[a] = hi[a].max(x[a]);
+                }
+            }
+            sample.extend(s.iter().step_by(SAMPLE_EVERY).copied());
+            pages.release_range(bytemuck::cast_slice(s));
         }
-        map.release_pages();
+        // A counting sort, stable: each tile's photons in file order.
         for t in 0..tiles {
             start[t + 1] += start[t];
         }
@@ -259,8 +272,6 @@ impl<'m> StreamedMap<'m> {
             by_tile[next[t as usize]] = i as u32;
             next[t as usize] += 1;
         }
-        let sample: Vec<[f32; 3]> = positions.iter().step_by(SAMPLE_EVERY).copied().collect();
-        map.release_pages();
         let sample = BoxTree::build(&sample);
         Ok(StreamedMap { map, file: file.to_string(), tiling, by_tile, start, boxes, sample })
     }

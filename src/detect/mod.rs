@@ -213,10 +213,10 @@ struct Permuted {
 }
 
 impl Permuted {
-    /// `input`'s photons `order[0], order[1], …`; with `within`, the photons
-    /// `rows[within[0]], rows[within[1]], …` of `rows` (ascending), copied from the file in
-    /// blocks whose pages are released as they are read ([`crate::format::Pages::gather_rows`]:
-    /// a tile's photons lie all over the file).
+    /// `input`'s photons `rows[0], rows[1], …`, each column's pages released once it is copied;
+    /// with `within`, `rows` ascending and the photons `rows[within[0]], rows[within[1]], …`,
+    /// copied from the file in blocks whose pages are released as they are read
+    /// ([`crate::format::Pages::gather_rows`]: a tile's photons lie all over the file).
     fn of(input: &DetectInput, rows: &[u32], within: Option<&[u32]>, method: Method) -> Permuted {
         fn copy<T: bytemuck::Pod + Default + Send + Sync>(
             input: &DetectInput,
@@ -228,7 +228,6 @@ impl Permuted {
             use crate::spatial::order::permuted;
             match within {
                 Some(order) => permuted(&input.pages.gather_rows(v, stride, rows), order, stride),
-                // Each column's pages are released once it is copied.
                 None => input.pages.released(permuted(v, rows, stride)),
             }
         }

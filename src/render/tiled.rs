@@ -108,9 +108,10 @@ pub fn whole_fits(d: &Demand, budget: u64) -> bool {
 /// [`MAX_TILES_PER_PASS`] tiles, or failing that the one with the fewest tiles (measured on
 /// the 10⁷ water under 600M: one pass in 1 406 tiles took 28 s, two passes in 6 tiles 6 s).
 /// The peak is the largest of four phases: recording the lookups (64 bytes each while they
-/// are collected), cutting the map into tiles (8 bytes a photon besides the lookups), the estimate (the lookups as recorded, up to 48 bytes each with their
-/// vectors' slack, their estimates, a chunk's search state and copy, the photons' order and
-/// one tile), and the image (the estimates and the image).
+/// are collected), cutting the map into tiles (8 bytes a photon besides the lookups), the
+/// estimate (the lookups as recorded, up to 48 bytes each with their vectors' slack, their
+/// estimates, a chunk's search state and copy, the photons' order and one tile), and the
+/// image (the estimates and the image).
 pub fn plan(d: &Demand, budget: u64) -> Result<Plan, u64> {
     let lookups = d.lookups as u64;
     // Recording the lookups, and cutting the map into tiles while they are held (each finite

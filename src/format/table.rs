@@ -411,8 +411,9 @@ mod tests {
         let pages = v.pages();
         let column: &[f32] = bytemuck::cast_slice(v.column_bytes("test_rows").unwrap());
         for every in [usize::MAX, 997, 3, 1] {
-            let idx: Vec<u32> =
-                (0..n as u32).filter(|&i| every != usize::MAX && i as usize % every == 0).collect();
+            let idx: Vec<u32> = (0..n as u32)
+                .filter(|&i| every != usize::MAX && (i as usize).is_multiple_of(every))
+                .collect();
             let want_pos: Vec<[f32; 3]> = idx.iter().map(|&i| pos[i as usize]).collect();
             let want_rows: Vec<f32> =
                 idx.iter().flat_map(|&i| [rows[2 * i as usize], rows[2 * i as usize + 1]]).collect();

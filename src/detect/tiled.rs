@@ -180,28 +180,33 @@ pub(super) fn detect_tile_with(
         };
         let member =
             |i: u32, x: [f32; 3]| halo.contains(x) && near.as_ref().is_none_or(|f| f.admits(i as usize));
-        // The same photons either way, ascending: from the tiles the box meets (their positions
-        // gathered in blocks released as read), or the map.
+        // The same photons either way, ascending, with their positions: from the tiles the box
+        // meets (their positions gathered in blocks released as read), or the map.
         let meeting = shared.map(|s| (s, tiling.tiles_meeting(&halo)));
-        let members: Vec<u32> = match meeting {
+        let (members, at): (Vec<u32>, Vec<[f32; 3]>) = match meeting {
             Some((s, tiles)) if tiles.len() < tiling.len() => {
-                let mut m: Vec<u32> = Vec::new();
+                let mut m: Vec<(u32, [f32; 3])> = Vec::new();
                 for &t in &tiles {
                     let bucket = s.buckets.tile(t);
                     let at = input.pages.gather(pos, bucket);
-                    m.par_extend(bucket.par_iter().zip(at).filter(|&(&i, x)| member(i, x)).map(|(&i, _)| i));
+                    m.par_extend(bucket.par_iter().copied().zip(at).filter(|&(i, x)| member(i, x)));
                 }
-                m.par_sort_unstable();
-                m
+                m.par_sort_unstable_by_key(|&(i, _)| i);
+                m.into_iter().unzip()
             }
-            _ => (0..n as u32).into_par_iter().filter(|&i| member(i, pos[i as usize])).collect(),
+            _ => (0..n as u32)
+                .into_par_iter()
+                .map(|i| (i, pos[i as usize]))
+                .filter(|&(i, x)| member(i, x))
+                .unzip(),
         };
         // Choosing the members read their positions (and parameters) across the file.
         input.pages.release();
         out.working_set = out.working_set.max(members.len());
         out.per_round.push([pending.len(), members.len()]);
         // Labelled as the whole map labels them: Z-order on the map's box, ties by file index.
-        let local = locality_order_in(&input.pages.gather(pos, &members), tiling.lo, tiling.hi);
+        let local = locality_order_in(&at, tiling.lo, tiling.hi);
+        drop(at);
         let work: Vec<u32> = local.iter().map(|&k| members[k as usize]).collect();
         let mut label_of_member = vec![0u32; members.len()];
         for (label, &k) in local.iter().enumerate() {

@@ -236,14 +236,12 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         for (l, &i) in order.iter().enumerate() {
             label[i as usize] = l as u32;
         }
-        let tile_of: Vec<u32> = pos.par_iter().map(|&x| tiling.tile_of(x) as u32).collect();
-        let mut ascending = vec![Vec::new(); tiling.len()];
-        for (i, &t) in tile_of.iter().enumerate() {
-            ascending[t as usize].push(i as u32);
-        }
-        drop(tile_of);
-        let by_tile =
-            ascending.into_par_iter().map(|photons| TilePhotons::of(photons, pos, tiling.axes)).collect();
+        let buckets = tiling.buckets(pos);
+        let by_tile = (0..tiling.len())
+            .into_par_iter()
+            .map(|t| TilePhotons::of(buckets.tile(t), pos, tiling.axes))
+            .collect();
+        drop(buckets);
         map.release_pages();
         let mut run =
             TiledRun { map, setup, scene, tiling, order, label, by_tile, moves: Vec::new(), slack: 0.0 };
@@ -553,7 +551,7 @@ struct Cell {
 impl TilePhotons {
     /// `photons` (ascending indices of the map, positions `pos`) put in cells over the tiled
     /// `axes`.
-    fn of(photons: Vec<u32>, pos: &[[f32; 3]], axes: [usize; 2]) -> TilePhotons {
+    fn of(photons: &[u32], pos: &[[f32; 3]], axes: [usize; 2]) -> TilePhotons {
         let finite = |x: [f32; 3]| axes.iter().all(|&a| x[a].is_finite());
         // A box in the tiled axes grown to hold `x` (if at a finite position).
         let grow = |(lo, hi): &mut ([f64; 2], [f64; 2]), x: [f32; 3]| {

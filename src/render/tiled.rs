@@ -114,11 +114,14 @@ pub fn whole_fits(d: &Demand, budget: u64) -> bool {
 /// image (the estimates and the image).
 pub fn plan(d: &Demand, budget: u64) -> Result<Plan, u64> {
     let lookups = d.lookups as u64;
-    // Recording the lookups, and cutting the map into tiles while they are held (each finite
-    // photon's two coordinates: [`Tiling::new_releasing`]), then the image.
-    let cutting = d.baseline + 60 * lookups + 8 * d.photons as u64;
-    let image = (d.baseline + 12 * lookups + d.image_bytes).max(d.baseline + 64 * lookups).max(cutting);
+    // What the estimate holds whatever the chunks: the lookups as recorded.
     let fixed = d.baseline + 60 * lookups;
+    // The phases around the estimate: recording the lookups, cutting the map into tiles while
+    // they are held (each finite photon's two coordinates: [`Tiling::new_releasing`]), and the
+    // image.
+    let around = (d.baseline + 64 * lookups)
+        .max(fixed + 8 * d.photons as u64)
+        .max(d.baseline + 12 * lookups + d.image_bytes);
     let per = lookup_bytes(d.k) + 24;
     let most = d.lookups.div_ceil(MIN_CHUNK_LOOKUPS).max(1);
     let mut chunks = 1;
@@ -136,7 +139,7 @@ pub fn plan(d: &Demand, budget: u64) -> Result<Plan, u64> {
                     fitted = Some(p);
                 }
             }
-            Err(needed) if chunks >= most && fitted.is_none() => return Err((needed + held).max(image)),
+            Err(needed) if chunks >= most && fitted.is_none() => return Err((needed + held).max(around)),
             Err(_) => {}
         }
         if chunks >= most {
@@ -146,7 +149,7 @@ pub fn plan(d: &Demand, budget: u64) -> Result<Plan, u64> {
         chunks = (chunks * 2).min(most);
     }
     match fitted {
-        Some(_) if image > budget => Err(image),
+        Some(_) if around > budget => Err(around),
         Some(p) => Ok(p),
         None => unreachable!("the loop returns when no chunking fits"),
     }

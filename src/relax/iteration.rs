@@ -176,11 +176,9 @@ impl IterationMeasure {
     /// The measures of iteration `iteration` from each photon's nearest-neighbour distance,
     /// its ratio to r_K (NaN: none) and its step length, in any order ([`MeasureSums`]).
     pub fn of(iteration: usize, nn: &[f32], ratio: &[f32], step: &[f32]) -> IterationMeasure {
-        let mut sums = MeasureSums::default();
-        for ((&d, &q), &l) in nn.iter().zip(ratio).zip(step) {
-            sums.add(d, q, l);
-        }
-        sums.measure(iteration)
+        let mut sums = vec![MeasureSums::default()];
+        MeasureSums::add_series(&mut sums, nn, ratio, step);
+        sums[0].measure(iteration)
     }
 }
 
@@ -214,6 +212,34 @@ impl MeasureSums {
         self.step.add(step as f64);
         self.max_step = self.max_step.max(step);
         self.on_another += usize::from(nn == 0.0);
+    }
+
+    /// Adds photons' series to `sums`, one per iteration: `nn`, `ratio` and `step` hold
+    /// `sums.len()` values per photon (photon-major), added in parallel stretches of photons
+    /// (the sums do not depend on the order).
+    pub fn add_series(sums: &mut [MeasureSums], nn: &[f32], ratio: &[f32], step: &[f32]) {
+        let r = sums.len();
+        if r == 0 {
+            return;
+        }
+        let stretch = r * (1 << 16);
+        let parts: Vec<Vec<MeasureSums>> = nn
+            .par_chunks(stretch)
+            .zip(ratio.par_chunks(stretch))
+            .zip(step.par_chunks(stretch))
+            .map(|((nn, ratio), step)| {
+                let mut part = vec![MeasureSums::default(); r];
+                for (k, ((&d, &q), &l)) in nn.iter().zip(ratio).zip(step).enumerate() {
+                    part[k % r].add(d, q, l);
+                }
+                part
+            })
+            .collect();
+        for part in &parts {
+            for (sum, p) in sums.iter_mut().zip(part) {
+                sum.merge(p);
+            }
+        }
     }
 
     /// Adds another set of photons' sums.

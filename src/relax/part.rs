@@ -178,10 +178,8 @@ pub fn merge_parts<'a>(
                         .map_or_else(|| vec![[0.0; 3]; n], <[_]>::to_vec)
                 })[i] = ns[k];
             }
-            for (t, sum) in sums.iter_mut().enumerate() {
-                sum.add(pn[k * r + t], pr[k * r + t], ps[k * r + t]);
-            }
         }
+        MeasureSums::add_series(&mut sums, pn, pr, ps);
     }
     if let Some(i) = seen.iter().position(|s| !s) {
         return Err(bad(map.file_name(), format!("photon {i} is in no tile")));

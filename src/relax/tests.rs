@@ -137,6 +137,30 @@ fn exact_sums_do_not_depend_on_order_or_split() {
     assert_eq!(b.measure(1), whole);
 }
 
+/// Per-iteration sums of photon-major series, added in parallel stretches, against each
+/// iteration's values added one by one (three iterations, photons over two stretches).
+#[test]
+fn series_sums_are_each_iterations_sums() {
+    let r = 3;
+    let n = 70_001;
+    let value =
+        |k: usize, salt: u64| ((k as u64).wrapping_mul(0x9e37_79b9_7f4a_7c15 ^ salt) >> 40) as f32 * 1e-3;
+    let nn: Vec<f32> = (0..n * r).map(|k| if k % 97 == 0 { 0.0 } else { value(k, 1) }).collect();
+    let ratio: Vec<f32> = (0..n * r).map(|k| if k % 5 == 0 { f32::NAN } else { value(k, 2) }).collect();
+    let step: Vec<f32> = (0..n * r).map(|k| value(k, 3)).collect();
+    let mut sums = vec![MeasureSums::default(); r];
+    MeasureSums::add_series(&mut sums, &nn, &ratio, &step);
+    for (t, sum) in sums.iter().enumerate() {
+        let mut one = MeasureSums::default();
+        for k in 0..n {
+            one.add(nn[k * r + t], ratio[k * r + t], step[k * r + t]);
+        }
+        assert_eq!(sum.measure(t), one.measure(t), "iteration {t}");
+        assert!(one.measure(t).nn_cv > 0.0 && one.measure(t).separated > 0);
+    }
+    assert_ne!(sums[0].measure(0), sums[1].measure(0));
+}
+
 /// k nearest by brute force, ties broken by index.
 struct BruteForce<'a>(&'a [[f32; 3]]);
 

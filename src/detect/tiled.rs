@@ -82,7 +82,8 @@ pub fn detect_tile(
 /// parameter range over the whole map, and the whole map's checks. Without it every tile scans
 /// the whole map for these (a tile job, [`detect_tile`], reads the map once anyway).
 pub(super) struct Shared {
-    buckets: crate::tiles::Buckets,
+    /// Each tile's photons, in cells.
+    tiles: Vec<crate::tiles::TilePhotons>,
     ranges: Option<Vec<Range>>,
     normals_ok: bool,
 }
@@ -91,9 +92,9 @@ impl Shared {
     /// The tiles of `tiling` over `input`'s photons, checked for `p` ([`checked`]).
     pub(super) fn new(input: &DetectInput, tiling: &Tiling, p: &DetectParams) -> Result<Self, DetectError> {
         let normals_ok = checked(input, p)?;
-        let buckets = tiling.buckets(input.positions);
+        let tiles = tiling.tile_photons(input.positions);
         let ranges = input.params.map(|_| ranges(&input.points(true), None));
-        Ok(Shared { buckets, ranges, normals_ok })
+        Ok(Shared { tiles, ranges, normals_ok })
     }
 }
 
@@ -153,7 +154,7 @@ pub(super) fn detect_tile_with(
     };
     let pos = input.positions;
     let interior: Vec<u32> = match shared {
-        Some(s) => s.buckets.tile(tile).to_vec(),
+        Some(s) => s.tiles[tile].ascending(),
         None => (0..n as u32).into_par_iter().filter(|&i| tiling.tile_of(pos[i as usize]) == tile).collect(),
     };
     let mut out = TileDetection { r_param: param_search.then(Vec::new), ..Default::default() };
@@ -180,19 +181,19 @@ pub(super) fn detect_tile_with(
         };
         let member =
             |i: u32, x: [f32; 3]| halo.contains(x) && near.as_ref().is_none_or(|f| f.admits(i as usize));
-        // The same photons either way, ascending, with their positions: from the tiles the box
-        // meets (their positions gathered in blocks released as read), or the map.
+        // The same photons either way, ascending, with their positions: from the cells near the
+        // box of the tiles it meets (their positions gathered in blocks released as read), or
+        // the map.
         let meeting = shared.map(|s| (s, tiling.tiles_meeting(&halo)));
         let (members, at): (Vec<u32>, Vec<[f32; 3]>) = match meeting {
             Some((s, tiles)) if tiles.len() < tiling.len() => {
-                let mut m: Vec<(u32, [f32; 3])> = Vec::new();
-                for &t in &tiles {
-                    let bucket = s.buckets.tile(t);
-                    let at = input.pages.gather(pos, bucket);
-                    m.par_extend(bucket.par_iter().copied().zip(at).filter(|&(i, x)| member(i, x)));
-                }
-                m.par_sort_unstable_by_key(|&(i, _)| i);
-                m.into_iter().unzip()
+                // One gather of them all in file order (a gather per cell would read from all
+                // over the file for each).
+                let mut near: Vec<u32> =
+                    tiles.iter().flat_map(|&t| s.tiles[t].near(&halo)).flatten().copied().collect();
+                near.par_sort_unstable();
+                let at = input.pages.gather(pos, &near);
+                near.into_par_iter().zip(at).filter(|&(i, x)| member(i, x)).unzip()
             }
             _ => (0..n as u32)
                 .into_par_iter()
@@ -525,15 +526,16 @@ fn tile_radius(
                 let mut nb = Neighbours::farthest_only(k);
                 qs.iter()
                     .map(|&(_, l, q)| {
-                        let g = interior[q];
+                        // The photon's values from the gathered copy (the map's pages are
+                        // released).
                         index.knn(&sub.query(l, None), k, &mut nb);
-                        let b = &boxes[points.emitter(g as usize) as usize];
+                        let b = &boxes[sub.emitter(l) as usize];
                         let certified = b.is_whole()
                             || !opts.certify
                             || (nb.len() == k
-                                && nb.max_dist2().is_some_and(|d2| {
-                                    within_margin(d2, b.margin(points.params_of(g as usize)))
-                                }));
+                                && nb
+                                    .max_dist2()
+                                    .is_some_and(|d2| within_margin(d2, b.margin(sub.params_of(l)))));
                         (q, radius_of(&nb, p.kc, p.beta), certified)
                     })
                     .collect::<Vec<_>>()

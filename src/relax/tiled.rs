@@ -19,7 +19,7 @@ use super::{Columns, MapWide, RelaxError, RelaxParams, RelaxSpace, Setup, run};
 use crate::format::MapView;
 use crate::spatial::BoxTree;
 use crate::spatial::order::locality_order;
-use crate::tiles::{HaloBox, Tiling};
+use crate::tiles::{HaloBox, TileCell, TilePhotons, Tiling};
 
 /// The relaxation of one tile's interior photons, in file order, with what the whole map's
 /// per-iteration report needs of each ([`super::merge_parts`] puts tiles together).
@@ -167,10 +167,8 @@ pub fn relax_tiled(
         }
         for (k, &i) in part.indices.iter().enumerate() {
             positions[i as usize] = part.positions[k];
-            for (u, sum) in sums.iter_mut().enumerate() {
-                sum.add(part.nn[k * r + u], part.ratio[k * r + u], part.step[k * r + u]);
-            }
         }
+        super::MeasureSums::add_series(&mut sums, &part.nn, &part.ratio, &part.step);
         refused_moves += part.refused_moves;
         on_tile(t, tiling.len(), &part);
     }
@@ -203,6 +201,9 @@ pub struct TiledRun<'r, 'm> {
     label: Vec<u32>,
     /// Per tile, its photons in the cells of a grid over them.
     by_tile: Vec<TilePhotons>,
+    /// Per tile and cell, the most any of the cell's photons moves in one iteration (working
+    /// units), from their move bounds.
+    most: Vec<Vec<f64>>,
     /// Per photon (by index in the map), the most it moves in one iteration ([`move_bounds`]),
     /// working units.
     moves: Vec<f32>,
@@ -236,22 +237,27 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         for (l, &i) in order.iter().enumerate() {
             label[i as usize] = l as u32;
         }
-        let buckets = tiling.buckets(pos);
-        let by_tile = (0..tiling.len())
-            .into_par_iter()
-            .map(|t| TilePhotons::of(buckets.tile(t), pos, tiling.axes))
-            .collect();
-        drop(buckets);
+        let by_tile = tiling.tile_photons(pos);
         map.release_pages();
-        let mut run =
-            TiledRun { map, setup, scene, tiling, order, label, by_tile, moves: Vec::new(), slack: 0.0 };
+        let mut run = TiledRun {
+            map,
+            setup,
+            scene,
+            tiling,
+            order,
+            label,
+            by_tile,
+            most: Vec::new(),
+            moves: Vec::new(),
+            slack: 0.0,
+        };
         let wanted = only.map_or(n, |t| run.by_tile.get(t).map_or(0, |c| c.photons.len()));
         if wanted == 0 {
             // Checked as the whole map is, so a tile fails where the whole map fails.
             Columns::of(map, &[], &run.setup)?;
         } else if run.setup.p.iterations > 0 {
             let (moves, slack) = move_bounds(&run)?;
-            run.by_tile.par_iter_mut().for_each(|c| c.bound_moves(&moves));
+            run.most = run.by_tile.par_iter().map(|t| most_moved(t, &moves)).collect();
             (run.moves, run.slack) = (moves, slack);
         }
         Ok(run)
@@ -260,9 +266,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
     /// The file indices of the photons in `halo`, in label order.
     pub(crate) fn members(&self, halo: &HaloBox) -> Vec<u32> {
         let pos = self.map.positions();
-        let meets = |c: &Cell| (0..2).all(|k| c.lo[k] <= halo.hi[k] && c.hi[k] >= halo.lo[k]);
         let mut labels: Vec<u32> = self
-            .cells_where(meets)
+            .cells_where(|c, _| c.meets(halo))
             .into_par_iter()
             .flat_map_iter(|photons| {
                 photons.iter().filter(|&&i| halo.contains(pos[i as usize])).map(|&i| self.label[i as usize])
@@ -273,10 +278,22 @@ impl<'r, 'm> TiledRun<'r, 'm> {
     }
 
     /// The photons of every cell, of every tile, that `keep` keeps.
-    fn cells_where(&self, keep: impl Fn(&Cell) -> bool) -> Vec<&[u32]> {
+    /// (`keep` sees a cell and the most any of its photons moves in one iteration, 0 before
+    /// the move bounds are known.)
+    fn cells_where(&self, keep: impl Fn(&TileCell, f64) -> bool) -> Vec<&[u32]> {
+        let keep = &keep;
         self.by_tile
             .iter()
-            .flat_map(|t| t.cells.iter().filter(|c| keep(c)).map(|c| &t.photons[c.range.clone()]))
+            .enumerate()
+            .flat_map(|(t, photons)| {
+                let most = self.most.get(t);
+                photons
+                    .cells
+                    .iter()
+                    .enumerate()
+                    .filter(move |&(c, cell)| keep(cell, most.map_or(0.0, |m| m[c])))
+                    .map(|(_, cell)| photons.of_cell(cell))
+            })
             .collect()
     }
 
@@ -287,11 +304,11 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         let scale = self.setup.scale as f64;
         // A cell whose nearest photon lies farther outside the box (working units) than the most
         // any of its photons moves in the run plus the reach holds none that can come within it.
-        let near = |c: &Cell| {
+        let near = |c: &TileCell, most: f64| {
             let gap =
                 (0..2).map(|k| (halo.lo[k] - c.hi[k]).max(c.lo[k] - halo.hi[k]).max(0.0)).fold(0.0, f64::max)
                     * scale;
-            gap < r as f64 * c.most + reach
+            gap < r as f64 * most + reach
         };
         self.cells_where(near)
             .into_par_iter()
@@ -528,101 +545,13 @@ impl<'r, 'm> TiledRun<'r, 'm> {
     }
 }
 
-/// One tile's photons, in the cells of a grid over their box (about 4096 photons a cell, at
-/// most 32 × 32 cells), so that a scan for the photons near a halo reads only the cells near
-/// it.
-struct TilePhotons {
-    /// The photons' indices in the map, cell by cell, ascending within each cell (a cell's scan
-    /// reads the map's columns in file order).
-    photons: Vec<u32>,
-    cells: Vec<Cell>,
-}
-
-/// A cell of a [`TilePhotons`]: the box of its photons' positions in the two tiled axes
-/// (metres; empty, lo > hi, for photons not at a finite position), the most any of them moves
-/// in one iteration (working units), and where its photons are.
-struct Cell {
-    lo: [f64; 2],
-    hi: [f64; 2],
-    most: f64,
-    range: std::ops::Range<usize>,
-}
-
-impl TilePhotons {
-    /// `photons` (ascending indices of the map, positions `pos`) put in cells over the tiled
-    /// `axes`.
-    fn of(photons: &[u32], pos: &[[f32; 3]], axes: [usize; 2]) -> TilePhotons {
-        let finite = |x: [f32; 3]| axes.iter().all(|&a| x[a].is_finite());
-        // A box in the tiled axes grown to hold `x` (if at a finite position).
-        let grow = |(lo, hi): &mut ([f64; 2], [f64; 2]), x: [f32; 3]| {
-            if finite(x) {
-                for k in 0..2 {
-                    lo[k] = lo[k].min(x[axes[k]] as f64);
-                    hi[k] = hi[k].max(x[axes[k]] as f64);
-                }
-            }
-        };
-        let mut whole = ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2]);
-        photons.iter().for_each(|&i| grow(&mut whole, pos[i as usize]));
-        let (lo, hi) = whole;
-        let g = ((photons.len() as f64 / 4096.0).sqrt().ceil() as usize).clamp(1, 32);
-        // Cell g·g holds the photons at no finite position.
-        let cell_of = |x: [f32; 3]| {
-            if !finite(x) {
-                return g * g;
-            }
-            let at = |k: usize| {
-                let w = hi[k] - lo[k];
-                if w > 0.0 { (((x[axes[k]] as f64 - lo[k]) / w * g as f64) as usize).min(g - 1) } else { 0 }
-            };
-            at(1) * g + at(0)
-        };
-        // Each photon's cell, and each cell's count and box.
-        let mut boxes = vec![(0usize, ([f64::INFINITY; 2], [f64::NEG_INFINITY; 2])); g * g + 1];
-        let cell: Vec<u32> = photons
-            .iter()
-            .map(|&i| {
-                let x = pos[i as usize];
-                let c = cell_of(x);
-                boxes[c].0 += 1;
-                grow(&mut boxes[c].1, x);
-                c as u32
-            })
-            .collect();
-        // Where each cell's photons start; a stable placement keeps them ascending.
-        let mut start = Vec::with_capacity(boxes.len() + 1);
-        start.push(0);
-        for b in &boxes {
-            start.push(start.last().copied().unwrap_or(0) + b.0);
-        }
-        let mut next = start.clone();
-        let mut placed = vec![0u32; photons.len()];
-        for (&i, &c) in photons.iter().zip(&cell) {
-            placed[next[c as usize]] = i;
-            next[c as usize] += 1;
-        }
-        let cells = boxes
-            .iter()
-            .enumerate()
-            .filter(|(_, b)| b.0 > 0)
-            .map(|(c, &(_, (lo, hi)))| Cell { lo, hi, most: 0.0, range: start[c]..start[c + 1] })
-            .collect();
-        TilePhotons { photons: placed, cells }
-    }
-
-    /// The photons' indices in the map, ascending.
-    fn ascending(&self) -> Vec<u32> {
-        let mut v = self.photons.clone();
-        v.par_sort_unstable();
-        v
-    }
-
-    /// Each cell's most moved, from every photon's move bound (by index in the map).
-    fn bound_moves(&mut self, moves: &[f32]) {
-        for c in &mut self.cells {
-            c.most = self.photons[c.range.clone()].iter().fold(0f64, |m, &i| m.max(moves[i as usize] as f64));
-        }
-    }
+/// Per cell of `tile`, the most any of its photons moves in one iteration, from every photon's
+/// move bound (by index in the map).
+fn most_moved(tile: &TilePhotons, moves: &[f32]) -> Vec<f64> {
+    tile.cells
+        .iter()
+        .map(|c| tile.of_cell(c).iter().fold(0f64, |m, &i| m.max(moves[i as usize] as f64)))
+        .collect()
 }
 
 /// Photons whose position at an iteration may differ from the whole map's: where each started

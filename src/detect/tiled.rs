@@ -525,7 +525,11 @@ fn tile_radius(
             .flat_map_iter(|qs| {
                 let mut nb = Neighbours::farthest_only(k);
                 qs.iter()
-                    .map(|&(_, l, q)| {
+                    .enumerate()
+                    .map(|(o, &(_, l, q))| {
+                        if let Some(&(_, a, _)) = qs.get(o + crate::spatial::PREFETCH_AHEAD) {
+                            sub.prefetch(a);
+                        }
                         // The photon's values from the gathered copy (the map's pages are
                         // released).
                         index.knn(&sub.query(l, None), k, &mut nb);

@@ -311,9 +311,21 @@ impl Columns {
         use crate::spatial::order::permuted;
         let input = |message: String| RelaxError::Input { file: map.file_name().to_string(), message };
         let meta = map.info();
-        // Each column is copied, then its pages in the map released ([`crate::format::Pages::released`]).
         let pages = map.pages();
-        let sorted = |column: Option<&[[f32; 3]]>| pages.released(column.map(|c| permuted(c, work, 1)));
+        // A tile's photons lie all over the file: each column is copied in file order, in blocks
+        // whose pages are released as read ([`crate::format::Pages::gather_rows`]), and put in
+        // `work`'s order in memory.
+        let (rows, within) = file_order(work);
+        fn copy<T: bytemuck::Pod + Default + Send + Sync>(
+            pages: &crate::format::Pages,
+            v: &[T],
+            stride: usize,
+            rows: &[u32],
+            within: &[u32],
+        ) -> Vec<T> {
+            permuted(&pages.gather_rows(v, stride, rows), within, stride)
+        }
+        let sorted = |column: Option<&[[f32; 3]]>| column.map(|c| copy(&pages, c, 1, &rows, &within));
         // A search reads the basis only where it marks the photons held in the spectral window.
         let wanted = |column: &str| {
             !search_only || column == name::BASIS_V && setup.space == RelaxSpace::WorldSpectral
@@ -334,7 +346,7 @@ impl Columns {
         // r_param restricts only the parameter-space phase.
         let r_param = match setup.space {
             RelaxSpace::WorldParams => {
-                pages.released(map.column::<f32>(name::R_PARAM)?.map(|r| permuted(r, work, 1)))
+                map.column::<f32>(name::R_PARAM)?.map(|r| copy(&pages, r, 1, &rows, &within))
             }
             RelaxSpace::World | RelaxSpace::WorldSpectral => None,
         };
@@ -351,12 +363,12 @@ impl Columns {
                         stride * map.len()
                     )));
                 }
-                Some(pages.released((permuted(values, work, stride), stride)))
+                Some((copy(&pages, values, stride, &rows, &within), stride))
             }
             None => None,
         };
         let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
-        let emitters = pages.released(map.column::<u16>(name::EMITTER)?.map(|e| permuted(e, work, 1)));
+        let emitters = map.column::<u16>(name::EMITTER)?.map(|e| copy(&pages, e, 1, &rows, &within));
         // A wavelength component enters distances with the scale detect gave it (the one its
         // r_param was measured in; docs/spectral.md).
         let (params, r_param, dims) = match (params, meta.param_scales()) {
@@ -391,17 +403,17 @@ impl Columns {
             }
             (p, _) => (p, r_param, dims),
         };
-        let mut positions = pages.released(permuted(map.positions(), work, 1));
+        let mut positions = copy(&pages, map.positions(), 1, &rows, &within);
         if setup.scale != 1.0 {
             positions.iter_mut().flatten().for_each(|x| *x *= setup.scale);
         }
         let surfaces = if search_only {
             None
         } else {
-            pages.released(map.column::<u32>(name::SURFACE)?.map(|s| permuted(s, work, 1)))
+            map.column::<u32>(name::SURFACE)?.map(|s| copy(&pages, s, 1, &rows, &within))
         };
-        let flux = pages
-            .released((!search_only && setup.p.flux_diffusion > 0.0).then(|| permuted(map.flux(), work, 1)));
+        let flux = (!search_only && setup.p.flux_diffusion > 0.0)
+            .then(|| copy(&pages, map.flux(), 1, &rows, &within));
         Ok(Columns {
             positions,
             basis_u,
@@ -613,6 +625,19 @@ pub(crate) fn first_spacings(
         (first[i as usize], read[i as usize]) = (f, r);
     }
     Ok((first, read))
+}
+
+/// `work`'s photons (file indices, distinct) in file order, and where each of `work` is among
+/// them: `work[k] == rows[within[k]]`.
+fn file_order(work: &[u32]) -> (Vec<u32>, Vec<u32>) {
+    use rayon::prelude::*;
+    let mut by_index: Vec<(u32, u32)> = work.iter().enumerate().map(|(k, &i)| (i, k as u32)).collect();
+    by_index.par_sort_unstable();
+    let mut within = vec![0u32; work.len()];
+    for (q, &(_, k)) in by_index.iter().enumerate() {
+        within[k as usize] = q as u32;
+    }
+    (by_index.into_iter().map(|(i, _)| i).collect(), within)
 }
 
 /// The power of two relax scales `positions` by so that their largest coordinate lies within

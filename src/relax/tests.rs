@@ -740,3 +740,24 @@ fn a_return_to_a_surface_stays_within_its_reach() {
 
 mod spectral;
 mod tiles;
+
+/// A tile's photons put in file order, with where each is among them, against a search.
+#[test]
+fn file_order_places_every_photon() {
+    let work: Vec<u32> = (0..5000u32).map(|k| (k.wrapping_mul(2_654_435_761) >> 7) % 100_000).collect();
+    let mut distinct = work.clone();
+    distinct.sort_unstable();
+    distinct.dedup();
+    // Distinct photons in a scattered order, as a tile's labels give them.
+    let work: Vec<u32> = {
+        let mut seen = std::collections::HashSet::new();
+        work.into_iter().filter(|i| seen.insert(*i)).collect()
+    };
+    let (rows, within) = super::file_order(&work);
+    assert_eq!(rows, distinct);
+    for (k, &i) in work.iter().enumerate() {
+        assert_eq!(rows[within[k] as usize], i, "photon {k}");
+    }
+    assert!(work.windows(2).any(|w| w[0] > w[1]), "the test's order is not already ascending");
+    assert_eq!(super::file_order(&[]), (vec![], vec![]));
+}

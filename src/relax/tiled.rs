@@ -265,16 +265,25 @@ impl<'r, 'm> TiledRun<'r, 'm> {
 
     /// The file indices of the photons in `halo`, in label order.
     pub(crate) fn members(&self, halo: &HaloBox) -> Vec<u32> {
-        let pos = self.map.positions();
         let mut labels: Vec<u32> = self
-            .cells_where(|c, _| c.meets(halo))
+            .near_cells(|c, _| c.meets(halo))
             .into_par_iter()
-            .flat_map_iter(|photons| {
-                photons.iter().filter(|&&i| halo.contains(pos[i as usize])).map(|&i| self.label[i as usize])
-            })
+            .filter(|&(_, x)| halo.contains(x))
+            .map(|(i, _)| self.label[i as usize])
             .collect();
         labels.par_sort_unstable();
         labels.into_iter().map(|l| self.order[l as usize]).collect()
+    }
+
+    /// The photons of the cells `keep` keeps ([`Self::cells_where`]) with their positions, in
+    /// file order: one gather in blocks whose pages are released as read (a tile's cells hold
+    /// photons from all over the file, and read cell by cell they would map every page of the
+    /// positions at once).
+    fn near_cells(&self, keep: impl Fn(&TileCell, f64) -> bool) -> Vec<(u32, [f32; 3])> {
+        let mut near: Vec<u32> = self.cells_where(keep).into_iter().flatten().copied().collect();
+        near.par_sort_unstable();
+        let at = self.map.pages().gather(self.map.positions(), &near);
+        near.into_iter().zip(at).collect()
     }
 
     /// The photons of every cell, of every tile, that `keep` keeps.
@@ -300,7 +309,6 @@ impl<'r, 'm> TiledRun<'r, 'm> {
     /// The photons outside `halo` that could come within `reach` (working units) of it in `r`
     /// iterations, with where they start (working units) and their move bounds.
     pub(crate) fn outside(&self, halo: &HaloBox, r: usize, reach: f64) -> Vec<([f32; 3], Moves)> {
-        let pos = self.map.positions();
         let scale = self.setup.scale as f64;
         // A cell whose nearest photon lies farther outside the box (working units) than the most
         // any of its photons moves in the run plus the reach holds none that can come within it.
@@ -310,11 +318,9 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                     * scale;
             gap < r as f64 * most + reach
         };
-        self.cells_where(near)
+        self.near_cells(near)
             .into_par_iter()
-            .flat_map_iter(|photons| photons.iter().copied())
-            .filter_map(|i| {
-                let x = pos[i as usize];
+            .filter_map(|(i, x)| {
                 if halo.contains(x) {
                     return None;
                 }
@@ -422,6 +428,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                     .flatten()
                     .collect();
                 members = members.iter().zip(&keep).filter(|(_, k)| **k).map(|(&i, _)| i).collect();
+                // The members' positions were read across the file.
+                map.release_pages();
             }
             out.working_set = out.working_set.max(members.len());
             out.per_round.push([left, members.len()]);

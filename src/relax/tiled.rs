@@ -112,13 +112,15 @@ pub(crate) fn relax_tile_with(
 }
 
 /// What relaxation keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
-/// `/usr/bin/time` on the water scene's maps (BENCHMARKS.md, "Tiles and the memory budget"): the whole map's
-/// order, move bounds and relaxed positions per photon, and per photon a tile works on its
-/// columns, index and iteration scratch.
-/// With a scene (`on_surfaces`), the relaxed normals add 24 bytes per photon.
+/// `/usr/bin/time` and the process's resident set between tiles on the water scene's maps
+/// (BENCHMARKS.md, "Tiles and the memory budget"): the whole map's order, label, move bounds,
+/// tile cells and relaxed positions per photon, and per photon a tile works on its columns,
+/// index and iteration scratch. With a scene (`on_surfaces`), the relaxed normals too: 56 bytes
+/// per photon (54 measured at 10⁷ photons, 42 at 10⁸; a tile's copies read the map in blocks
+/// released as read, so no whole column stays resident); without one, 48.
 pub fn memory(on_surfaces: bool) -> crate::tiles::MemoryModel {
     crate::tiles::MemoryModel {
-        per_photon: if on_surfaces { 72.0 } else { 48.0 },
+        per_photon: if on_surfaces { 56.0 } else { 48.0 },
         per_working_photon: 360.0,
         halo_growth: 1.4,
     }

@@ -423,6 +423,22 @@ impl Buckets {
     }
 }
 
+/// The photons of `cells` (each a list of indices in the map) in file order, with their
+/// positions: one gather in blocks whose pages are released as read (a tile's cells hold
+/// photons from all over the file; read cell by cell they would map every page of the
+/// positions at once).
+pub fn gather_cells<'c>(
+    pages: crate::format::Pages,
+    positions: &[[f32; 3]],
+    cells: impl Iterator<Item = &'c [u32]>,
+) -> (Vec<u32>, Vec<[f32; 3]>) {
+    use rayon::slice::ParallelSliceMut;
+    let mut photons: Vec<u32> = cells.flatten().copied().collect();
+    photons.par_sort_unstable();
+    let at = pages.gather(positions, &photons);
+    (photons, at)
+}
+
 /// One tile's photons, in the cells of a grid over their box (about 4096 photons a cell, at
 /// most 32 × 32 cells), so that a scan for the photons near a halo box reads only the cells
 /// near it.

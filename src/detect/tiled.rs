@@ -187,12 +187,11 @@ pub(super) fn detect_tile_with(
         let meeting = shared.map(|s| (s, tiling.tiles_meeting(&halo)));
         let (members, at): (Vec<u32>, Vec<[f32; 3]>) = match meeting {
             Some((s, tiles)) if tiles.len() < tiling.len() => {
-                // One gather of them all in file order (a gather per cell would read from all
-                // over the file for each).
-                let mut near: Vec<u32> =
-                    tiles.iter().flat_map(|&t| s.tiles[t].near(&halo)).flatten().copied().collect();
-                near.par_sort_unstable();
-                let at = input.pages.gather(pos, &near);
+                let (near, at) = crate::tiles::gather_cells(
+                    input.pages,
+                    pos,
+                    tiles.iter().flat_map(|&t| s.tiles[t].near(&halo)),
+                );
                 near.into_par_iter().zip(at).filter(|&(i, x)| member(i, x)).unzip()
             }
             _ => (0..n as u32)

@@ -278,13 +278,13 @@ impl<'r, 'm> TiledRun<'r, 'm> {
     }
 
     /// The photons of the cells `keep` keeps ([`Self::cells_where`]) with their positions, in
-    /// file order: one gather in blocks whose pages are released as read (a tile's cells hold
-    /// photons from all over the file, and read cell by cell they would map every page of the
-    /// positions at once).
+    /// file order ([`crate::tiles::gather_cells`]).
     fn near_cells(&self, keep: impl Fn(&TileCell, f64) -> bool) -> Vec<(u32, [f32; 3])> {
-        let mut near: Vec<u32> = self.cells_where(keep).into_iter().flatten().copied().collect();
-        near.par_sort_unstable();
-        let at = self.map.pages().gather(self.map.positions(), &near);
+        let (near, at) = crate::tiles::gather_cells(
+            self.map.pages(),
+            self.map.positions(),
+            self.cells_where(keep).into_iter(),
+        );
         near.into_iter().zip(at).collect()
     }
 

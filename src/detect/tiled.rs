@@ -163,6 +163,8 @@ pub(super) fn detect_tile_with(
     }
     let (r_param, param_rounds) = if param_search {
         let (r, rounds) = tile_radius(input, &interior, p, opts, shared.and_then(|s| s.ranges.as_deref()))?;
+        // The parameter-space pass of [`super::work_units`].
+        progress(interior.len() as u64);
         (Some(r), rounds)
     } else {
         (None, 0)

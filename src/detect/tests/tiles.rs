@@ -276,3 +276,19 @@ fn bad_tiles_and_bad_parts_are_refused() {
     assert_eq!(whole, tile);
     assert!(whole.contains("123"), "{whole}");
 }
+
+#[test]
+fn tiles_report_the_whole_maps_work_units() {
+    // With parameters: a pass in parameter space and one in world space, as the whole map.
+    let m = crate::synthetic::collimated_cusp(3000, 19);
+    let (dims, stride) = owned_input(&m);
+    let inp = input(&m, &dims, stride);
+    for p in [DetectParams::default(), DetectParams { method: Method::WorldPca, ..DetectParams::default() }] {
+        let done = std::sync::atomic::AtomicU64::new(0);
+        let add = |k| {
+            done.fetch_add(k, std::sync::atomic::Ordering::Relaxed);
+        };
+        crate::detect::tiled(&inp, &p, &Tiling::new(inp.positions, [2, 2]), &add).unwrap();
+        assert_eq!(done.into_inner(), work_units(&inp, p.method), "{:?}", p.method);
+    }
+}

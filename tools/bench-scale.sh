@@ -5,8 +5,9 @@
 #
 #   tools/bench-scale.sh [EMITTED] [BUDGET] [DIR]      # defaults: 1e7 1G target/bench-scale
 #
-# Writes DIR/results.tsv (stage, photons, seconds, peak RSS in KiB, output bytes) and keeps
-# only the map the next stage reads (the disk holds at most two maps at a time).
+# Writes DIR/results.tsv (stage, wall seconds, peak RSS in KiB, output bytes, CPU seconds:
+# user + system: the cost over both cores, where wall time also counts waits) and keeps only
+# the map the next stage reads (the disk holds at most two maps at a time).
 set -eu
 EMITTED=${1:-1e7}
 BUDGET=${2:-1G}
@@ -15,13 +16,14 @@ PK=${PHOTONKIT:-target/release/photonkit}
 SCENE=${SCENE:-samples/scenes/water.toml}
 mkdir -p "$DIR"
 OUT="$DIR/results.tsv"
-printf 'stage\tseconds\tpeak_kib\toutput_bytes\n' > "$OUT"
+printf 'stage\tseconds\tpeak_kib\toutput_bytes\tcpu_seconds\n' > "$OUT"
 export SOURCE_DATE_EPOCH=1
 stage() {
     name=$1; output=$2; shift 2
-    /usr/bin/time -f '%e %M' -o "$DIR/time.txt" "$PK" --quiet "$@"
-    read -r seconds peak < "$DIR/time.txt"
-    printf '%s\t%s\t%s\t%s\n' "$name" "$seconds" "$peak" "$(stat -c %s "$output")" | tee -a "$OUT"
+    /usr/bin/time -f '%e %M %U %S' -o "$DIR/time.txt" "$PK" --quiet "$@"
+    read -r seconds peak user sys < "$DIR/time.txt"
+    cpu=$(echo "$user $sys" | awk '{ printf "%.2f", $1 + $2 }')
+    printf '%s\t%s\t%s\t%s\t%s\n' "$name" "$seconds" "$peak" "$(stat -c %s "$output")" "$cpu" | tee -a "$OUT"
 }
 stage trace "$DIR/traced.phm" trace "$SCENE" --photons "$EMITTED" --memory "$BUDGET" -o "$DIR/traced.phm"
 stage detect "$DIR/detected.phm" detect "$DIR/traced.phm" --memory "$BUDGET" -o "$DIR/detected.phm"

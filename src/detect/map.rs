@@ -114,7 +114,7 @@ pub fn detect_map_tiled(
     Ok(d)
 }
 
-/// What detecting `map` keeps in memory, for a budget ([`super::tiled::memory`]).
+/// What detecting `map` keeps in memory, for a budget (`tiled::memory`).
 pub fn memory(map: &MapView) -> crate::tiles::MemoryModel {
     let spectral = map.info().emitters.iter().any(|e| e.is_spectral());
     super::tiled::memory(spectral.then(|| map.spec(name::PARAMS).map_or(0, |c| c.components as usize)))

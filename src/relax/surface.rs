@@ -44,7 +44,7 @@ pub const RETURN_REACH: f32 = 0.25;
 
 /// The point of surface `surface` nearest along the normal to a photon moved by `step` in its
 /// tangent plane, and the surface's normal there (oriented like `normal`): the photon's
-/// surface is searched along ±normal within [`RETURN_REACH`]·step plus a rounding margin.
+/// surface is searched along ±normal within `RETURN_REACH`·step plus a rounding margin.
 /// `None` if another surface or none lies there, or if `step` is not positive.
 pub fn return_to_surface(
     scene: &crate::scene::Scene,

@@ -7,7 +7,7 @@
 //! (photons outside the halo box, and photons of the box not certified) is bounded per photon:
 //! it lies within its step at iteration 0 plus t − 1 times its later step bound (a fraction of
 //! its first spacing, [`super::Scratch`]) of where it started. The test is spatial, photon by
-//! photon ([`Uncertain`]), so a sparse photon that moves far holds back only the photons it
+//! photon (`Uncertain`), so a sparse photon that moves far holds back only the photons it
 //! could reach. Interior photons not certified through every iteration are relaxed again with
 //! the halo doubled, until the halo holds the whole map.
 

@@ -444,13 +444,13 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             let outside = Uncertain::of(outside.into_iter(), depth, r);
             let slot: Vec<Option<usize>> =
                 places_in(&members, &interior).into_iter().map(|q| q.filter(|&q| pending[q])).collect();
-            // The member each pending interior photon is, if any.
-            let mut member_of: Vec<Option<u32>> = vec![None; interior.len()];
-            for (k, q) in slot.iter().enumerate() {
-                if let &Some(q) = q {
-                    member_of[q] = Some(k as u32);
-                }
-            }
+            // The pending interior photons among the members, in member order: (member, place in
+            // the interior). Their per-iteration series are written row by row in this order,
+            // reading the members' values in order, and put in interior order once the round
+            // ends (`Series`).
+            let rows: Vec<(u32, u32)> =
+                slot.iter().enumerate().filter_map(|(k, q)| q.map(|q| (k as u32, q as u32))).collect();
+            let mut series = Series::for_round(&mut out, rows.len(), interior.len());
             let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
             let mut columns = Columns::of(map, &members, setup)?;
             let start: Vec<[f32; 3]> = columns.positions.clone();
@@ -509,18 +509,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                         .collect();
                     certified = keep;
                 }
-                // Interior photon by interior photon, so that the writes run along the columns
-                // (reading the members' values at random jumps less far).
-                out.nn
-                    .par_chunks_mut(r)
-                    .zip(out.ratio.par_chunks_mut(r))
-                    .zip(out.step.par_chunks_mut(r))
-                    .zip(&member_of)
-                    .for_each(|(((nn, ratio), step), k)| {
-                        if let Some(k) = k.map(|k| k as usize) {
-                            (nn[t], ratio[t], step[t]) = (per.nn[k], per.ratio[k], per.step[k]);
-                        }
-                    });
+                series.record(&rows, t, per);
                 t += 1;
                 // Nothing more to learn once no pending interior photon is certified.
                 slot.iter().zip(&certified).any(|(s, &c)| s.is_some() && c)
@@ -543,6 +532,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                     left -= 1;
                 }
             }
+            drop(columns);
+            series.place(&mut out, &rows, |k| certified[k as usize] && ran_all);
             // A halo that certified nothing is held back by photons whose bounds reach the whole
             // tile (a sparse surround, docs/tiles.md): doubling it again would not help.
             h = if left == left_before { f64::INFINITY } else { 2.0 * h };
@@ -552,6 +543,79 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         out.normals = with_normals.then_some(normals);
         out.indices = interior;
         Ok(out)
+    }
+}
+
+/// A round's per-iteration series (nearest-neighbour distance, its ratio to r_K, step) of the
+/// pending interior photons, one row of R values per photon in member order, so that an
+/// iteration's values are read in member order and written along the rows. The first round,
+/// which holds every interior photon, works in the tile's own series and puts its rows in
+/// interior order once it ends; a later round (a few photons along the tile's sides) copies the
+/// certified photons' rows into them.
+struct Series {
+    rows: [Vec<f32>; 3],
+    /// Whether `rows` are the tile's series (the first round).
+    whole_tile: bool,
+    r: usize,
+}
+
+impl Series {
+    fn for_round(out: &mut TileRelaxed, rows: usize, interior: usize) -> Series {
+        let r = out.iterations;
+        if out.rounds == 1 && rows == interior {
+            let taken = [&mut out.nn, &mut out.ratio, &mut out.step].map(std::mem::take);
+            Series { rows: taken, whole_tile: true, r }
+        } else {
+            Series {
+                rows: [vec![0.0; rows * r], vec![f32::NAN; rows * r], vec![0.0; rows * r]],
+                whole_tile: false,
+                r,
+            }
+        }
+    }
+
+    /// Iteration `t`'s values of the photons of `rows` (member, interior place), from `per`
+    /// (by member).
+    fn record(&mut self, rows: &[(u32, u32)], t: usize, per: &super::PerPhoton) {
+        let r = self.r;
+        let [nn, ratio, step] = &mut self.rows;
+        nn.par_chunks_mut(r).zip(ratio.par_chunks_mut(r)).zip(step.par_chunks_mut(r)).zip(rows).for_each(
+            |(((nn, ratio), step), &(k, _))| {
+                let k = k as usize;
+                (nn[t], ratio[t], step[t]) = (per.nn[k], per.ratio[k], per.step[k]);
+            },
+        );
+    }
+
+    /// Puts the rows in the tile's series in interior order: every row in the first round (an
+    /// uncertified photon's is written again in a later round), the rows of the photons `keep`
+    /// keeps (by member) after it.
+    fn place(self, out: &mut TileRelaxed, rows: &[(u32, u32)], keep: impl Fn(u32) -> bool) {
+        let r = self.r;
+        let columns = [&mut out.nn, &mut out.ratio, &mut out.step];
+        if self.whole_tile {
+            // The rows are a permutation of the interior: the row of each place.
+            let mut row_of = vec![0u32; rows.len()];
+            for (j, &(_, q)) in rows.iter().enumerate() {
+                row_of[q as usize] = j as u32;
+            }
+            for (from, to) in self.rows.into_iter().zip(columns) {
+                let mut placed = vec![0.0; from.len()];
+                placed
+                    .par_chunks_mut(r)
+                    .zip(&row_of)
+                    .for_each(|(row, &j)| row.copy_from_slice(&from[j as usize * r..][..r]));
+                *to = placed;
+            }
+        } else {
+            for (from, to) in self.rows.iter().zip(columns) {
+                for (j, &(k, q)) in rows.iter().enumerate() {
+                    if keep(k) {
+                        to[q as usize * r..][..r].copy_from_slice(&from[j * r..][..r]);
+                    }
+                }
+            }
+        }
     }
 }
 

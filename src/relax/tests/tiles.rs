@@ -25,6 +25,45 @@ fn tiled(map: &MapView, p: &RelaxParams, grid: [usize; 2], opts: Options) -> (Re
     (merged, tiles)
 }
 
+/// The whole map's per-iteration series of every photon (by index in the map, R values each):
+/// nearest-neighbour distance, its ratio to r_K, and step, in working units.
+fn whole_series(map: &MapView, p: &RelaxParams) -> [Vec<u32>; 3] {
+    use crate::spatial::order::locality_order;
+    let setup = Setup::of(map, p, false).unwrap();
+    let order = locality_order(map.positions());
+    let mut columns = Columns::of(map, &order, &setup).unwrap();
+    let wide = MapWide { labels: None, spacing: setup.spacing, coincident: setup.coincident };
+    let r = setup.p.iterations;
+    let mut series = [(); 3].map(|_| vec![0u32; map.len() * r]);
+    let mut t = 0;
+    run(map, &mut columns, &setup, None, &wide, &order, |scratch, _, _| {
+        let per = scratch.per_photon();
+        for (k, &i) in order.iter().enumerate() {
+            for (s, v) in series.iter_mut().zip([&per.nn, &per.ratio, &per.step]) {
+                s[i as usize * r + t] = v[k].to_bits();
+            }
+        }
+        t += 1;
+        true
+    })
+    .unwrap();
+    series
+}
+
+/// Asserts every tile's per-photon series are the whole map's, bit for bit, photon by photon.
+fn check_series(map: &MapView, p: &RelaxParams, tiles: &[TileRelaxed], what: &str) {
+    let want = whole_series(map, p);
+    let r = p.iterations;
+    for (t, tile) in tiles.iter().enumerate() {
+        for (k, &i) in tile.indices.iter().enumerate() {
+            for (c, got) in [&tile.nn, &tile.ratio, &tile.step].into_iter().enumerate() {
+                let got: Vec<u32> = got[k * r..][..r].iter().map(|v| v.to_bits()).collect();
+                assert_eq!(got, want[c][i as usize * r..][..r], "{what}: tile {t}, photon {i}, series {c}");
+            }
+        }
+    }
+}
+
 /// The first photon whose position differs in its bits, if any.
 fn first_difference(a: &Relaxed, b: &Relaxed) -> Option<usize> {
     let bits = |x: &[f32; 3]| x.map(f32::to_bits);
@@ -44,6 +83,7 @@ fn check_tilings(map: &MapView, p: &RelaxParams, what: &str) -> u32 {
             panic!("{what}: photon {i}: {:?} vs {:?}", want.positions[i], got.positions[i]);
         }
         assert_eq!(got.measures, want.measures, "{what}: measures");
+        check_series(map, p, &tiles, &what);
         assert_eq!((got.space, got.constrained), (want.space, want.constrained), "{what}");
         // Every tile in one process, as `relax --memory` runs them.
         let mut calls = 0;
@@ -133,6 +173,7 @@ fn a_small_first_halo_is_grown_until_certified_and_without_certificate_differs()
         let small = Options { halo_scale: 0.02, certify: true };
         let (got, tiles) = tiled(&map, &p, [2, 2], small);
         assert_eq!(first_difference(&want, &got), None);
+        check_series(&map, &p, &tiles, "a small first halo");
         assert!(
             tiles.iter().any(|t| t.rounds > 1),
             "{:?}",

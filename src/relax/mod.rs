@@ -287,22 +287,25 @@ pub(crate) struct Columns {
 impl Columns {
     /// The columns of photons `work` (file indices) of `map`.
     pub fn of(map: &crate::format::MapView, work: &[u32], setup: &Setup) -> Result<Columns, RelaxError> {
-        Self::gathered(map, work, setup, false)
+        Self::gathered(map, &mut Gathered::of(work), setup, false)
     }
 
-    /// The columns [`first_spacings`] reads (positions, and what restricts the search), of
-    /// photons `work` of `map`: the constraint's columns are not copied.
-    pub fn for_search(
+    /// The columns of photons `work` of `map`, whose file order, and possibly positions, are
+    /// known ([`Gathered`]; its positions are taken, not copied). `search_only`: only those
+    /// [`first_spacings`] reads (positions, and what restricts the search), not the
+    /// constraint's.
+    pub(crate) fn of_gathered(
         map: &crate::format::MapView,
-        work: &[u32],
+        work: &mut Gathered,
         setup: &Setup,
+        search_only: bool,
     ) -> Result<Columns, RelaxError> {
-        Self::gathered(map, work, setup, true)
+        Self::gathered(map, work, setup, search_only)
     }
 
     fn gathered(
         map: &crate::format::MapView,
-        work: &[u32],
+        gathered: &mut Gathered,
         setup: &Setup,
         search_only: bool,
     ) -> Result<Columns, RelaxError> {
@@ -315,7 +318,8 @@ impl Columns {
         // A tile's photons lie all over the file: each column is copied in file order, in blocks
         // whose pages are released as read ([`crate::format::Pages::gather_rows`]), and put in
         // `work`'s order in memory.
-        let (rows, within) = file_order(work);
+        let known = gathered.positions.take();
+        let (work, rows, within) = (&gathered.photons[..], &gathered.rows[..], &gathered.within[..]);
         fn copy<T: bytemuck::Pod + Default + Send + Sync>(
             pages: &crate::format::Pages,
             v: &[T],
@@ -325,7 +329,7 @@ impl Columns {
         ) -> Vec<T> {
             permuted(&pages.gather_rows(v, stride, rows), within, stride)
         }
-        let sorted = |column: Option<&[[f32; 3]]>| column.map(|c| copy(&pages, c, 1, &rows, &within));
+        let sorted = |column: Option<&[[f32; 3]]>| column.map(|c| copy(&pages, c, 1, rows, within));
         // A search reads the basis only where it marks the photons held in the spectral window.
         let wanted = |column: &str| {
             !search_only || column == name::BASIS_V && setup.space == RelaxSpace::WorldSpectral
@@ -346,7 +350,7 @@ impl Columns {
         // r_param restricts only the parameter-space phase.
         let r_param = match setup.space {
             RelaxSpace::WorldParams => {
-                map.column::<f32>(name::R_PARAM)?.map(|r| copy(&pages, r, 1, &rows, &within))
+                map.column::<f32>(name::R_PARAM)?.map(|r| copy(&pages, r, 1, rows, within))
             }
             RelaxSpace::World | RelaxSpace::WorldSpectral => None,
         };
@@ -363,12 +367,12 @@ impl Columns {
                         stride * map.len()
                     )));
                 }
-                Some((copy(&pages, values, stride, &rows, &within), stride))
+                Some((copy(&pages, values, stride, rows, within), stride))
             }
             None => None,
         };
         let dims: Vec<u32> = meta.emitters.iter().map(|e| e.param_dims).collect();
-        let emitters = map.column::<u16>(name::EMITTER)?.map(|e| copy(&pages, e, 1, &rows, &within));
+        let emitters = map.column::<u16>(name::EMITTER)?.map(|e| copy(&pages, e, 1, rows, within));
         // A wavelength component enters distances with the scale detect gave it (the one its
         // r_param was measured in; docs/spectral.md).
         let (params, r_param, dims) = match (params, meta.param_scales()) {
@@ -403,17 +407,20 @@ impl Columns {
             }
             (p, _) => (p, r_param, dims),
         };
-        let mut positions = copy(&pages, map.positions(), 1, &rows, &within);
+        let mut positions = match known {
+            Some(at) => at,
+            None => copy(&pages, map.positions(), 1, rows, within),
+        };
         if setup.scale != 1.0 {
             positions.iter_mut().flatten().for_each(|x| *x *= setup.scale);
         }
         let surfaces = if search_only {
             None
         } else {
-            map.column::<u32>(name::SURFACE)?.map(|s| copy(&pages, s, 1, &rows, &within))
+            map.column::<u32>(name::SURFACE)?.map(|s| copy(&pages, s, 1, rows, within))
         };
-        let flux = (!search_only && setup.p.flux_diffusion > 0.0)
-            .then(|| copy(&pages, map.flux(), 1, &rows, &within));
+        let flux =
+            (!search_only && setup.p.flux_diffusion > 0.0).then(|| copy(&pages, map.flux(), 1, rows, within));
         Ok(Columns {
             positions,
             basis_u,
@@ -629,6 +636,28 @@ pub(crate) fn first_spacings(
 
 /// `work`'s photons (file indices, distinct) in file order, and where each of `work` is among
 /// them: `work[k] == rows[within[k]]`.
+/// Photons a relaxation works on, in the order it works on them, with their file order (a
+/// copy of their columns reads the map in file order), and their positions when the one who
+/// chose them has read them already.
+pub(crate) struct Gathered {
+    /// The photons (indices in the map), in working order.
+    pub photons: Vec<u32>,
+    /// The same photons in file order (ascending).
+    pub rows: Vec<u32>,
+    /// Per photon in working order, its place in `rows`.
+    pub within: Vec<u32>,
+    /// Their positions in working order (metres), if read.
+    pub positions: Option<Vec<[f32; 3]>>,
+}
+
+impl Gathered {
+    /// `work` (indices in the map, in working order), its file order found by a sort.
+    pub fn of(work: &[u32]) -> Gathered {
+        let (rows, within) = file_order(work);
+        Gathered { photons: work.to_vec(), rows, within, positions: None }
+    }
+}
+
 fn file_order(work: &[u32]) -> (Vec<u32>, Vec<u32>) {
     use rayon::prelude::*;
     let mut by_index: Vec<(u32, u32)> = work.iter().enumerate().map(|(k, &i)| (i, k as u32)).collect();

@@ -63,7 +63,7 @@ pub fn tile_part(
         for (column, values) in [(NN, &t.nn), (RATIO, &t.ratio), (STEP, &t.step)] {
             columns.push((
                 ColumnSpec::new(column, DType::F32, t.iterations as u32),
-                bytemuck::cast_slice(values).to_vec(),
+                bytemuck::cast_slice(&t.in_interior_order(values)).to_vec(),
             ));
         }
     }

@@ -33,8 +33,12 @@ pub struct TileRelaxed {
     pub normals: Option<Vec<[f32; 3]>>,
     /// Iterations run (R): the three per-photon series below hold R values per photon.
     pub iterations: usize,
-    /// Per photon and iteration (photon-major): the nearest-neighbour distance, in working
-    /// units ([`Self::scale`]).
+    /// Per interior photon, the row of its series in [`Self::nn`], [`Self::ratio`] and
+    /// [`Self::step`] (rows are in the order the tile's run wrote them;
+    /// [`Self::in_interior_order`] puts them in the photons' order).
+    pub rows: Vec<u32>,
+    /// Per photon and iteration (photon-major, in rows of R): the nearest-neighbour distance,
+    /// in working units ([`Self::scale`]).
     pub nn: Vec<f32>,
     /// Per photon and iteration: that distance over r_K (NaN where r_K = 0).
     pub ratio: Vec<f32>,
@@ -50,6 +54,20 @@ pub struct TileRelaxed {
     pub working_set: usize,
     /// Per round: interior photons still to certify, and the working set.
     pub per_round: Vec<[usize; 2]>,
+}
+
+impl TileRelaxed {
+    /// One of the per-photon series ([`Self::nn`], [`Self::ratio`], [`Self::step`]) with its
+    /// rows in the interior photons' order.
+    pub fn in_interior_order(&self, series: &[f32]) -> Vec<f32> {
+        let r = self.iterations;
+        let mut ordered = vec![0.0; series.len()];
+        ordered
+            .par_chunks_mut(r.max(1))
+            .zip(&self.rows)
+            .for_each(|(to, &j)| to.copy_from_slice(&series[j as usize * r..][..r]));
+        ordered
+    }
 }
 
 /// The most iterations a tiled run takes: a part stores one value per photon and iteration in
@@ -113,8 +131,9 @@ pub(crate) fn relax_tile_with(
 
 /// What relaxation keeps in memory ([`crate::tiles::tiles_for_budget`]), measured with
 /// `/usr/bin/time` and the process's resident set between tiles on the water scene's maps
-/// (BENCHMARKS.md, "Tiles and the memory budget"): the whole map's order, label, move bounds,
-/// tile cells and relaxed positions per photon, and per photon a tile works on its columns,
+/// (BENCHMARKS.md, "Tiles and the memory budget"): the whole map's labels, move bounds, tile
+/// cells and relaxed positions per photon (measured when the working order was kept too, 4
+/// bytes more), and per photon a tile works on its columns,
 /// index and iteration scratch. With a scene (`on_surfaces`), the relaxed normals too: 56 bytes
 /// per photon (54 measured at 10⁷ photons, 42 at 10⁸; a tile's copies read the map in blocks
 /// released as read, so no whole column stays resident); without one, 48.
@@ -127,7 +146,7 @@ pub fn memory(on_surfaces: bool) -> crate::tiles::MemoryModel {
 }
 
 /// Relaxes every photon of `map` tile by tile in this process (the tiles of `tiling`), holding
-/// one tile's working set at a time besides the whole map's per-photon bookkeeping (its order,
+/// one tile's working set at a time besides the whole map's per-photon bookkeeping (its labels,
 /// move bounds and the relaxed positions): the result is [`super::relax_map_on`]'s bit for bit
 /// (docs/tiles.md). `on_tile(tile, tiles, result)` is called after each tile.
 pub fn relax_tiled(
@@ -198,8 +217,7 @@ pub struct TiledRun<'r, 'm> {
     setup: Setup,
     scene: Option<&'r crate::scene::Scene>,
     tiling: &'r Tiling,
-    /// The whole map's working order: a photon's label is its rank in it.
-    order: Vec<u32>,
+    /// Per photon, its label: its rank in the whole map's working order.
     label: Vec<u32>,
     /// Per tile, its photons in the cells of a grid over them.
     by_tile: Vec<TilePhotons>,
@@ -239,6 +257,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
         for (l, &i) in order.iter().enumerate() {
             label[i as usize] = l as u32;
         }
+        drop(order);
         let by_tile = tiling.tile_photons(pos);
         map.release_pages();
         let mut run = TiledRun {
@@ -246,7 +265,6 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             setup,
             scene,
             tiling,
-            order,
             label,
             by_tile,
             most: Vec::new(),
@@ -266,26 +284,45 @@ impl<'r, 'm> TiledRun<'r, 'm> {
     }
 
     /// The file indices of the photons in `halo`, in label order.
+    #[cfg(test)]
     pub(crate) fn members(&self, halo: &HaloBox) -> Vec<u32> {
-        let mut labels: Vec<u32> = self
-            .near_cells(|c, _| c.meets(halo))
-            .into_par_iter()
-            .filter(|&(_, x)| halo.contains(x))
-            .map(|(i, _)| self.label[i as usize])
-            .collect();
-        labels.par_sort_unstable();
-        labels.into_iter().map(|l| self.order[l as usize]).collect()
+        self.members_gathered(halo).0.photons
+    }
+
+    /// The photons in `halo` in label order, with their file order and positions as read to
+    /// find them, and their labels.
+    pub(crate) fn members_gathered(&self, halo: &HaloBox) -> (super::Gathered, Vec<u32>) {
+        let (near, at) = self.gathered_cells(|c, _| c.meets(halo));
+        // The photons in the box, by place in file order.
+        let inside: Vec<u32> =
+            (0..near.len() as u32).into_par_iter().filter(|&q| halo.contains(at[q as usize])).collect();
+        // (label, place in file order), sorted by label.
+        let mut by_label: Vec<(u32, u32)> =
+            inside.par_iter().map(|&q| (self.label[near[q as usize] as usize], q)).collect();
+        by_label.par_sort_unstable();
+        let labels = by_label.par_iter().map(|&(l, _)| l).collect();
+        let photons = by_label.par_iter().map(|&(_, q)| near[q as usize]).collect();
+        let positions = Some(by_label.par_iter().map(|&(_, q)| at[q as usize]).collect());
+        // Places in `near` become places among the photons in the box.
+        let mut place = vec![0u32; near.len()];
+        for (r, &q) in inside.iter().enumerate() {
+            place[q as usize] = r as u32;
+        }
+        let within = by_label.par_iter().map(|&(_, q)| place[q as usize]).collect();
+        let rows = inside.par_iter().map(|&q| near[q as usize]).collect();
+        (super::Gathered { photons, rows, within, positions }, labels)
     }
 
     /// The photons of the cells `keep` keeps ([`Self::cells_where`]) with their positions, in
     /// file order ([`crate::tiles::gather_cells`]).
     fn near_cells(&self, keep: impl Fn(&TileCell, f64) -> bool) -> Vec<(u32, [f32; 3])> {
-        let (near, at) = crate::tiles::gather_cells(
-            self.map.pages(),
-            self.map.positions(),
-            self.cells_where(keep).into_iter(),
-        );
+        let (near, at) = self.gathered_cells(keep);
         near.into_iter().zip(at).collect()
+    }
+
+    /// [`Self::near_cells`] as two columns: the photons, and their positions.
+    fn gathered_cells(&self, keep: impl Fn(&TileCell, f64) -> bool) -> (Vec<u32>, Vec<[f32; 3]>) {
+        crate::tiles::gather_cells(self.map.pages(), self.map.positions(), self.cells_where(keep).into_iter())
     }
 
     /// The photons of every cell, of every tile, that `keep` keeps.
@@ -371,6 +408,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             * extent
             * (setup.p.kf as f64 / (std::f64::consts::PI * n as f64)).sqrt();
         let r = iterations;
+        out.rows = (0..interior.len() as u32).collect();
         out.nn = vec![0.0; interior.len() * r];
         out.ratio = vec![f32::NAN; interior.len() * r];
         out.step = vec![0.0; interior.len() * r];
@@ -387,7 +425,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             // Depth of a position (working units) in the halo box: its distance inside it, negative
             // outside (a photon moving by s changes it by at most s).
             let depth = |x: [f32; 3]| depth_in(&halo, x, scale);
-            let mut members = self.members(&halo);
+            let (mut work, mut labels) = self.members_gathered(&halo);
+            let mut members = work.photons.clone();
             // After the first round only a few photons are pending, along the tile's sides:
             // the round works on the box's photons within the halo's width of one of them, and
             // the box's other photons are uncertain like those outside it (docs/tiles.md).
@@ -430,6 +469,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                     .flatten()
                     .collect();
                 members = members.iter().zip(&keep).filter(|(_, k)| **k).map(|(&i, _)| i).collect();
+                work = super::Gathered::of(&members);
+                labels = members.iter().map(|&i| label[i as usize]).collect();
                 // The members' positions were read across the file.
                 map.release_pages();
             }
@@ -443,7 +484,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             outside.append(&mut left_out);
             let outside = Uncertain::of(outside.into_iter(), depth, r);
             let slot: Vec<Option<usize>> =
-                places_in(&members, &interior).into_iter().map(|q| q.filter(|&q| pending[q])).collect();
+                places_of(&work, &interior).into_iter().map(|q| q.filter(|&q| pending[q])).collect();
             // The pending interior photons among the members, in member order: (member, place in
             // the interior). Their per-iteration series are written row by row in this order,
             // reading the members' values in order, and put in interior order once the round
@@ -451,8 +492,7 @@ impl<'r, 'm> TiledRun<'r, 'm> {
             let rows: Vec<(u32, u32)> =
                 slot.iter().enumerate().filter_map(|(k, q)| q.map(|q| (k as u32, q as u32))).collect();
             let mut series = Series::for_round(&mut out, rows.len(), interior.len());
-            let labels: Vec<u32> = members.iter().map(|&i| label[i as usize]).collect();
-            let mut columns = Columns::of(map, &members, setup)?;
+            let mut columns = Columns::of_gathered(map, &mut work, setup, false)?;
             let start: Vec<[f32; 3]> = columns.positions.clone();
             let mut member_moves: Vec<Moves> = members.iter().map(|&i| self.moves_of(i)).collect();
             let mut certified = vec![true; members.len()];
@@ -549,9 +589,9 @@ impl<'r, 'm> TiledRun<'r, 'm> {
 /// A round's per-iteration series (nearest-neighbour distance, its ratio to r_K, step) of the
 /// pending interior photons, one row of R values per photon in member order, so that an
 /// iteration's values are read in member order and written along the rows. The first round,
-/// which holds every interior photon, works in the tile's own series and puts its rows in
-/// interior order once it ends; a later round (a few photons along the tile's sides) copies the
-/// certified photons' rows into them.
+/// which holds every interior photon, works in the tile's own series and leaves its rows in
+/// member order ([`TileRelaxed::rows`] says where each photon's is); a later round (a few
+/// photons along the tile's sides) copies the certified photons' rows into theirs.
 struct Series {
     rows: [Vec<f32>; 3],
     /// Whether `rows` are the tile's series (the first round).
@@ -587,31 +627,22 @@ impl Series {
         );
     }
 
-    /// Puts the rows in the tile's series in interior order: every row in the first round (an
-    /// uncertified photon's is written again in a later round), the rows of the photons `keep`
-    /// keeps (by member) after it.
+    /// Puts the rows in the tile's series: every row in the first round, in member order (an
+    /// uncertified photon's is written again in a later round); after it, the rows of the
+    /// photons `keep` keeps (by member), each in its photon's row.
     fn place(self, out: &mut TileRelaxed, rows: &[(u32, u32)], keep: impl Fn(u32) -> bool) {
         let r = self.r;
-        let columns = [&mut out.nn, &mut out.ratio, &mut out.step];
         if self.whole_tile {
-            // The rows are a permutation of the interior: the row of each place.
-            let mut row_of = vec![0u32; rows.len()];
             for (j, &(_, q)) in rows.iter().enumerate() {
-                row_of[q as usize] = j as u32;
+                out.rows[q as usize] = j as u32;
             }
-            for (from, to) in self.rows.into_iter().zip(columns) {
-                let mut placed = vec![0.0; from.len()];
-                placed
-                    .par_chunks_mut(r)
-                    .zip(&row_of)
-                    .for_each(|(row, &j)| row.copy_from_slice(&from[j as usize * r..][..r]));
-                *to = placed;
-            }
+            [out.nn, out.ratio, out.step] = self.rows;
         } else {
-            for (from, to) in self.rows.iter().zip(columns) {
+            for (from, to) in self.rows.iter().zip([&mut out.nn, &mut out.ratio, &mut out.step]) {
                 for (j, &(k, q)) in rows.iter().enumerate() {
                     if keep(k) {
-                        to[q as usize * r..][..r].copy_from_slice(&from[j * r..][..r]);
+                        let row = out.rows[q as usize] as usize;
+                        to[row * r..][..r].copy_from_slice(&from[j * r..][..r]);
                     }
                 }
             }
@@ -712,22 +743,25 @@ impl Uncertain {
     }
 }
 
-/// Where each of `photons` (indices in the map) is in `sorted` (ascending indices), if there:
-/// one sort and one merge, where a search per photon would read `sorted` at random.
+/// Where each of `photons` (indices in the map) is in `sorted` (ascending indices), if there.
+#[cfg(test)]
 fn places_in(photons: &[u32], sorted: &[u32]) -> Vec<Option<usize>> {
-    let mut by_index: Vec<(u32, u32)> = photons.iter().enumerate().map(|(k, &i)| (i, k as u32)).collect();
-    by_index.par_sort_unstable();
-    let mut place = vec![None; photons.len()];
+    places_of(&super::Gathered::of(photons), sorted)
+}
+
+/// Where each photon of `work` (in its working order) is in `sorted` (ascending indices), if
+/// there: one merge of the photons in file order, where a search per photon would read
+/// `sorted` at random.
+fn places_of(work: &super::Gathered, sorted: &[u32]) -> Vec<Option<usize>> {
+    let mut at_row = Vec::with_capacity(work.rows.len());
     let mut q = 0;
-    for (i, k) in by_index {
+    for &i in &work.rows {
         while q < sorted.len() && sorted[q] < i {
             q += 1;
         }
-        if sorted.get(q) == Some(&i) {
-            place[k as usize] = Some(q);
-        }
+        at_row.push((sorted.get(q) == Some(&i)).then_some(q));
     }
-    place
+    work.within.iter().map(|&r| at_row[r as usize]).collect()
 }
 
 /// `x` scaled by `s` (the working units).
@@ -823,15 +857,16 @@ pub(crate) fn move_bounds(shared: &TiledRun) -> Result<(Vec<f32>, f64), RelaxErr
             round += 1;
             let halo = tiling.halo_box(c, if round >= MAX_ROUNDS { f64::INFINITY } else { h });
             let whole = halo.is_whole();
-            let members = shared.members(&halo);
-            let columns = Columns::for_search(map, &members, setup)?;
+            let (mut work, _) = shared.members_gathered(&halo);
+            let members = work.photons.clone();
+            let columns = Columns::of_gathered(map, &mut work, setup, true)?;
             // The first spacing does not depend on the return to the surface, which runs after
             // the step (its widening is in `bound`).
             let (first, read) = super::first_spacings(map, &columns, setup, &members)?;
             // Each interior photon's bound found this round (NaN: none), written to the map's
             // bounds in file order.
             let mut found = vec![f32::NAN; interior.len()];
-            for (k, q) in places_in(&members, &interior).into_iter().enumerate() {
+            for (k, q) in places_of(&work, &interior).into_iter().enumerate() {
                 if let Some(q) = q
                     && (read[k].is_finite() || whole)
                 {

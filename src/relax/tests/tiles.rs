@@ -55,8 +55,9 @@ fn check_series(map: &MapView, p: &RelaxParams, tiles: &[TileRelaxed], what: &st
     let want = whole_series(map, p);
     let r = p.iterations;
     for (t, tile) in tiles.iter().enumerate() {
+        let ordered = [&tile.nn, &tile.ratio, &tile.step].map(|v| tile.in_interior_order(v));
         for (k, &i) in tile.indices.iter().enumerate() {
-            for (c, got) in [&tile.nn, &tile.ratio, &tile.step].into_iter().enumerate() {
+            for (c, got) in ordered.iter().enumerate() {
                 let got: Vec<u32> = got[k * r..][..r].iter().map(|v| v.to_bits()).collect();
                 assert_eq!(got, want[c][i as usize * r..][..r], "{what}: tile {t}, photon {i}, series {c}");
             }

@@ -493,6 +493,8 @@ impl<'r, 'm> TiledRun<'r, 'm> {
                 slot.iter().enumerate().filter_map(|(k, q)| q.map(|q| (k as u32, q as u32))).collect();
             let mut series = Series::for_round(&mut out, rows.len(), interior.len());
             let mut columns = Columns::of_gathered(map, &mut work, setup, false)?;
+            // Its file order is not needed while the round runs.
+            drop(work);
             let start: Vec<[f32; 3]> = columns.positions.clone();
             let mut member_moves: Vec<Moves> = members.iter().map(|&i| self.moves_of(i)).collect();
             let mut certified = vec![true; members.len()];

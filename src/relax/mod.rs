@@ -287,23 +287,14 @@ pub(crate) struct Columns {
 impl Columns {
     /// The columns of photons `work` (file indices) of `map`.
     pub fn of(map: &crate::format::MapView, work: &[u32], setup: &Setup) -> Result<Columns, RelaxError> {
-        Self::gathered(map, &mut Gathered::of(work), setup, false)
+        Self::of_gathered(map, &mut Gathered::of(work), setup, false)
     }
 
-    /// The columns of photons `work` of `map`, whose file order, and possibly positions, are
-    /// known ([`Gathered`]; its positions are taken, not copied). `search_only`: only those
-    /// [`first_spacings`] reads (positions, and what restricts the search), not the
+    /// The columns of `map` of the photons `gathered` holds, whose file order, and possibly
+    /// positions, are known ([`Gathered`]; its positions are taken, not copied). `search_only`:
+    /// only those [`first_spacings`] reads (positions, and what restricts the search), not the
     /// constraint's.
     pub(crate) fn of_gathered(
-        map: &crate::format::MapView,
-        work: &mut Gathered,
-        setup: &Setup,
-        search_only: bool,
-    ) -> Result<Columns, RelaxError> {
-        Self::gathered(map, work, setup, search_only)
-    }
-
-    fn gathered(
         map: &crate::format::MapView,
         gathered: &mut Gathered,
         setup: &Setup,

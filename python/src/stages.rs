@@ -299,7 +299,20 @@ pub fn detect(
                     tiling.len(),
                     memory.unwrap_or(0)
                 ));
-                photonkit::detect::detect_map_tiled(&view, &capped, tiling, &|_| {}, &mut |_, _, _| {})?
+                let radius = photonkit::detect::Radius::for_budget(
+                    view.len(),
+                    memory.unwrap_or(0),
+                    0,
+                    &photonkit::detect::memory(&view),
+                );
+                photonkit::detect::detect_map_tiled(
+                    &view,
+                    &capped,
+                    tiling,
+                    radius,
+                    &|_| {},
+                    &mut |_, _, _| {},
+                )?
             }
             None => photonkit::detect::detect_map(&view, &capped, &|_| {})?,
         };

@@ -114,16 +114,25 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     }
     let budgeted = super::budget_tiling(&map, a.memory, &detect::memory(&map.view()), "detecting")?;
     let d = if let Some((tiling, mut budget)) = budgeted {
-        detect::detect_map_tiled(&map.view(), &p, &tiling, &|k| bar.inc(k), &mut |tile, tiles, part| {
-            bar.suspend(|| budget.check(tile, &part.per_round));
-            bar.suspend(|| {
-                super::note!(
-                    "tile {tile}/{tiles}: {} photons; measured per round / working set: {}",
-                    part.indices.len(),
-                    super::rounds_text(&part.per_round)
-                )
-            });
-        })?
+        // Eq. 1's radius in one pass over the whole map when its index fits the budget.
+        let radius = detect::Radius::for_budget(map.len(), budget.budget, budget.held, &budget.model);
+        detect::detect_map_tiled(
+            &map.view(),
+            &p,
+            &tiling,
+            radius,
+            &|k| bar.inc(k),
+            &mut |tile, tiles, part| {
+                bar.suspend(|| budget.check(tile, &part.per_round));
+                bar.suspend(|| {
+                    super::note!(
+                        "tile {tile}/{tiles}: {} photons; measured per round / working set: {}",
+                        part.indices.len(),
+                        super::rounds_text(&part.per_round)
+                    )
+                });
+            },
+        )?
     } else {
         detect::detect_map(&map.view(), &p, &|k| bar.inc(k))?
     };

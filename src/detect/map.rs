@@ -98,18 +98,20 @@ pub fn detect_map_tile(
 
 /// [`detect_map`] tile by tile in this process (the tiles of `tiling`), holding one tile's
 /// working set at a time besides the map's results: bit for bit [`detect_map`]'s detection
-/// (docs/tiles.md). `on_tile(tile, tiles, result)` is called after each tile.
+/// (docs/tiles.md), with Eq. 1's radius found as `radius` says. `on_tile(tile, tiles, result)`
+/// is called after each tile.
 pub fn detect_map_tiled(
     map: &MapView,
     p: &DetectParams,
     tiling: &Tiling,
+    radius: super::Radius,
     progress: &(dyn Fn(u64) + Sync),
     on_tile: &mut dyn FnMut(usize, usize, &TileDetection),
 ) -> Result<Detection, DetectError> {
     check_params(p)?;
     let prepared = PreparedInput::new(map, p)?;
-    let mut d =
-        super::tiled_with(&prepared.input(), p, tiling, progress, on_tile).map_err(|e| in_map(map, e))?;
+    let mut d = super::tiled_with(&prepared.input(), p, tiling, radius, progress, on_tile)
+        .map_err(|e| in_map(map, e))?;
     d.spectral_scales = prepared.scales;
     Ok(d)
 }

@@ -698,7 +698,9 @@ fn measure(
 }
 
 mod tiled;
-pub use tiled::{Assembly, TileDetection, assemble, detect_tile, tiled, tiled_with};
+pub use tiled::{
+    Assembly, RADIUS_PASS_BYTES, Radius, TileDetection, assemble, detect_tile, tiled, tiled_with,
+};
 
 #[cfg(test)]
 pub(crate) mod tests;

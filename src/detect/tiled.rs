@@ -88,6 +88,14 @@ pub(super) struct Shared {
     normals_ok: bool,
 }
 
+/// What a tile of a run of every tile in one process is given: what the tiles share, and
+/// Eq. 1's radius of every photon when it was found for the whole map first ([`Radius::Whole`]).
+#[derive(Clone, Copy)]
+pub(super) struct InRun<'a> {
+    shared: &'a Shared,
+    radius: Option<&'a [f32]>,
+}
+
 impl Shared {
     /// The tiles of `tiling` over `input`'s photons, checked for `p` ([`checked`]).
     pub(super) fn new(input: &DetectInput, tiling: &Tiling, p: &DetectParams) -> Result<Self, DetectError> {
@@ -138,9 +146,11 @@ pub(super) fn detect_tile_with(
     tiling: &Tiling,
     tile: usize,
     opts: Options,
-    shared: Option<&Shared>,
+    run: Option<InRun>,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<TileDetection, DetectError> {
+    let shared = run.as_ref().map(|r| r.shared);
+    let whole_radius = run.and_then(|r| r.radius);
     check_params(p)?;
     if tile >= tiling.len() {
         return Err(DetectError::Parameter(format!("tile {tile} of a tiling of {}", tiling.len())));
@@ -161,13 +171,17 @@ pub(super) fn detect_tile_with(
     if interior.is_empty() {
         return Ok(out);
     }
-    let (r_param, param_rounds) = if param_search {
-        let (r, rounds) = tile_radius(input, &interior, p, opts, shared.and_then(|s| s.ranges.as_deref()))?;
-        // The parameter-space pass of [`super::work_units`].
-        progress(interior.len() as u64);
-        (Some(r), rounds)
-    } else {
-        (None, 0)
+    let (r_param, param_rounds) = match (param_search, whole_radius) {
+        // Found for the whole map before the tiles (its progress reported then).
+        (true, Some(r)) => (Some(interior.iter().map(|&i| r[i as usize]).collect()), 0),
+        (true, None) => {
+            let (r, rounds) =
+                tile_radius(input, &interior, p, opts, shared.and_then(|s| s.ranges.as_deref()))?;
+            // The parameter-space pass of [`super::work_units`].
+            progress(interior.len() as u64);
+            (Some(r), rounds)
+        }
+        (false, _) => (None, 0),
     };
     let extent = tiling.axes.iter().map(|&a| tiling.hi[a] as f64 - tiling.lo[a] as f64).fold(0.0, f64::max);
     let mut h = opts.halo_scale * 3.0 * extent * (p.kc as f64 / n as f64).sqrt();
@@ -569,10 +583,42 @@ pub fn tiled(
     input: &DetectInput,
     p: &DetectParams,
     tiling: &Tiling,
+    radius: Radius,
     progress: &(dyn Fn(u64) + Sync),
 ) -> Result<Detection, DetectError> {
-    tiled_with(input, p, tiling, progress, &mut |_, _, _| {})
+    tiled_with(input, p, tiling, radius, progress, &mut |_, _, _| {})
 }
+
+/// Where a run of every tile finds Eq. 1's r_param.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Radius {
+    /// Once for the whole map, before the tiles, as [`super::detect`] does: one index over
+    /// every photon's parameters ([`RADIUS_PASS_BYTES`] a photon while it runs), and the
+    /// cheapest, since each tile's own search also gathers and indexes the photons of its
+    /// grown parameter box.
+    Whole,
+    /// Tile by tile, each over the photons of its grown parameter box (docs/tiles.md): for a
+    /// budget that the whole map's index does not fit beside the map's results.
+    PerTile,
+}
+
+impl Radius {
+    /// [`Radius::Whole`] when its pass fits in `budget` bytes beside what a map of `photons`
+    /// photons needs per photon in detection (`model`) and the `held` bytes the process holds
+    /// already; [`Radius::PerTile`] otherwise.
+    pub fn for_budget(photons: usize, budget: u64, held: u64, model: &crate::tiles::MemoryModel) -> Radius {
+        match held as f64 + (model.per_photon + RADIUS_PASS_BYTES) * photons as f64 <= budget as f64 {
+            true => Radius::Whole,
+            false => Radius::PerTile,
+        }
+    }
+}
+
+/// What finding r_param for the whole map at once ([`Radius::Whole`]) holds per photon while
+/// it runs, beyond [`memory`]'s per-photon part: the parameter index and the pages of the
+/// parameters it reads. On the water at 10⁷ under `--memory 1G` the pass raised detect's peak
+/// from 534 to 682 MB, 15 bytes a photon; this allows half as much again.
+pub const RADIUS_PASS_BYTES: f64 = 24.0;
 
 /// [`tiled`], calling `on_tile(tile, tiles, result)` after each tile and holding one tile's
 /// results at a time besides the map's.
@@ -580,22 +626,35 @@ pub fn tiled_with(
     input: &DetectInput,
     p: &DetectParams,
     tiling: &Tiling,
+    radius: Radius,
     progress: &(dyn Fn(u64) + Sync),
     on_tile: &mut dyn FnMut(usize, usize, &TileDetection),
 ) -> Result<Detection, DetectError> {
-    let mut whole: Option<Assembly> = None;
     check_params(p)?;
+    let n = input.positions.len();
     let shared = Shared::new(input, tiling, p)?;
     // Checking and bucketing read every photon's columns: their pages are not the tiles' to hold.
     input.pages.release();
+    let capped = p.capped(n);
+    let found_first = radius == Radius::Whole && input.has_params() && capped.method == Method::ParamPca;
+    let mut whole = if found_first {
+        // Eq. 1 over the whole map: the very computation of the untiled detection, so every
+        // radius is its radius; the assembly keeps it (the tiles' copies write the same values).
+        let k = capped.k_density.unwrap_or(capped.kc);
+        let r = super::param_radius(&input.points(true), capped.kc, k, capped.beta, progress)?;
+        input.pages.release();
+        Some(Assembly::with_r_param(r))
+    } else {
+        None
+    };
     for t in 0..tiling.len() {
-        let part = detect_tile_with(input, p, tiling, t, Options::default(), Some(&shared), progress)?;
-        whole
-            .get_or_insert_with(|| Assembly::new(input.positions.len(), part.r_param.is_some()))
-            .add(&part)?;
+        let known = whole.as_ref().filter(|_| found_first).and_then(|w| w.d.r_param.as_deref());
+        let run = InRun { shared: &shared, radius: known };
+        let part = detect_tile_with(input, p, tiling, t, Options::default(), Some(run), progress)?;
+        whole.get_or_insert_with(|| Assembly::new(n, part.r_param.is_some())).add(&part)?;
         on_tile(t, tiling.len(), &part);
     }
-    whole.unwrap_or_else(|| Assembly::new(input.positions.len(), false)).finish()
+    whole.unwrap_or_else(|| Assembly::new(n, false)).finish()
 }
 
 /// The detection of a map of `n` photons from its tiles' parts (in any order): an error unless
@@ -633,6 +692,14 @@ impl Assembly {
             sums: Default::default(),
             seen: vec![0; n.div_ceil(64)],
         }
+    }
+
+    /// An empty detection whose r_param column is `r_param` already (found for the whole map;
+    /// the tiles' parts must carry the same).
+    pub fn with_r_param(r_param: Vec<f32>) -> Assembly {
+        let mut a = Assembly::new(r_param.len(), false);
+        a.d.r_param = Some(r_param);
+        a
     }
 
     /// Adds one tile's photons.

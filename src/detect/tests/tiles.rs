@@ -3,7 +3,7 @@
 //! with empty tiles and photons exactly on the cuts (docs/tiles.md).
 
 use super::*;
-use crate::detect::tiled::{Options, detect_tile_with};
+use crate::detect::tiled::{Options, Radius, detect_tile_with};
 use crate::tiles::Tiling;
 
 const GRIDS: [[usize; 2]; 4] = [[1, 1], [2, 1], [2, 2], [3, 3]];
@@ -42,6 +42,11 @@ fn check_tilings(inp: &DetectInput, p: &DetectParams, what: &str) -> (u32, u32) 
         }
         let got = assemble(inp.positions.len(), &parts).unwrap();
         assert_same(&want, &got, &format!("{what}, {}×{}", grid[0], grid[1]));
+        // Every tile in one process, Eq. 1's radius found tile by tile or for the whole map.
+        for radius in [Radius::PerTile, Radius::Whole] {
+            let got = crate::detect::tiled(inp, p, &tiling, radius, &|_| {}).unwrap();
+            assert_same(&want, &got, &format!("{what}, {}×{} in one run, {radius:?}", grid[0], grid[1]));
+        }
     }
     most
 }
@@ -283,12 +288,16 @@ fn tiles_report_the_whole_maps_work_units() {
     let m = crate::synthetic::collimated_cusp(3000, 19);
     let (dims, stride) = owned_input(&m);
     let inp = input(&m, &dims, stride);
-    for p in [DetectParams::default(), DetectParams { method: Method::WorldPca, ..DetectParams::default() }] {
+    for (p, radius) in [
+        (DetectParams::default(), Radius::PerTile),
+        (DetectParams::default(), Radius::Whole),
+        (DetectParams { method: Method::WorldPca, ..DetectParams::default() }, Radius::Whole),
+    ] {
         let done = std::sync::atomic::AtomicU64::new(0);
         let add = |k| {
             done.fetch_add(k, std::sync::atomic::Ordering::Relaxed);
         };
-        crate::detect::tiled(&inp, &p, &Tiling::new(inp.positions, [2, 2]), &add).unwrap();
-        assert_eq!(done.into_inner(), work_units(&inp, p.method), "{:?}", p.method);
+        crate::detect::tiled(&inp, &p, &Tiling::new(inp.positions, [2, 2]), radius, &add).unwrap();
+        assert_eq!(done.into_inner(), work_units(&inp, p.method), "{:?}, {radius:?}", p.method);
     }
 }

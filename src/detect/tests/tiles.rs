@@ -301,3 +301,18 @@ fn tiles_report_the_whole_maps_work_units() {
         assert_eq!(done.into_inner(), work_units(&inp, p.method), "{:?}, {radius:?}", p.method);
     }
 }
+
+#[test]
+fn the_whole_maps_radius_pass_is_chosen_only_where_it_fits_the_budget() {
+    // 10⁷ photons of 52 bytes each need 520 MB; the pass 24 bytes a photon more (240 MB).
+    let model = crate::detect::tiled::memory(None);
+    let n = 10_000_000;
+    let need = ((model.per_photon + crate::detect::RADIUS_PASS_BYTES) * n as f64) as u64;
+    assert_eq!(need, 760_000_000);
+    assert_eq!(Radius::for_budget(n, need, 0, &model), Radius::Whole);
+    assert_eq!(Radius::for_budget(n, need - 1, 0, &model), Radius::PerTile);
+    // What the process holds already counts against the budget.
+    assert_eq!(Radius::for_budget(n, need, 1, &model), Radius::PerTile);
+    assert_eq!(Radius::for_budget(n, 1_000_000_000, 200_000_000, &model), Radius::Whole);
+    assert_eq!(Radius::for_budget(n, 1_000_000_000, 300_000_000, &model), Radius::PerTile);
+}

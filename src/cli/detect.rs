@@ -116,6 +116,16 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let d = if let Some((tiling, mut budget)) = budgeted {
         // Eq. 1's radius in one pass over the whole map when its index fits the budget.
         let radius = detect::Radius::for_budget(map.len(), budget.budget, budget.held, &budget.model);
+        if radius == detect::Radius::PerTile
+            && p.method == detect::Method::ParamPca
+            && detect::map_input(&map.view())?.has_params()
+        {
+            super::note!(
+                "note: Eq. 1's radius is found tile by tile (slower): one parameter index over the whole map \
+                 ({} more) does not fit the budget",
+                indicatif::HumanBytes((detect::RADIUS_PASS_BYTES * map.len() as f64) as u64)
+            );
+        }
         detect::detect_map_tiled(
             &map.view(),
             &p,

@@ -103,7 +103,9 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
         super::note!("note: --kc {} exceeds the map's {} photons: using Kc = {}", p.kc, map.len(), capped.kc);
     }
     let p = capped;
-    let units = detect::work_units(&detect::map_input(&map.view())?, p.method);
+    let view = map.view();
+    let input = detect::map_input(&view)?;
+    let units = detect::work_units(&input, p.method);
     let bar = ProgressBar::with_draw_target(Some(units), super::draw_target()).with_style(
         ProgressStyle::with_template("detect {bar:30} {percent}% {elapsed} (eta {eta})")
             .expect("valid template"),
@@ -116,10 +118,7 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     let d = if let Some((tiling, mut budget)) = budgeted {
         // Eq. 1's radius in one pass over the whole map when its index fits the budget.
         let radius = detect::Radius::for_budget(map.len(), budget.budget, budget.held, &budget.model);
-        if radius == detect::Radius::PerTile
-            && p.method == detect::Method::ParamPca
-            && detect::map_input(&map.view())?.has_params()
-        {
+        if radius == detect::Radius::PerTile && p.method == detect::Method::ParamPca && input.has_params() {
             super::note!(
                 "note: Eq. 1's radius is found tile by tile (slower): one parameter index over the whole map \
                  ({} more) does not fit the budget",

@@ -636,25 +636,27 @@ pub fn tiled_with(
     // Checking and bucketing read every photon's columns: their pages are not the tiles' to hold.
     input.pages.release();
     let capped = p.capped(n);
-    let found_first = radius == Radius::Whole && input.has_params() && capped.method == Method::ParamPca;
+    // Whether the tiles' parts carry r_param ([`detect_tile_with`]'s parameter search).
+    let param_search = input.has_params() && capped.method == Method::ParamPca;
+    let found_first = radius == Radius::Whole && param_search;
     let mut whole = if found_first {
         // Eq. 1 over the whole map: the very computation of the untiled detection, so every
         // radius is its radius; the assembly keeps it (the tiles' copies write the same values).
         let k = capped.k_density.unwrap_or(capped.kc);
         let r = super::param_radius(&input.points(true), capped.kc, k, capped.beta, progress)?;
         input.pages.release();
-        Some(Assembly::with_r_param(r))
+        Assembly::with_r_param(r)
     } else {
-        None
+        Assembly::new(n, param_search)
     };
     for t in 0..tiling.len() {
-        let known = whole.as_ref().filter(|_| found_first).and_then(|w| w.d.r_param.as_deref());
+        let known = whole.d.r_param.as_deref().filter(|_| found_first);
         let run = InRun { shared: &shared, radius: known };
         let part = detect_tile_with(input, p, tiling, t, Options::default(), Some(run), progress)?;
-        whole.get_or_insert_with(|| Assembly::new(n, part.r_param.is_some())).add(&part)?;
+        whole.add(&part)?;
         on_tile(t, tiling.len(), &part);
     }
-    whole.unwrap_or_else(|| Assembly::new(n, false)).finish()
+    whole.finish()
 }
 
 /// The detection of a map of `n` photons from its tiles' parts (in any order): an error unless

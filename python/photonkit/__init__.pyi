@@ -259,7 +259,7 @@ def compare(
     ppm_photons: Optional[float] = None,
     ppm_k: int = 30,
     spp: int = 16,
-    feature_spp: int = 256,
+    feature_spp: int = 4096,
     seeds: int = 4,
     cells: int = 128,
     reference_passes: int = 64,

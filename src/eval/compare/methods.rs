@@ -18,6 +18,10 @@ use crate::render::{
 use crate::scene::Scene;
 use crate::trace::{self, Budget, TraceOptions};
 
+/// Samples a progressive photon mapping pass takes in each core and edge pixel, at most
+/// (docs/truth.md, "Sampling").
+const PPM_FEATURE_SPP: u32 = 256;
+
 /// [`super::run`] for one seed: the rows of every requested method, in the paper's column order.
 pub(super) fn run_seed(
     scene: &Scene,
@@ -119,8 +123,11 @@ impl Seed<'_> {
         Ok(trace_secs)
     }
 
-    /// The image of `map` in the target's view with `estimator`, and the seconds it took
-    /// (building the lookup included).
+    /// The image of `map` in the target's view with `estimator`, and the seconds a render at
+    /// `spp` samples in every pixel takes, building the lookup included: the method's cost.
+    /// Where the target supersamples its core and edge pixels, the image is a second, untimed
+    /// render with them: the pixel averages the error is measured on are the measurement's
+    /// cost, not the method's (docs/truth.md, "Sampling").
     fn render(&self, map: &PhotonMap, estimator: Estimator) -> Result<(Image, f64), CompareError> {
         let t = Instant::now();
         let normals = map.column::<[f32; 3]>(crate::format::name::NORMAL)?;
@@ -132,7 +139,7 @@ impl Seed<'_> {
             let sites = crate::refine::first_photons(&view).unwrap_or(map.positions());
             lookup = lookup.with_own_radius_map(sites, &crate::refine::radius_factors(&view));
         }
-        let renderer = Renderer {
+        let mut renderer = Renderer {
             view: View::Scene { scene: self.scene, camera: self.target.camera.clone() },
             photons: Some(&lookup),
             diagnostic: None,
@@ -145,11 +152,17 @@ impl Seed<'_> {
                 eye: EyeOptions::default(),
                 seed: 0,
                 keep_samples: false,
-                supersample: self.target.supersample(self.o.spp, self.o.feature_spp),
+                supersample: None,
             },
         };
         let (img, _) = renderer.render(&|_| {})?;
-        Ok((img, t.elapsed().as_secs_f64()))
+        let secs = t.elapsed().as_secs_f64();
+        let Some(supersample) = self.target.supersample(self.o.spp, self.o.feature_spp) else {
+            return Ok((img, secs));
+        };
+        renderer.opts.supersample = Some(supersample);
+        let (img, _) = renderer.render(&|_| {})?;
+        Ok((img, secs))
     }
 
     /// The fixed-K estimate: the paper's k-NN, or the variable kernel when chosen.
@@ -392,7 +405,10 @@ impl Seed<'_> {
                 height: h as u32,
                 spp: o.spp,
                 mode: target.mode,
-                supersample: target.supersample(o.spp, o.feature_spp),
+                // Each pass jitters its samples afresh, so the passes average the sampling of
+                // the feature pixels themselves: 256 a pass (after 16 passes as many as a
+                // single render's 4096) is the method's own cost, charged to it.
+                supersample: target.supersample(o.spp, o.feature_spp.min(PPM_FEATURE_SPP)),
                 ..RenderOptions::default()
             },
             kernel: Kernel::Epanechnikov,

@@ -197,8 +197,9 @@ pub struct CompareOptions {
     pub spp: u32,
     /// Samples per pixel in the truth's core and edge pixels (docs/truth.md, "Sampling"):
     /// where the irradiance varies within a pixel, `spp` point samples of a narrow kernel's
-    /// estimate miss the pixel's average by more than the methods differ. At most `spp`:
-    /// every pixel takes `spp`.
+    /// estimate miss the pixel's average by more than the methods differ. Not timed (a
+    /// method's time counts a render at `spp`); progressive photon mapping takes at most 256
+    /// a pass. At most `spp`: every pixel takes `spp`.
     pub feature_spp: u32,
     /// Independent runs of every method (seeds `seed`, `seed + 1`, …), for the bias and
     /// variance of each ([`metrics::region_errors`]); times and errors are their means.
@@ -272,7 +273,7 @@ impl Default for CompareOptions {
             refine_photons_per_pass: None,
             ppm_k: 30,
             spp: 16,
-            feature_spp: 256,
+            feature_spp: 4096,
             seeds: 4,
             // Every method but the refined map, which is asked for by name (it adds passes).
             methods: MethodKind::ALL.into_iter().filter(|&m| m != MethodKind::OursProgressive).collect(),

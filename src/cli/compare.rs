@@ -121,7 +121,8 @@ pub struct Args {
     /// against 0.47 at 4096; refined over 64 passes: 0.54 at 256 against 0.30 at 4096; see
     /// docs/truth.md, "Sampling"). These renders are not timed: a method's time counts a render
     /// at --spp. Progressive photon mapping takes at most 256 a pass (its passes average
-    /// them). At most --spp: every pixel takes --spp.
+    /// them), diffusion-based PM at most 1024 (its 500-neighbour lookups are slow; within 6 %
+    /// of 4096). At most --spp: every pixel takes --spp.
     #[arg(long, default_value_t = 4096, value_name = "N")]
     feature_spp: u32,
     /// Independent runs of every method (seeds --seed, --seed + 1, …): times and errors are

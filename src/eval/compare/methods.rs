@@ -22,6 +22,12 @@ use crate::trace::{self, Budget, TraceOptions};
 /// (docs/truth.md, "Sampling").
 const PPM_FEATURE_SPP: u32 = 256;
 
+/// Samples the diffusion estimate's image takes in each core and edge pixel, at most: each of
+/// its lookups searches 500 neighbours (about 90 µs), so 4096 in the ring's 2283 feature
+/// pixels are 9.4 M lookups (minutes on 2 cores, the water's three times as many), and at
+/// 1024 the ring's core and edges are within 6 % and 2 % of 4096 (docs/truth.md, "Sampling").
+const DIFFUSION_FEATURE_SPP: u32 = 1024;
+
 /// [`super::run`] for one seed: the rows of every requested method, in the paper's column order.
 pub(super) fn run_seed(
     scene: &Scene,
@@ -157,7 +163,11 @@ impl Seed<'_> {
         };
         let (img, _) = renderer.render(&|_| {})?;
         let secs = t.elapsed().as_secs_f64();
-        let Some(supersample) = self.target.supersample(self.o.spp, self.o.feature_spp) else {
+        let feature_spp = match estimator {
+            Estimator::Diffusion { .. } => self.o.feature_spp.min(DIFFUSION_FEATURE_SPP),
+            _ => self.o.feature_spp,
+        };
+        let Some(supersample) = self.target.supersample(self.o.spp, feature_spp) else {
             return Ok((img, secs));
         };
         renderer.opts.supersample = Some(supersample);

@@ -199,7 +199,7 @@ pub struct CompareOptions {
     /// where the irradiance varies within a pixel, `spp` point samples of a narrow kernel's
     /// estimate miss the pixel's average by more than the methods differ. Not timed (a
     /// method's time counts a render at `spp`); progressive photon mapping takes at most 256
-    /// a pass. At most `spp`: every pixel takes `spp`.
+    /// a pass, diffusion-based PM at most 1024. At most `spp`: every pixel takes `spp`.
     pub feature_spp: u32,
     /// Independent runs of every method (seeds `seed`, `seed + 1`, …), for the bias and
     /// variance of each ([`metrics::region_errors`]); times and errors are their means.

@@ -36,8 +36,10 @@ LABELS = {
     "diffusion": "Diff-Based PM",
     "ours": "Our method",
     "ppm": "Progressive PM",
+    "ours-progressive": "Ours, refined",
 }
 SCENES = ["glass-sphere", "water", "prism", "ring"]
+SCENE_METHODS = "pm,relax2009,diffusion,ours,ppm,ours-progressive"
 
 
 def binary(args):
@@ -228,17 +230,19 @@ def read_all(path):
 
 def scenes(args):
     """Every scene's compare run at one photon count with compare's defaults (4 seeds, 16 jittered
-    samples per cell and 256 in the core and edge cells, standard PM at K = 15, 50, 200, PPM with a local initial radius), one table
-    per scene: each method's mean time and, per region, its NRMSE with the split into bias² and
+    samples per cell and 4096 in the core and edge cells, standard PM at K = 15, 50, 200, PPM with a local initial radius)
+    and every method, our refined map included, one table per scene: each method's mean time and, per region, its NRMSE with the split into bias² and
     variance over the seeds."""
     bin_ = None if args.reuse else binary(args)
     lines = [
         f"`tools/compare-report.py scenes` ({time.strftime('%Y-%m-%d')}, {args.cores} cores) ran, for each scene, "
         f"`photonkit compare samples/scenes/SCENE.toml --photons {args.photons_scenes}` with the defaults: 4 seeds, "
-        "16 jittered samples per cell and 256 in the core and edge cells (each pixel its cell's mean, as the truth "
-        "is; docs/truth.md, \"Sampling\"), standard PM at K = 15, 50 "
+        "16 jittered samples per cell and 4096 in the core and edge cells (each pixel its cell's mean, as the truth "
+        "is; docs/truth.md, \"Sampling\"; PPM at most 256 a pass, diffusion-based PM at most 1024; these renders "
+        "are untimed, a method's time counts its render at 16), standard PM at K = 15, 50 "
         "and 200, progressive PM (PPM) at 1, 4 and 16 passes of as many photons with its initial radius the "
-        "30-NN distance of its first pass, α = 2/3. Times are means over the seeds (the whole method: trace, "
+        "30-NN distance of its first pass, α = 2/3, and our map refined (`--methods …,ours-progressive`) "
+        "at 1, 4 and 16 passes of as many photons. Times are means over the seeds (the whole method: trace, "
         "detect, relax, render). Each cell: NRMSE over the whole truth's mean, and its split "
         "(bias², variance) across the seeds, NRMSE² = bias² + variance; regions as docs/truth.md defines them "
         "(a region the truth lacks is '-'). Each scene's report.md (in target/compare/SCENE) adds the time "
@@ -248,7 +252,8 @@ def scenes(args):
     for s in SCENES:
         out = os.path.join(ROOT, "target", "compare", s)
         if not args.reuse:
-            run_compare(bin_, [f"samples/scenes/{s}.toml", "--photons", args.photons_scenes, "--out-dir", out])
+            run_compare(bin_, [f"samples/scenes/{s}.toml", "--photons", args.photons_scenes, "--methods", SCENE_METHODS,
+                               "--out-dir", out])
         rows = read_all(os.path.join(out, "report.csv"))
         md = open(os.path.join(out, "report.md")).read()
         cells = re.search(r"core (\d+) pixels.*?edge (\d+), smooth (\d+), dark (\d+)", md, flags=re.S)

@@ -266,7 +266,7 @@ pub fn render<'py>(
     spectral_scale=CompareOptions::default().spectral_scale, k_density=None,
     iterations=CompareOptions::default().iterations, kf=CompareOptions::default().kf,
     spectral_window=CompareOptions::default().spectral_window, iterations_2009=14, diffusion_k=500, diffusion_q=0.02, ppm_passes=None, ppm_photons=None,
-    ppm_k=30, spp=16, feature_spp=4096, seeds=4, cells=128, reference_passes=64, fast_truth=false, threads=None))]
+    ppm_k=30, spp=16, feature_spp=CompareOptions::default().feature_spp, seeds=4, cells=128, reference_passes=64, fast_truth=false, threads=None))]
 #[allow(clippy::too_many_arguments)]
 pub fn compare<'py>(
     py: Python<'py>,

@@ -123,7 +123,7 @@ pub struct Args {
     /// at --spp. Progressive photon mapping takes at most 256 a pass (its passes average
     /// them), diffusion-based PM at most 1024 (its 500-neighbour lookups are slow; within 6 %
     /// of 4096). At most --spp: every pixel takes --spp.
-    #[arg(long, default_value_t = 4096, value_name = "N")]
+    #[arg(long, default_value_t = CompareOptions::default().feature_spp, value_name = "N")]
     feature_spp: u32,
     /// Independent runs of every method (seeds --seed, --seed + 1, …): times and errors are
     /// their means, and the spread across them splits each error into bias² (blur) and

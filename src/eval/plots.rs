@@ -57,6 +57,33 @@ fn series_colour(m: MethodKind, nth: usize) -> RGBColor {
     RGBColor(f(r), f(g), f(b))
 }
 
+/// The ticks of a log axis over `lo..hi`: labelled at 1, 2 and 5 times the powers of ten inside
+/// it, or at every whole multiple when those are fewer than three (an error axis that stays
+/// within one decade would otherwise carry no label); light lines at every whole multiple.
+fn log_ticks(lo: f64, hi: f64) -> (Vec<f64>, Vec<f64>) {
+    let (mut bold, mut light) = (Vec::new(), Vec::new());
+    if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
+        return (bold, light);
+    }
+    let mut decade = lo.log10().floor() as i32;
+    while 10f64.powi(decade) <= hi * (1.0 + 1e-9) {
+        for m in 1..=9 {
+            let v = m as f64 * 10f64.powi(decade);
+            if (lo * (1.0 - 1e-9)..=hi * (1.0 + 1e-9)).contains(&v) {
+                light.push(v);
+                if matches!(m, 1 | 2 | 5) {
+                    bold.push(v);
+                }
+            }
+        }
+        decade += 1;
+    }
+    if bold.len() < 3 {
+        bold = light.clone();
+    }
+    (bold, light)
+}
+
 /// The power of ten at or below `x` (the time axis spans whole decades, so that it has a tick
 /// label in each).
 fn decade_below(x: f64) -> f64 {
@@ -140,10 +167,10 @@ fn loglog_png(
                 .margin(12)
                 .x_label_area_size(40)
                 .y_label_area_size(60)
-                .build_cartesian_2d(
-                    (decade_below(t0)..decade_above(t1)).log_scale(),
-                    (e0 / 1.3..e1 * 1.3).log_scale(),
-                )?;
+                .build_cartesian_2d((decade_below(t0)..decade_above(t1)).log_scale(), {
+                    let (bold, light) = log_ticks(e0 / 1.3, e1 * 1.3);
+                    (e0 / 1.3..e1 * 1.3).log_scale().with_key_points(bold).with_light_points(light)
+                })?;
             chart
                 .configure_mesh()
                 .x_labels(12)
@@ -265,5 +292,22 @@ mod tests {
         assert_eq!(tick(100.0), "100");
         assert_eq!(tick(0.1234567), "0.123");
         assert_eq!(tick(12.345), "12.3");
+    }
+
+    #[test]
+    fn log_axis_ticks_label_every_range() {
+        let close = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12 * y);
+        // Within one decade: 1, 2, 5 give fewer than three, so every whole multiple is labelled.
+        let (bold, light) = log_ticks(0.0123, 0.097);
+        assert!(close(&bold, &[0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09]), "{bold:?}");
+        assert_eq!(bold, light);
+        // Across decades: 1, 2 and 5 times the powers of ten, light lines at every multiple.
+        let (bold, light) = log_ticks(0.014, 1.3);
+        assert!(close(&bold, &[0.02, 0.05, 0.1, 0.2, 0.5, 1.0]), "{bold:?}");
+        assert_eq!(light.len(), 8 + 9 + 1);
+        // The range's ends count when they fall on a tick; an empty or invalid range has none.
+        assert!(close(&log_ticks(0.1, 1.0).0, &[0.1, 0.2, 0.5, 1.0]));
+        assert!(log_ticks(0.0, 1.0).0.is_empty());
+        assert!(log_ticks(1.0, f64::INFINITY).0.is_empty());
     }
 }

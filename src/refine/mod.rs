@@ -69,7 +69,7 @@ pub struct RefineParams {
 }
 
 /// The default exponent of a held photon's prior weight ([`RefineParams::prior_hold`]).
-pub const PRIOR_HOLD: f32 = 1.0;
+pub const PRIOR_HOLD: f32 = 0.5;
 
 /// The default weight of the map's own fluxes, in passes (docs/progressive.md, "The prior").
 pub const PRIOR_PASSES: f32 = 4.0;

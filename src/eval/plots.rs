@@ -296,7 +296,9 @@ mod tests {
 
     #[test]
     fn log_axis_ticks_label_every_range() {
-        let close = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12 * y);
+        let close = |a: &[f64], b: &[f64]| {
+            a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() < 1e-12 * y)
+        };
         // Within one decade: 1, 2, 5 give fewer than three, so every whole multiple is labelled.
         let (bold, light) = log_ticks(0.0123, 0.097);
         assert!(close(&bold, &[0.02, 0.03, 0.04, 0.05, 0.06, 0.07, 0.08, 0.09]), "{bold:?}");

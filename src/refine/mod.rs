@@ -443,7 +443,7 @@ pub fn refine<'a>(
             stats.tau.resize(primal.len(), [0.0; 3]);
             stats.passes.resize(primal.len(), 0.0);
             grown.push(map, &promoted);
-            estimate = cells.leaf_flux(&stats);
+            grow::halve_split_cells(&mut estimate, &promoted);
         }
         let mut moved = 0.0;
         for _ in 0..p.iterations {

@@ -302,10 +302,14 @@ fn grown_grid(
         let target = target_count(roots, pass, growth);
         if target > primal.len() {
             let add = target - primal.len();
-            cells.split_brightest(&mut primal, &estimate, add);
+            let promoted = cells.split_brightest(&mut primal, &estimate, add);
             stats.tau.resize(primal.len(), [0.0; 3]);
             stats.passes.resize(primal.len(), 0.0);
+            // `refine` halves the split cells' estimates instead of a pass over every region.
+            let mut halved = estimate.clone();
+            super::grow::halve_split_cells(&mut halved, &promoted);
             estimate = cells.leaf_flux(&stats);
+            assert_eq!(halved, estimate, "pass {pass}: the halves are the hierarchy's estimate");
         }
     }
     (primal, cells, stats, estimate)

@@ -17,7 +17,8 @@ use photonkit::refine::{self, RefineParams, RefineRecord};
 /// trace), gives each one's flux to the map photon nearest to it (so every photon learns the
 /// flux of its own cell, more exactly with every pass), moves the photons within their
 /// constraint bases toward equal flux, and sets each photon's flux to its cell's estimate,
-/// the map's total kept exactly. The output is written after every pass; --resume continues it up to --passes.
+/// the map's total kept exactly. The output is written after every pass (or every
+/// --save-every passes, and after the last); --resume continues it up to --passes.
 #[derive(clap::Args)]
 #[command(after_help = "Examples:\n  \
     photonkit refine out/relaxed.phm -o refined.phm --passes 8\n  \
@@ -25,9 +26,14 @@ use photonkit::refine::{self, RefineParams, RefineRecord};
 pub struct Args {
     /// Input photon map: the primal photons (a relaxed map, with its constraint basis).
     input: String,
-    /// Output photon map, written after every pass.
+    /// Output photon map, written after every pass (see --save-every).
     #[arg(short, long, value_name = "FILE")]
     output: PathBuf,
+    /// Write the output every N passes, and after the last. Writing the whole map is a large
+    /// share of a pass on big maps; an interrupted run resumes from the last pass written
+    /// (--resume), so N passes are the most it can lose.
+    #[arg(long, value_name = "N", default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+    save_every: u64,
     /// Passes in all.
     #[arg(long, value_name = "N", default_value_t = RefineParams::default().passes)]
     passes: u64,
@@ -114,8 +120,10 @@ pub fn run(a: Args) -> anyhow::Result<ExitCode> {
     );
     let t = Instant::now();
     let result = refine::refine(&map_view, &r.scene, &p, None, &mut |done| {
-        done.table()?.write(Output::Path(a.output.clone()))?;
         let m = done.measure;
+        if m.pass % a.save_every == 0 || m.pass >= a.passes {
+            done.table()?.write(Output::Path(a.output.clone()))?;
+        }
         bar.inc(1);
         bar.suspend(|| {
             super::note!(

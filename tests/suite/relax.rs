@@ -371,6 +371,34 @@ fn refine_writes_every_pass_resumes_and_refuses_its_input_as_output() {
     let total =
         |m: &PhotonMap| m.flux().iter().map(|f| f.iter().map(|&x| x as f64).sum::<f64>()).sum::<f64>();
     assert!((total(&r) / total(&traced) - 1.0).abs() < 1e-5, "the refined map keeps the traced flux");
+    // Written every 2 passes and after the last: the same map as written after every pass.
+    let (input, t) = (p("traced.phm"), p("t.phm"));
+    let every = |n: &str| {
+        photonkit(&[
+            "-q",
+            "refine",
+            &input,
+            "-o",
+            &t,
+            "--passes",
+            "3",
+            "--photons-per-pass",
+            "20000",
+            "--save-every",
+            n,
+        ])
+    };
+    let o = every("0");
+    assert_eq!(o.status.code(), Some(2), "--save-every 0 is refused: {}", stderr(&o));
+    assert!(!Path::new(&t).exists(), "nothing written on refused arguments");
+    let o = every("2");
+    assert!(o.status.success(), "--save-every 2: {}", stderr(&o));
+    let t = PhotonMap::open_path(Path::new(&t)).unwrap();
+    assert_eq!(
+        t.column_bytes(name::FLUX),
+        s.column_bytes(name::FLUX),
+        "--save-every 2 differs from every pass"
+    );
     let o = refine("r.phm", "3", "5000", true);
     assert!(o.status.success(), "already done: {}", stderr(&o));
     let o = refine("r.phm", "4", "5000", true);

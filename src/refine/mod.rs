@@ -68,8 +68,12 @@ pub struct RefineParams {
     pub prior_hold: f32,
 }
 
-/// The default exponent of a held photon's prior weight ([`RefineParams::prior_hold`]).
-pub const PRIOR_HOLD: f32 = 0.5;
+/// The default exponent of a held photon's prior weight ([`RefineParams::prior_hold`]): 0,
+/// every photon's prior the same, since the kernel narrows fast at held photons
+/// ([`FEATURE_NARROWING`]) and the cells' converged flux is then the better estimate at folds
+/// and edges; a caustic net the relaxation drew well (the water's) keeps more of it with 1/2
+/// or 1 (docs/progressive.md, "The prior").
+pub const PRIOR_HOLD: f32 = 0.0;
 
 /// The default weight of the map's own fluxes, in passes (docs/progressive.md, "The prior").
 pub const PRIOR_PASSES: f32 = 4.0;
@@ -584,18 +588,26 @@ pub fn first_photons<'a>(map: &MapView<'a>) -> Option<&'a [[f32; 3]]> {
     }
 }
 
-/// How fast a grown map's kernel narrows at features ([`radius_factors`]): at a photon that
-/// detection held on its line (Eq. 7's f = 0) the radius after P passes is P^(−1/6) of its
-/// first, so its area shrinks as P^(−1/3), progressive photon mapping's R² ∝ P^(α−1) with
-/// α = 2/3; a free photon's (f = 1) keeps its area.
+/// How fast a grown map's kernel narrows at features ([`radius_factors`]): the radius after P
+/// passes is P^(−FEATURE_NARROWING·n(f)/2), n(f) = (1 − f) + max(0, 1 − f/[`HELD_FREEDOM`]) of a
+/// photon's freedom f across its constraint (Eq. 7's |v_b|). A free photon (f = 1) keeps its
+/// area; one held half-way (f = 1/2) narrows its area as P^(−1/6); one held on its line (f = 0)
+/// as P^(−2/3), twice progressive photon mapping's R² ∝ P^(α−1) with α = 2/3
+/// (docs/progressive.md, "The kernel narrows at features").
 pub const FEATURE_NARROWING: f32 = 1.0 / 3.0;
 
+/// The freedom below which a photon counts as held on its line and its kernel narrows faster
+/// ([`FEATURE_NARROWING`]): above it detection's freedom is as often noise as a feature (the
+/// glass sphere's caustic has no line, and its photons' median freedom is 0.92, a tenth below
+/// 0.74), and narrowing there trades blur for noise.
+pub const HELD_FREEDOM: f32 = 0.5;
+
 /// The factor on a grown map's kernel radius at each of its first photons
-/// ([`first_photons`]; docs/progressive.md, "Rendering a grown map"):
-/// P^(−[`FEATURE_NARROWING`]·(1 − f)/2) after P passes, f = |v_b| the photon's freedom across
-/// its constraint (Eq. 7; 1 without a `basis_v` column). At a feature the kernel's blur is the
-/// error that remains once the cells' flux has converged, so there it narrows as PPM's does; in
-/// smooth light a narrower kernel would only add noise. Empty for a map that did not grow.
+/// ([`first_photons`]; docs/progressive.md, "Rendering a grown map"): [`radius_factor`] of the
+/// passes done and the photon's freedom f = |v_b| across its constraint (Eq. 7; 1 without a
+/// `basis_v` column). At a feature the kernel's blur is the error that remains once the cells'
+/// flux has converged, so there it narrows; in smooth light a narrower kernel would only add
+/// noise. Empty for a map that did not grow.
 pub fn radius_factors(map: &MapView) -> Vec<f32> {
     let (Some(sites), Some(rec)) = (first_photons(map), RefineRecord::of(map)) else {
         return Vec::new();
@@ -606,9 +618,12 @@ pub fn radius_factors(map: &MapView) -> Vec<f32> {
         .collect()
 }
 
-/// [`radius_factors`]' factor after `passes` at a photon of freedom `f` (clamped to [0, 1]).
+/// [`radius_factors`]' factor P^(−[`FEATURE_NARROWING`]·n(f)/2) after P = `passes` at a photon
+/// of freedom `f` (clamped to [0, 1]), n(f) = (1 − f) + max(0, 1 − f/[`HELD_FREEDOM`]).
 fn radius_factor(passes: u64, f: f32) -> f32 {
-    (passes.max(1) as f32).powf(-FEATURE_NARROWING * (1.0 - f.clamp(0.0, 1.0)) / 2.0)
+    let f = f.clamp(0.0, 1.0);
+    let n = (1.0 - f) + (1.0 - f / HELD_FREEDOM).max(0.0);
+    (passes.max(1) as f32).powf(-FEATURE_NARROWING * n / 2.0)
 }
 
 /// The hierarchy's columns of a map refined with growth, if it has them (roots' τ from `stats`).

@@ -507,8 +507,13 @@ fn a_held_photon_s_prior_weighs_more_by_its_freedom() {
 #[test]
 fn a_grown_map_s_kernel_narrows_at_held_photons_only() {
     assert_eq!(radius_factor(64, 1.0), 1.0);
-    assert!((radius_factor(64, 0.0) - 0.5).abs() < 1e-6);
+    // Held on its line: the radius as P^(−1/3), the area as P^(−2/3).
+    assert!((radius_factor(64, 0.0) - 0.25).abs() < 1e-6);
+    // Half-way and above: the radius as P^(−(1 − f)/6).
     assert!((radius_factor(64, 0.5) - 64f32.powf(-1.0 / 12.0)).abs() < 1e-6);
+    assert!((radius_factor(64, 0.8) - 64f32.powf(-0.2 / 6.0)).abs() < 1e-6);
+    // Between: (1 − f) + (1 − 2f) = 1.25 at f = 1/4.
+    assert!((radius_factor(64, 0.25) - 64f32.powf(-1.25 / 6.0)).abs() < 1e-6);
     assert_eq!(radius_factor(1, 0.0), 1.0);
     assert_eq!(radius_factor(64, 7.0), 1.0, "freedom is at most 1");
 
@@ -536,7 +541,8 @@ fn a_grown_map_s_kernel_narrows_at_held_photons_only() {
     assert_eq!(factors.len(), n0);
     for (i, &c) in factors.iter().enumerate() {
         let f = glam::Vec3::from(v[i]).length().min(1.0);
-        assert!((c - 3f32.powf(-(1.0 - f) / 6.0)).abs() < 1e-6, "photon {i}: {c} at freedom {f}");
+        let n = (1.0 - f) + (1.0 - 2.0 * f).max(0.0);
+        assert!((c - 3f32.powf(-n / 6.0)).abs() < 1e-6, "photon {i}: {c} at freedom {f}");
     }
     let held = factors.iter().filter(|&&c| c < 0.95).count();
     assert!(held > 0 && held < n0 / 2, "{held} of {n0} photons narrowed");

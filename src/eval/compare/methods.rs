@@ -378,13 +378,17 @@ impl Seed<'_> {
             let (img, render_secs) = self.render(&refined, estimator)?;
             let times = StageTimes::of(self.trace_secs, Some(det), Some(rel + secs), render_secs);
             let setting = format!(
-                "{}, then {n} passes of {} ({} iterations each, growth γ = {:.3}, prior of {} passes / f^{} off the domain border), {}",
+                "{}, then {n} passes of {} ({} iterations each, growth γ = {:.3}, prior of {} passes{}), {}",
                 method.name(),
                 o.refine_photons_per_pass.unwrap_or(o.photons),
                 o.refine_iterations,
                 o.refine_growth,
                 o.refine_prior,
-                o.refine_prior_hold,
+                if o.refine_prior_hold > 0.0 {
+                    format!(" / f^{} off the domain border", o.refine_prior_hold)
+                } else {
+                    String::new()
+                },
                 match grown {
                     true => format!("within the {k}th nearest photon's distance before growth"),
                     false => self.k_label(k),

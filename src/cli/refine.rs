@@ -59,7 +59,9 @@ pub struct Args {
     /// the constraint (|v_b|, 1 free, floored at 0.001), so held photons at folds keep more of
     /// the relaxed map's flux; held photons on the border of their emitter's lit parameter
     /// domain (where the light stops: a beam's edge, the spectrum's end, a shadow) weigh w, as
-    /// free ones do (0: every photon's prior weighs w; docs/progressive.md, "The prior")
+    /// free ones do (0: every photon's prior weighs w, the default, since the kernel narrows
+    /// fast at held photons; 1/2 or 1 keep more of a caustic net the relaxation drew well;
+    /// docs/progressive.md, "The prior")
     #[arg(long, value_name = "A", value_parser = super::finite_f32, default_value_t = RefineParams::default().prior_hold)]
     prior_hold: f32,
     /// Kf: neighbours of the repulsion (Eq. 8).

@@ -593,7 +593,7 @@ pub fn first_photons<'a>(map: &MapView<'a>) -> Option<&'a [[f32; 3]]> {
 /// photon's freedom f across its constraint (Eq. 7's |v_b|). A free photon (f = 1) keeps its
 /// area; one held half-way (f = 1/2) narrows its area as P^(−1/6); one held on its line (f = 0)
 /// as P^(−2/3), twice progressive photon mapping's R² ∝ P^(α−1) with α = 2/3
-/// (docs/progressive.md, "The kernel narrows at features").
+/// (docs/progressive.md, "A faster narrowing where detection held the photon").
 pub const FEATURE_NARROWING: f32 = 1.0 / 3.0;
 
 /// The freedom below which a photon counts as held on its line and its kernel narrows faster

@@ -345,15 +345,16 @@ fn pipeline_traces_until_the_stored_count() {
 fn refine_writes_every_pass_resumes_and_refuses_its_input_as_output() {
     let dir = tempfile::tempdir().unwrap();
     let p = |n: &str| dir.path().join(n).to_string_lossy().into_owned();
-    // `photonkit refine traced.phm -o OUT --passes N --photons-per-pass M [--resume]`.
-    let refine = |out: &str, passes: &str, per_pass: &str, resume: bool| {
+    // `photonkit refine traced.phm -o OUT --passes N --photons-per-pass M [EXTRA…]`.
+    let refine_with = |out: &str, passes: &str, per_pass: &str, extra: &[&str]| {
         let (input, out) = (p("traced.phm"), p(out));
         let mut args =
             vec!["-q", "refine", &input, "-o", &out, "--passes", passes, "--photons-per-pass", per_pass];
-        if resume {
-            args.push("--resume");
-        }
+        args.extend_from_slice(extra);
         photonkit(&args)
+    };
+    let refine = |out: &str, passes: &str, per_pass: &str, resume: bool| {
+        refine_with(out, passes, per_pass, if resume { &["--resume"] } else { &[] })
     };
     run_ok(&["-q", "trace", "--photons", "40000", "-o", &p("traced.phm")]);
     let o = refine("traced.phm", "1", "20000", false);
@@ -372,22 +373,8 @@ fn refine_writes_every_pass_resumes_and_refuses_its_input_as_output() {
         |m: &PhotonMap| m.flux().iter().map(|f| f.iter().map(|&x| x as f64).sum::<f64>()).sum::<f64>();
     assert!((total(&r) / total(&traced) - 1.0).abs() < 1e-5, "the refined map keeps the traced flux");
     // Written every 2 passes and after the last: the same map as written after every pass.
-    let (input, t) = (p("traced.phm"), p("t.phm"));
-    let every = |n: &str| {
-        photonkit(&[
-            "-q",
-            "refine",
-            &input,
-            "-o",
-            &t,
-            "--passes",
-            "3",
-            "--photons-per-pass",
-            "20000",
-            "--save-every",
-            n,
-        ])
-    };
+    let every = |n: &str| refine_with("t.phm", "3", "20000", &["--save-every", n]);
+    let t = p("t.phm");
     let o = every("0");
     assert_eq!(o.status.code(), Some(2), "--save-every 0 is refused: {}", stderr(&o));
     assert!(!Path::new(&t).exists(), "nothing written on refused arguments");

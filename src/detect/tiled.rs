@@ -237,6 +237,21 @@ pub(super) fn detect_tile_with(
         let (points, index) = world_index(&sorted, p.method, normals_ok)?;
         let mut queries: Vec<(u32, usize)> = pending.iter().map(|&q| (label(interior[q]), q)).collect();
         queries.sort_unstable();
+        // Searched in the index's leaf order, as the whole map's photons are: successive
+        // queries then share the candidates gathered for their leaf (the results do not
+        // depend on the order; in label order, 7 % more CPU time on the water at 10⁷).
+        if let Some(ix) = &index {
+            let mut slot = vec![u32::MAX; work.len()];
+            for &(l, q) in &queries {
+                slot[l as usize] = q as u32;
+            }
+            queries = ix
+                .order()
+                .into_iter()
+                .filter(|&l| slot[l as usize] != u32::MAX)
+                .map(|l| (l, slot[l as usize] as usize))
+                .collect();
+        }
         let labels: Vec<u32> = queries.iter().map(|&(l, _)| l).collect();
         let radius = r_param.as_ref().map(|r| {
             let mut v = vec![0f32; work.len()];
